@@ -1,0 +1,1 @@
+"""What a robot-cell PC runs: the service, its command-line interface and configuration."""

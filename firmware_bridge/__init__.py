@@ -1,0 +1,1 @@
+"""The hardware-abstraction layer: wire protocol, CAN and serial links, record and replay."""

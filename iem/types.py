@@ -1,0 +1,84 @@
+"""Value types that cross the seams between the packages.
+
+The payload parameter vector ``phi`` follows the paper (Eq. 9)::
+
+    phi = [m, m*rx, m*ry, m*rz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]
+
+in kg, kg·m and kg·m², with the inertia taken about the flange origin in flange axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+PARAMS: tuple[str, ...] = ("m", "mrx", "mry", "mrz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
+"""Names of the ten payload parameters, in the paper's order."""
+
+GROUPS: dict[str, tuple[int, ...]] = {
+    "mass": (0,),
+    "com": (1, 2, 3),
+    "inertia": (4, 5, 6, 7, 8, 9),
+}
+"""Parameter groups used for the paper's summary figures (indices into ``PARAMS``)."""
+
+N_JOINTS = 7
+
+
+def _vec7(name: str, value) -> np.ndarray:
+    arr = np.array(value, dtype=float).reshape(-1)
+    if arr.shape != (N_JOINTS,):
+        raise InvalidInputError(f"{name} must have {N_JOINTS} entries, got shape {arr.shape}")
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True)
+class JointState:
+    """One controller cycle as a Franka reports it.
+
+    Attributes:
+        t: controller time stamp in s.
+        q: measured joint positions in rad (7).
+        dq: measured joint velocities in rad/s (7).
+        tau_J: measured link-side joint torques in N·m (7), after the gears.
+        cycle: controller cycle counter (wraps as the wire protocol defines).
+    """
+
+    t: float
+    q: np.ndarray
+    dq: np.ndarray
+    tau_J: np.ndarray
+    cycle: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "q", _vec7("q", self.q))
+        object.__setattr__(self, "dq", _vec7("dq", self.dq))
+        object.__setattr__(self, "tau_J", _vec7("tau_J", self.tau_J))
+
+    def features(self) -> np.ndarray:
+        """The learner input ``X = [q, dq, tau]`` (21 values), as in the paper (Eq. 10-12)."""
+        return np.concatenate((self.q, self.dq, self.tau_J))
+
+
+@dataclass(frozen=True)
+class PayloadEstimate:
+    """An estimate of the payload parameters at one instant.
+
+    Attributes:
+        t: time of the joint state it was made from, in s.
+        phi: parameters in the paper's order (see module docstring), units kg, kg·m, kg·m².
+        std: one standard deviation per parameter, same units, or None if the model has none.
+        bag: index of the bag whose learner made it, or -1 if no bag was involved.
+        learning: True if the learner was trained on this instant before predicting.
+    """
+
+    t: float
+    phi: np.ndarray
+    std: np.ndarray | None = None
+    bag: int = -1
+    learning: bool = False
+    extra: dict = field(default_factory=dict, compare=False)
