@@ -33,7 +33,7 @@ TAU_MAX = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N·m
 # Paper order [m, mrx, mry, mrz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz] -> Pinocchio's dynamic
 # parameter order [m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz].
 PAPER_TO_PIN = np.array([0, 1, 2, 3, 4, 5, 7, 6, 8, 9])
-"""``phi_pin = phi_paper[PAPER_TO_PIN]`` and ``phi_paper = phi_pin[PAPER_TO_PIN]`` (an involution)."""
+"""``phi_pin = phi_paper[PAPER_TO_PIN]``, ``phi_paper = phi_pin[PAPER_TO_PIN]`` (involution)."""
 
 
 @cache

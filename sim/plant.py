@@ -1,0 +1,322 @@
+"""The MuJoCo plant that stands in for the real Panda, and its sensor model.
+
+The plant is MuJoCo's model of the same arm (example-robot-data's ``panda_collision.urdf``,
+fingers welded, joint damping, armature and friction zeroed, contacts and joint limits off so
+the collision geoms never touch each other) with the payload as a body on the flange
+(``panda_link8``). The payload's mass, CoM and inertia can be changed between two steps
+without rebuilding the model.
+
+Each 1 ms step a computed-torque controller, running on the *nominal* Pinocchio model with
+the load the controller has been told about (``set_controller_load``, libfranka's
+``setLoad``), computes ``tau = M(q)(ddq_d + Kp e + Kd de) + h(q, dq)`` from the *measured*
+state, applies it, and MuJoCo integrates (semi-implicit Euler). The step reports what a
+Franka reports: measured ``q``, ``dq`` and the link-side torque ``tau_J`` (the applied joint
+torque), each with the sensor noise of :class:`SensorModel`.
+
+Sensor model (defaults; later work measures against them): independent white Gaussian noise
+per joint and sample, ``sigma_q = 1e-4 rad``, ``sigma_dq = 2e-3 rad/s``,
+``sigma_tau = 0.05 N·m``. Seeded: the same seed gives the same noise.
+
+Reality gap (optional, :class:`RealityGap`): the plant's link masses, CoMs and inertias differ
+from the nominal model that the controller, the tandem simulators and the estimators use.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from iem.types import JointState
+
+from .payload import Payload
+from .robot import PandaModel, panda_urdf
+
+DT = 1e-3
+"""Control and integration period, s (1 kHz, as the Franka's real-time loop)."""
+
+PAYLOAD_BODY = "payload"
+LINK_BODIES = tuple(f"panda_link{i}" for i in range(1, 8))
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """White Gaussian measurement noise, independent per joint and per sample.
+
+    Attributes:
+        sigma_q: joint position noise, rad.
+        sigma_dq: joint velocity noise, rad/s.
+        sigma_tau: joint torque noise, N·m.
+    """
+
+    sigma_q: float = 1e-4
+    sigma_dq: float = 2e-3
+    sigma_tau: float = 0.05
+
+    @classmethod
+    def noiseless(cls) -> SensorModel:
+        return cls(0.0, 0.0, 0.0)
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        """The 21 standard deviations in the order ``[q, dq, tau]``."""
+        return np.repeat([self.sigma_q, self.sigma_dq, self.sigma_tau], 7)
+
+
+@dataclass(frozen=True)
+class RealityGap:
+    """How far the plant's links differ from the nominal model.
+
+    Each link's mass is scaled by ``1 + mass_rel * u``, its principal moments by
+    ``1 + inertia_rel * u``, and its CoM moved by ``com_abs * u`` per axis, with
+    ``u ~ U(-1, 1)`` drawn from ``seed``.
+
+    Attributes:
+        mass_rel: relative mass error bound (-).
+        inertia_rel: relative inertia error bound (-).
+        com_abs: CoM error bound per axis, m.
+        seed: random seed of the perturbation.
+    """
+
+    mass_rel: float = 0.05
+    inertia_rel: float = 0.10
+    com_abs: float = 0.005
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Computed-torque gains: ``ddq_cmd = ddq_d + kp (q_d - q) + kd (dq_d - dq)``.
+
+    Attributes:
+        kp: 1/s² (400: a 20 rad/s natural frequency).
+        kd: 1/s (40: critically damped).
+    """
+
+    kp: float = 400.0
+    kd: float = 40.0
+
+
+def _payload_principal(payload: Payload) -> tuple[np.ndarray, np.ndarray]:
+    """Principal moments and the MuJoCo quaternion of the principal axes (in the flange)."""
+    moments, axes = np.linalg.eigh(payload.inertia_matrix)
+    if np.linalg.det(axes) < 0:
+        axes[:, 0] *= -1.0
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, axes.flatten())
+    return moments, quat
+
+
+def build_mujoco_model() -> mujoco.MjModel:
+    """Compile the plant's MuJoCo model (a fresh copy each call)."""
+    spec = mujoco.MjSpec.from_file(str(panda_urdf(collision=True)))
+    spec.compiler.fusestatic = False  # keep the payload its own body, changeable at run time
+    for eq in list(spec.equalities):  # the URDF's finger mimic constraint
+        spec.delete(eq)
+    for joint in list(spec.joints):
+        if "finger" in joint.name:
+            spec.delete(joint)  # fingers welded to the hand, as Pinocchio's locked joints
+        else:
+            joint.damping = np.zeros(3)
+            joint.armature = 0.0
+            joint.frictionloss = 0.0
+    spec.option.timestep = DT
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    spec.option.disableflags |= (mujoco.mjtDisableBit.mjDSBL_CONTACT
+                                 | mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    spec.body("panda_link8").add_body(name=PAYLOAD_BODY, pos=[0.0, 0.0, 0.0], mass=0.0,
+                                      ipos=[0.0, 0.0, 0.0], inertia=[0.0, 0.0, 0.0])
+    return spec.compile()
+
+
+class PandaPlant:
+    """The simulated robot: MuJoCo arm, payload, computed-torque control and sensors.
+
+    Args:
+        payload: the payload on the flange (None: nothing mounted).
+        sensor: measurement noise; ``SensorModel.noiseless()`` for exact readings.
+        gap: optional reality gap of the plant's links against the nominal model.
+        seed: seed of the sensor noise.
+        gains: tracking controller gains.
+        controller_load: the load the controller believes is mounted (libfranka's
+            ``setLoad``); None: no load.
+    """
+
+    def __init__(self, payload: Payload | None = None, sensor: SensorModel | None = None,
+                 gap: RealityGap | None = None, seed: int = 0, gains: Gains | None = None,
+                 controller_load: Payload | None = None) -> None:
+        self.sensor = SensorModel() if sensor is None else sensor
+        self.gap = gap
+        self.seed = seed
+        self.gains = Gains() if gains is None else gains
+        self.model = build_mujoco_model()
+        self.data = mujoco.MjData(self.model)
+        self._scratch = mujoco.MjData(self.model)
+        self._payload_id = self.model.body(PAYLOAD_BODY).id
+        if gap is not None:
+            self._apply_gap(gap)
+        self._rng = np.random.default_rng(seed)
+        self._sigmas = self.sensor.sigmas
+        self._noisy = bool(np.any(self._sigmas > 0))
+        self._ctrl = PandaModel()
+        self._ctrl_model = self._ctrl.model.copy()
+        self._ctrl_data = self._ctrl_model.createData()
+        self._ctrl_link7 = self._ctrl_model.inertias[self._ctrl.last_joint].copy()
+        self.payload: Payload | None = None
+        self.controller_load: Payload | None = None
+        self.set_payload(payload)
+        self.set_controller_load(controller_load)
+        self.cycle = 0
+        self.last_tau = np.zeros(7)
+        self.last_ddq = np.zeros(7)
+
+    # -- configuration ---------------------------------------------------------------------
+    def _apply_gap(self, gap: RealityGap) -> None:
+        rng = np.random.default_rng(gap.seed)
+        m = self.model
+        for name in LINK_BODIES:
+            b = m.body(name).id
+            m.body_mass[b] *= 1.0 + gap.mass_rel * rng.uniform(-1, 1)
+            m.body_inertia[b] *= 1.0 + gap.inertia_rel * rng.uniform(-1, 1, 3)
+            m.body_ipos[b] += gap.com_abs * rng.uniform(-1, 1, 3)
+        self._set_const()
+
+    def _set_const(self) -> None:
+        # mj_setConst works at qpos0 and would overwrite the state: give it scratch data.
+        mujoco.mj_setConst(self.model, self._scratch)
+
+    def set_payload(self, payload: Payload | None) -> None:
+        """Mount ``payload`` on the flange (None: remove it), between two steps."""
+        m, b = self.model, self._payload_id
+        if payload is None:
+            m.body_mass[b] = 0.0
+            m.body_ipos[b] = 0.0
+            m.body_inertia[b] = 0.0
+            m.body_iquat[b] = (1.0, 0.0, 0.0, 0.0)
+        else:
+            payload.check()
+            moments, quat = _payload_principal(payload)
+            m.body_mass[b] = payload.mass
+            m.body_ipos[b] = payload.com
+            m.body_inertia[b] = moments
+            m.body_iquat[b] = quat
+        self._set_const()
+        self.payload = payload
+
+    def set_controller_load(self, load: Payload | None) -> None:
+        """Tell the controller which load is mounted (libfranka ``setLoad`` semantics)."""
+        inertia = self._ctrl_link7
+        if load is not None:
+            load.check()
+            inertia = inertia + self._ctrl.payload_inertia_in_joint(load.to_phi())
+        self._ctrl_model.inertias[self._ctrl.last_joint] = inertia
+        self.controller_load = load
+
+    # -- state -----------------------------------------------------------------------------
+    def reset(self, q, dq=None) -> None:
+        """Put the arm at ``q`` (rad) with velocity ``dq`` (rad/s, default 0)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = np.asarray(q, dtype=float)
+        self.data.qvel[:] = 0.0 if dq is None else np.asarray(dq, dtype=float)
+        mujoco.mj_forward(self.model, self.data)
+        self.cycle = 0
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def q(self) -> np.ndarray:
+        """True joint positions, rad."""
+        return self.data.qpos.copy()
+
+    @property
+    def dq(self) -> np.ndarray:
+        """True joint velocities, rad/s."""
+        return self.data.qvel.copy()
+
+    # -- stepping --------------------------------------------------------------------------
+    def step(self, q_d, dq_d, ddq_d) -> JointState:
+        """One 1 ms control cycle toward the reference; returns the measured joint state.
+
+        The returned state holds the measurement taken at the start of the cycle and the
+        torque applied during it; ``last_ddq`` is the true acceleration of that cycle, so
+        that ``RNEA(q_true, dq_true, last_ddq) == last_tau`` with the mounted payload.
+        """
+        d = self.data
+        t = float(d.time)
+        q_true = d.qpos.copy()
+        dq_true = d.qvel.copy()
+        if self._noisy:
+            noise = self._rng.standard_normal(21) * self._sigmas
+            q_m = q_true + noise[:7]
+            dq_m = dq_true + noise[7:14]
+        else:
+            noise = None
+            q_m, dq_m = q_true, dq_true
+        g = self.gains
+        ddq_cmd = ddq_d + g.kp * (q_d - q_m) + g.kd * (dq_d - dq_m)
+        tau = pin.rnea(self._ctrl_model, self._ctrl_data, q_m, dq_m, ddq_cmd)
+        d.qfrc_applied[:] = tau
+        mujoco.mj_step(self.model, d)
+        self.last_tau = np.array(tau)
+        self.last_ddq = d.qacc.copy()
+        self.last_q = q_true
+        self.last_dq = dq_true
+        tau_m = self.last_tau + noise[14:] if noise is not None else self.last_tau
+        state = JointState(t=t, q=q_m, dq=dq_m, tau_J=tau_m, cycle=self.cycle)
+        self.cycle += 1
+        return state
+
+    def follow(self, path, reset: bool = True) -> Rollout:
+        """Track a :class:`sim.paths.Path` sample by sample and record everything."""
+        n = len(path)
+        if reset:
+            self.reset(path.q[0], path.dq[0])
+        out = Rollout.empty(n)
+        for k in range(n):
+            s = self.step(path.q[k], path.dq[k], path.ddq[k])
+            out.t[k] = s.t
+            out.q[k], out.dq[k], out.tau[k] = s.q, s.dq, s.tau_J
+            out.q_true[k], out.dq_true[k] = self.last_q, self.last_dq
+            out.ddq_true[k], out.tau_true[k] = self.last_ddq, self.last_tau
+            out.q_ref[k] = path.q[k]
+        return out
+
+
+@dataclass
+class Rollout:
+    """What the plant did along a path: measured and true signals, one row per 1 ms cycle.
+
+    Attributes:
+        t: s; q, dq, tau: measured (rad, rad/s, N·m); q_true, dq_true, ddq_true, tau_true:
+        the true state, acceleration and applied torque; q_ref: the reference, rad.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    q_true: np.ndarray
+    dq_true: np.ndarray
+    ddq_true: np.ndarray
+    tau_true: np.ndarray
+    q_ref: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> Rollout:
+        return cls(np.zeros(n), *(np.zeros((n, 7)) for _ in range(8)))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def features(self) -> np.ndarray:
+        """Learner inputs ``[q, dq, tau]`` per cycle, ``(N, 21)``."""
+        return np.hstack((self.q, self.dq, self.tau))
+
+    def tracking_error(self) -> np.ndarray:
+        """Per-cycle max |q_ref - q_true| over the joints, rad."""
+        return np.abs(self.q_ref - self.q_true).max(axis=1)
