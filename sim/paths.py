@@ -25,11 +25,15 @@ The paths of the paper (Taie et al. 2024, sections 4.1 and 5.2):
   target amplitude, capped at ``LIMIT_FRACTION`` (75 %) of its velocity and acceleration limits.
   With the paper's bag router (30° in joint space and 0.2 m at the flange) the default path
   forms 4 bags, as the paper's excitation path does.
-- :func:`new_task_path`: the novel task path, every joint moving from ``Q0`` to
+- :func:`new_task_path`: the novel task path, every joint moving from
+  ``Q_START = [-1.0, 0.2, 0.5, -1.6, 0.5, 1.6, 0.0]`` to
   ``Q_END = [1.2, 0.4, -0.6, -1.4, 0.7, 2.6, -0.5]`` rad in 6 s with the quintic
-  (minimum-jerk) time scaling ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, at rest at both ends. Run after
-  the excitation path it leaves the excitation bags and forms new ones.
-  ``excitation_path().then(new_task_path())`` is one continuous path.
+  (minimum-jerk) time scaling ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, at rest at both ends. It is a task
+  in a part of the workspace the excitation path never reaches: routed after the excitation
+  path, none of its points falls inside an excitation bag, so it forms new bags from its first
+  point on (the paper's point: a new task needs no identification motion). To run it after
+  the excitation, join them with a transfer, e.g.
+  ``excitation_path().then(linear_path(Q0, Q_START, 4.0)).then(new_task_path())``.
 - :func:`linear_path` is that shape between any two configurations; :func:`rest_path` stands
   still (useful before and after a motion).
 
@@ -71,6 +75,10 @@ N_JOINTS = 7
 Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 """Mid-range configuration the excitation path moves around and starts and ends at, rad."""
 Q0.flags.writeable = False
+
+Q_START = np.array([-1.0, 0.2, 0.5, -1.6, 0.5, 1.6, 0.0])
+"""First configuration of the default new task path, rad (outside the excitation's bags)."""
+Q_START.flags.writeable = False
 
 Q_END = np.array([1.2, 0.4, -0.6, -1.4, 0.7, 2.6, -0.5])
 """Final configuration of the default new task path, rad (outside the excitation's bags)."""
@@ -365,10 +373,11 @@ def linear_path(q_start, q_end, duration: float, name: str = "linear") -> Path:
 
 def new_task_path(q_start=None, q_end=None, duration: float = 6.0,
                   name: str = "new-task") -> Path:
-    """The paper's novel task path: all joints from ``q_start`` (default :data:`Q0`, where the
-    excitation path ends) to ``q_end`` (default :data:`Q_END`) in ``duration`` s (default 6),
-    with the quintic time scaling of :func:`linear_path`."""
-    return linear_path(Q0 if q_start is None else q_start, Q_END if q_end is None else q_end,
+    """The paper's novel task path: all joints from ``q_start`` (default :data:`Q_START`) to
+    ``q_end`` (default :data:`Q_END`) in ``duration`` s (default 6), with the quintic time
+    scaling of :func:`linear_path`."""
+    return linear_path(Q_START if q_start is None else q_start,
+                       Q_END if q_end is None else q_end,
                        duration, name=name)
 
 

@@ -14,6 +14,7 @@ from sim.paths import (
     EXCITATION_PERIOD,
     Q0,
     Q_END,
+    Q_START,
     RATE_HZ,
     Path,
     excitation_path,
@@ -194,13 +195,13 @@ def test_excitation_default_is_two_periods(excitation):
 
 
 def test_new_task_is_quintic_between_its_ends(new_task):
-    np.testing.assert_allclose(new_task.q[0], Q0, atol=1e-12)
+    np.testing.assert_allclose(new_task.q[0], Q_START, atol=1e-12)
     np.testing.assert_allclose(new_task.q[-1], Q_END, atol=1e-12)
     assert _at_rest(new_task, 0) and _at_rest(new_task, -1)
     mid = len(new_task) // 2
-    np.testing.assert_allclose(new_task.q[mid], (Q0 + Q_END) / 2, atol=1e-12)
+    np.testing.assert_allclose(new_task.q[mid], (Q_START + Q_END) / 2, atol=1e-12)
     # peak speed of the minimum-jerk profile: 15/8 of the mean speed, at mid-time
-    np.testing.assert_allclose(new_task.dq[mid], 1.875 * (Q_END - Q0) / 6.0, rtol=1e-12)
+    np.testing.assert_allclose(new_task.dq[mid], 1.875 * (Q_END - Q_START) / 6.0, rtol=1e-12)
 
 
 def test_linear_and_rest_reject_bad_input():
@@ -231,6 +232,16 @@ def test_excitation_forms_about_four_bags(routed):
 
 def test_new_task_leaves_the_excitation_bags(routed):
     assert routed[1] >= 2
+
+
+def test_no_new_task_point_falls_inside_an_excitation_bag(excitation, new_task):
+    router = BagRouter().route(excitation.q)
+    flange = panda().flange_positions(new_task.q)
+    for q, x in zip(new_task.q, flange, strict=True):
+        for qm, xm in zip(router.q_means, router.x_means, strict=True):
+            assert not (math.dist(q, qm) < DELTA and math.dist(x, xm) < RHO)
+
+
 
 
 # -- limit violations --------------------------------------------------------------------------
@@ -284,19 +295,20 @@ def test_limits_from_a_given_model(short):
 
 
 # -- then and slice ----------------------------------------------------------------------------
-def test_then_joins_excitation_and_new_task(excitation, new_task):
-    p = excitation.then(new_task)
-    assert p.name == "excitation+new-task"
-    assert len(p) == len(excitation) + len(new_task) - 1
-    assert p.duration == pytest.approx(26.0)
+def test_then_joins_excitation_transfer_and_new_task(excitation, new_task):
+    transfer = linear_path(Q0, Q_START, 4.0, "transfer")
+    p = excitation.then(transfer).then(new_task)
+    assert p.name == "excitation+transfer+new-task"
+    assert len(p) == len(excitation) + len(transfer) + len(new_task) - 2
+    assert p.duration == pytest.approx(30.0)
     np.testing.assert_allclose(np.diff(p.t), H, atol=1e-12)
     np.testing.assert_array_equal(p.q[:len(excitation)], excitation.q)
-    np.testing.assert_allclose(p.q[len(excitation) - 1:], new_task.q, rtol=0, atol=1e-12)
-    assert excitation.then(new_task, name="both").name == "both"
+    np.testing.assert_allclose(p.q[-len(new_task):], new_task.q, rtol=0, atol=1e-12)
+    assert excitation.then(transfer, name="both").name == "both"
 
 
 def test_then_with_rest_before_and_after(new_task):
-    p = rest_path(Q0, 0.5).then(new_task).then(rest_path(Q_END, 0.5))
+    p = rest_path(Q_START, 0.5).then(new_task).then(rest_path(Q_END, 0.5))
     assert p.duration == pytest.approx(7.0)
     p.check_limits()
     # the jerk jumps where the pieces meet, so central differences are off by ~ jerk * h / 4
@@ -310,7 +322,7 @@ def test_then_rejects_a_gap_or_motion(new_task):
     with pytest.raises(PathError, match="'new-task\\[0:3\\]' is not at rest at its end"):
         moving.then(rest_path(moving.q[-1], 1.0))
     with pytest.raises(PathError, match="'bad' is not at rest at its start"):
-        rest_path(Q0, 1.0).then(_with(new_task, "dq", 0, 0, 0.1))
+        rest_path(Q_START, 1.0).then(_with(new_task, "dq", 0, 0, 0.1))
 
 
 def test_slice(new_task):
