@@ -159,6 +159,13 @@ class PandaModel:
         jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
         return tau, (jac.T @ body)[:, PAPER_TO_PIN]
 
+    def rnea_regressor_mass(self, q, dq, ddq):
+        """:meth:`rnea_and_regressor` plus the arm's mass matrix ``M(q)`` (7x7, CRBA)."""
+        tau, y = self.rnea_and_regressor(q, dq, ddq)
+        mass = pin.crba(self.model, self.data, np.asarray(q, dtype=float))
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        return tau, y, mass
+
     # -- checks ----------------------------------------------------------------------------
     def check_configuration(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float).reshape(-1)
@@ -173,6 +180,15 @@ class PandaModel:
         dq = rng.uniform(-self.dq_max, self.dq_max)
         ddq = rng.uniform(-self.ddq_max, self.ddq_max)
         return q, dq, ddq
+
+
+def panda_dynamics():
+    """A fresh model's ``rnea_regressor_mass``: ``(q, dq, ddq) -> (tau_robot, Y, M)``.
+
+    The factory the LS baseline names (``"sim.robot:panda_dynamics"``); each call builds its
+    own model, since a model owns its scratch data.
+    """
+    return PandaModel().rnea_regressor_mass
 
 
 @cache

@@ -1,0 +1,50 @@
+"""The seam every estimator implements (river's style: ``learn_one`` / ``predict_one``).
+
+An estimator sees one controller cycle at a time:
+
+- ``x``: the measured input ``[q, dq, tau]`` (21 values: rad, rad/s, N·m);
+- ``flange``: the flange position of the measured ``q`` (3 values, m), for the bag router;
+- ``samples``: the tandem simulators' training samples at this point, ``(X (K, 21),
+  Y (K, 10))``, or a zero-argument callable that returns them (computed only if the
+  estimator needs them: most points never do).
+
+``learn_one`` updates the model with the point; ``predict_one`` returns a
+:class:`iem.types.PayloadEstimate` and never changes the model. ``predict_many`` is the
+vectorised form of ``predict_one``. ``to_state``/``from_state`` give a plain-data snapshot
+for :mod:`iem.persistence`. ``n_bags`` and ``nbytes`` let the checks bound the memory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .types import PayloadEstimate
+
+Samples = tuple[np.ndarray, np.ndarray] | Callable[[], tuple[np.ndarray, np.ndarray]]
+
+
+def resolve(samples: Samples) -> tuple[np.ndarray, np.ndarray]:
+    """The ``(X, Y)`` of a samples argument (calling it if it is lazy)."""
+    return samples() if callable(samples) else samples
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    name: str
+
+    def learn_one(self, x: np.ndarray, flange: np.ndarray, samples: Samples) -> None: ...
+
+    def predict_one(self, x: np.ndarray, flange: np.ndarray,
+                    t: float = 0.0) -> PayloadEstimate: ...
+
+    def predict_many(self, X: np.ndarray, F: np.ndarray) -> np.ndarray: ...
+
+    def to_state(self) -> dict: ...
+
+    @property
+    def n_bags(self) -> int: ...
+
+    def nbytes(self) -> int: ...

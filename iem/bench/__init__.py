@@ -1,0 +1,1 @@
+"""Benchmarks of the learning core in the simulation (these import :mod:`sim`)."""

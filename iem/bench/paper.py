@@ -1,0 +1,260 @@
+"""``iem bench paper``: the paper's experiments in the simulation, our figures beside theirs.
+
+Set-up (fixed seeds, the default sensor model of :mod:`sim.plant`):
+
+- The plant carries the default test payload (a configuration outside the 77 training
+  payloads) and tracks the excitation path (20 s) and, separately, the new task path (6 s).
+  Its controller is told the true load, so the arm follows the planned paths; the
+  estimators see only the measured ``q, dq, tau_J``.
+- IEM, old_IEM and BEM are trained offline on the excitation path: its bags are routed from
+  the planned path and the tandem simulators (77 training payloads) give the samples at the
+  planned states. Online, the tandem simulators run at the measured state with the causal
+  ``ddq`` of :class:`iem.filters.StateFilter`, as the plug-in does. LS needs no training.
+
+Scenarios (every model's output smoothed the same causal way, :mod:`iem.smoothing`):
+
+- ``excitation`` (the paper's Table 2): each model estimates along the excitation path
+  (IEM, old_IEM and BEM only estimate: the path is their training path; LS runs its
+  recursive update from the prior).
+- ``new_path`` (Table 4, Fig. 6): each model runs the new task path learning as it goes
+  (IEM forms new bags, old_IEM updates in place, BEM never changes, LS restarts).
+- ``forgetting`` (Fig. 5): the excitation-path MAE before and after the new task path.
+
+Timing: bag routing (median µs per query among 1 ... 10,000 bags), IEM estimate (median µs
+per ``predict_one``) and IEM learning (median ms per ``learn_one`` of a point that trained a
+learner, tandem samples included).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from iem.bem import BatchEnsemble
+from iem.ensemble import IncrementalEnsemble
+from iem.least_squares import RecursiveLeastSquares
+from iem.metrics import convergence_s, groups_of, mae
+from iem.old_iem import InPlaceEnsemble
+from iem.online import OnlineIdentifier
+from iem.router import BagRouter
+from iem.types import PARAMS, JointState
+
+MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS")
+ROUTE_SIZES = (1, 10, 100, 1000, 10000)
+
+
+@dataclass
+class Run:
+    """One model along one rollout: smoothed and raw estimates, bags, timings."""
+
+    t: np.ndarray
+    smoothed: np.ndarray
+    raw: np.ndarray
+    bags: np.ndarray
+    learn_s: np.ndarray
+    learnt: np.ndarray
+    predict_s: np.ndarray
+
+
+class Bench:
+    """The shared set-up of the paper benchmark and of ``iem bench custom``."""
+
+    def __init__(self, quick: bool = False, seed: int = 0, log=print) -> None:
+        from sim.family import default_test_payload, training_payloads
+        from sim.paths import excitation_path, new_task_path
+        from sim.plant import PandaPlant
+        from sim.robot import PandaModel
+        from sim.tandem import TandemSimulators
+
+        self.quick = quick
+        self.seed = seed
+        self.log = log
+        self.kin = PandaModel()
+        self.tandem = TandemSimulators(training_payloads(), model=PandaModel())
+        self.payload = default_test_payload()
+        self.phi = self.payload.to_phi()
+        self.excitation = excitation_path()
+        self.new_path = new_task_path()
+        self._plant_cls = PandaPlant
+        t0 = time.perf_counter()
+        self.exc_rollout = self.rollout(self.excitation, self.payload, seed)
+        self.new_rollout = self.rollout(self.new_path, self.payload, seed + 1)
+        self.log(f"rollouts: excitation {self.excitation.duration:.0f} s, new task "
+                 f"{self.new_path.duration:.0f} s ({time.perf_counter() - t0:.1f} s)")
+
+    def rollout(self, path, payload, seed):
+        plant = self._plant_cls(payload=payload, seed=seed, controller_load=payload)
+        return plant.follow(path)
+
+    # -- models --------------------------------------------------------------------------
+    def make_models(self) -> dict:
+        q = self.quick
+        common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
+                  "fit_stride": 20 if q else 10}
+        return {
+            "IEM": IncrementalEnsemble(**common),
+            "old_IEM": InPlaceEnsemble(**common),
+            "BEM": BatchEnsemble(seed=self.seed, fit_epochs=4 if q else 10,
+                                 fit_stride=40 if q else 20, n_networks=3 if q else 5,
+                                 n_trees=3 if q else 5),
+            "LS": RecursiveLeastSquares(),
+        }
+
+    def fit(self, models: dict) -> None:
+        """Offline training on the planned excitation path (bags and tandem samples)."""
+        path = self.excitation
+        F = self.kin.flange_positions(path.q)
+
+        def samples_at(i):
+            return self.tandem.samples(path.q[i], path.dq[i], path.ddq[i])
+
+        for name, model in models.items():
+            if not hasattr(model, "fit"):
+                continue
+            t0 = time.perf_counter()
+            model.fit(path.q, F, samples_at)
+            self.log(f"fit {name}: {model.n_bags} bags ({time.perf_counter() - t0:.1f} s)")
+
+    # -- runs ----------------------------------------------------------------------------
+    def run(self, model, rollout, learn: bool) -> Run:
+        online = OnlineIdentifier(model, self.kin.flange_position, self.tandem.samples,
+                                  learn=learn, timed=True)
+        n = len(rollout)
+        smoothed = np.empty((n, 10))
+        raw = np.empty((n, 10))
+        bags = np.empty(n, dtype=np.int64)
+        for k in range(n):
+            state = JointState(t=float(rollout.t[k]), q=rollout.q[k], dq=rollout.dq[k],
+                               tau_J=rollout.tau[k], cycle=k)
+            est, smoothed[k] = online.step(state)
+            raw[k] = est.phi
+            bags[k] = est.bag
+        if learn and hasattr(model, "close"):
+            model.close()
+        return Run(t=rollout.t - rollout.t[0], smoothed=smoothed, raw=raw, bags=bags,
+                   learn_s=np.array(online.learn_times), learnt=np.array(online.learnt),
+                   predict_s=np.array(online.predict_times))
+
+    def scores(self, run: Run, phi, convergence: bool = False) -> dict:
+        per = mae(run.smoothed, phi)
+        out = {"mae": per, "mae_groups": groups_of(per)}
+        if convergence:
+            out["convergence_s"] = convergence_s(run.t, run.smoothed, phi)
+        return out
+
+
+def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> dict:
+    """Median µs of one :meth:`BagRouter.route` among ``n`` bags spread over the workspace."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for n in sizes:
+        qs = rng.uniform(kin.q_min, kin.q_max, size=(n, 7))
+        router = BagRouter.from_means(qs, kin.flange_positions(qs))
+        probe_q = rng.uniform(kin.q_min, kin.q_max, size=(queries, 7))
+        probe_f = kin.flange_positions(probe_q)
+        times = np.empty(queries)
+        for i in range(queries):
+            t0 = time.perf_counter()
+            router.route(probe_q[i], probe_f[i])
+            times[i] = time.perf_counter() - t0
+        out[str(n)] = float(np.median(times) * 1e6)
+    return out
+
+
+def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
+              extra_models: dict | None = None) -> dict:
+    """All scenarios; writes ``results.json``, ``report.md`` and figures to ``out_dir``."""
+    started = time.perf_counter()
+    out_dir = FsPath(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bench = Bench(quick=quick, seed=seed, log=log)
+    models = bench.make_models()
+    if extra_models:
+        models.update({name: make(bench) for name, make in extra_models.items()})
+    bench.fit(models)
+    names = list(models)
+
+    scen: dict = {"excitation": {}, "new_path": {}, "forgetting": {}}
+    runs: dict = {"excitation": {}, "new_path": {}, "forgetting_after": {}}
+    bags_after_excitation = models["IEM"].n_bags
+    for name, model in models.items():
+        learns_on_excitation = not hasattr(model, "fit")
+        if learns_on_excitation and hasattr(model, "reset"):
+            model.reset()
+        r = bench.run(model, bench.exc_rollout, learn=learns_on_excitation)
+        runs["excitation"][name] = r
+        scen["excitation"][name] = bench.scores(r, bench.phi)
+        log(f"excitation {name:8s} {_fmt(scen['excitation'][name]['mae_groups'])}")
+    frozen = {n: copy.deepcopy(m) for n, m in models.items()}
+    for name, model in models.items():
+        if hasattr(model, "reset") and not hasattr(model, "fit"):
+            model.reset()
+        r = bench.run(model, bench.new_rollout, learn=True)
+        runs["new_path"][name] = r
+        scen["new_path"][name] = bench.scores(r, bench.phi, convergence=True)
+        log(f"new path   {name:8s} {_fmt(scen['new_path'][name]['mae_groups'])} "
+            f"converged {scen['new_path'][name]['convergence_s']}")
+    for name, model in models.items():
+        if not hasattr(model, "fit"):
+            continue  # forgetting concerns models that carry what they learnt
+        r = bench.run(model, bench.exc_rollout, learn=False)
+        runs["forgetting_after"][name] = r
+        scen["forgetting"][name] = {
+            "before": scen["excitation"][name]["mae_groups"],
+            "after": bench.scores(r, bench.phi)["mae_groups"]}
+        log(f"forgetting {name:8s} after/before "
+            + _fmt({g: scen['forgetting'][name]['after'][g]
+                    / max(scen['forgetting'][name]['before'][g], 1e-300)
+                    for g in ("mass", "com", "inertia")}, digits=2))
+    del frozen
+
+    iem_new = runs["new_path"]["IEM"]
+    learn_ms = iem_new.learn_s[iem_new.learnt] * 1e3 if iem_new.learnt.any() else np.array([])
+    timing = {
+        "route_us_median": route_timing(bench.kin, queries=500 if quick else 2000),
+        "predict_us_median": float(np.median(iem_new.predict_s) * 1e6),
+        "learn_ms_per_point_median": float(np.median(learn_ms)) if learn_ms.size else None,
+        "learn_points": int(learn_ms.size),
+    }
+    results = {
+        "params": list(PARAMS),
+        "models": names,
+        "scenarios": scen,
+        "timing": timing,
+        "bags": {"after_excitation": bags_after_excitation,
+                 "after_new_path": models["IEM"].n_bags},
+        "setup": {"quick": quick, "seed": seed, "test_payload": bench.payload.name,
+                  "test_phi": bench.phi.tolist(), "training_payloads": len(bench.tandem),
+                  "sensor": {"sigma_q": 1e-4, "sigma_dq": 2e-3, "sigma_tau": 0.05},
+                  "smoothing_tau_s": 0.2, "excitation_s": bench.excitation.duration,
+                  "new_path_s": bench.new_path.duration},
+    }
+    results["setup"]["wall_s"] = time.perf_counter() - started
+    (out_dir / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    from .report import write_report
+
+    write_report(out_dir, results, runs, bench, models)
+    log(f"wrote {out_dir / 'results.json'} and {out_dir / 'report.md'} "
+        f"in {results['setup']['wall_s']:.0f} s")
+    return results
+
+
+def _fmt(groups: dict, digits: int = 4) -> str:
+    return "  ".join(f"{g} {v:.{digits}g}" for g, v in groups.items())
+
+
+def configure(parser) -> None:
+    parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
+    parser.add_argument("--quick", action="store_true",
+                        help="smaller training, same schema (about a minute)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of noise and learners")
+
+
+def run(args) -> int:
+    run_paper(args.out, quick=args.quick, seed=args.seed)
+    return 0

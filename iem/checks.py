@@ -1,0 +1,352 @@
+"""One check suite that every estimator passes (river's ``check_estimator``).
+
+:func:`check_estimator` runs every ``check_*`` function of this module on an estimator
+factory and a small data set; the functions are also listed in :data:`CHECKS` so a test can
+parametrise over (estimator, check) pairs. A check that fails raises :class:`CheckFailed`
+(an :class:`AssertionError`, so pytest reports it as a failed assertion) saying what was
+expected and what was found.
+
+The estimator under check is made by ``make()``, which must return a fresh, seeded
+estimator with the :class:`iem.base.Estimator` methods plus ``params()`` and ``clone()``
+(and ``fit(Q, F, samples_at)`` if the data name ``fit_points``). The data are a
+:class:`CheckData`: a short path of points with their tandem samples.
+
+Memory bound (:func:`check_memory_bounded`): an estimator's ``nbytes()`` must stay within
+``BYTES_PER_BAG * max(1, n_bags) + BYTES_FIXED`` = 8 KiB per bag + 256 KiB. One IEM bag costs
+about 2.2 KB (the router's 13 floats and a learner's 10x21 weights, 10 biases and 2x21 input
+scalings), so 8 KiB leaves room for richer learners; 256 KiB covers what an estimator keeps
+independently of the bags (a least-squares normal matrix, a batch model's fixed learners).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import IemError, InvalidInputError
+
+BYTES_PER_BAG = 8 * 1024
+"""Memory budget of one bag, bytes (see the module docstring)."""
+BYTES_FIXED = 256 * 1024
+"""Memory budget independent of the bags, bytes."""
+REPEAT_PASSES = 5
+"""How many times :func:`check_memory_bounded` relearns the same points."""
+
+
+class CheckFailed(IemError, AssertionError):
+    """An estimator broke one of the shared checks."""
+
+
+@dataclass(frozen=True)
+class CheckData:
+    """A short path with its tandem samples, for the checks.
+
+    Attributes:
+        X: measured inputs ``[q, dq, tau]`` of the path's points, ``(N, 21)`` (rad, rad/s, N·m).
+        F: flange positions of those points, ``(N, 3)`` m.
+        samples_at: ``samples_at(i) -> (Xs (K, 21), Ys (K, 10))``, the training samples at
+            point ``i`` (inputs as ``X``, payload parameters phi in kg, kg·m, kg·m²).
+        fit_points: indices of the points for an initial ``fit(Q, F, samples_at)`` (only if
+            the estimator has ``fit``), or None for none.
+        split: the points before ``split`` (not in ``fit_points``) are learnt to train an
+            estimator; the points from ``split`` on are the "further points" some checks
+            learn afterwards. Default: two thirds of the path.
+    """
+
+    X: np.ndarray
+    F: np.ndarray
+    samples_at: Callable[[int], tuple[np.ndarray, np.ndarray]]
+    fit_points: Sequence[int] | None = None
+    split: int | None = None
+
+    def __post_init__(self) -> None:
+        X = np.asarray(self.X, dtype=float)
+        F = np.asarray(self.F, dtype=float)
+        if X.ndim != 2 or X.shape[1] != 21 or F.shape != (X.shape[0], 3) or len(X) < 2:
+            raise InvalidInputError(f"CheckData needs X (N, 21) and F (N, 3) with N >= 2, "
+                             f"got {X.shape} and {F.shape}")
+        object.__setattr__(self, "X", X)
+        object.__setattr__(self, "F", F)
+        split = 2 * len(X) // 3 if self.split is None else int(self.split)
+        if not 0 < split < len(X):
+            raise InvalidInputError(f"split must lie in 1..{len(X) - 1}, got {split}")
+        object.__setattr__(self, "split", split)
+
+    @property
+    def n(self) -> int:
+        return self.X.shape[0]
+
+    def train_points(self) -> list[int]:
+        """The points learnt one by one to train an estimator (before ``split``)."""
+        skip = set() if self.fit_points is None else {int(i) for i in self.fit_points}
+        return [i for i in range(self.split) if i not in skip]
+
+    def further_points(self) -> list[int]:
+        """The points learnt after training (from ``split`` on)."""
+        return list(range(self.split, self.n))
+
+
+# -- helpers -----------------------------------------------------------------------------
+def _fail(check: str, message: str) -> CheckFailed:
+    return CheckFailed(f"{check}: {message}")
+
+
+def _identical(a, b) -> bool:
+    """Same shape and the same bits (NaN where the other has NaN)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def _same_params(a, b) -> bool:
+    """Equality of plain hyper-parameter values (NaN equals NaN, arrays by value)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same_params(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple | np.ndarray) or isinstance(b, list | tuple | np.ndarray):
+        try:
+            return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+        except TypeError:
+            return np.array_equal(np.asarray(a), np.asarray(b))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return type(a) is type(b) and a == b
+
+
+def _fit(est, data: CheckData, readonly: bool = False) -> None:
+    if data.fit_points is None or not hasattr(est, "fit"):
+        return
+    idx = np.asarray(data.fit_points, dtype=int)
+    Q = data.X[idx, :7].copy()
+    F = data.F[idx].copy()
+    if readonly:
+        Q.flags.writeable = False
+        F.flags.writeable = False
+
+    def samples_at(i: int):
+        return _samples(data, int(idx[i]), readonly)
+
+    est.fit(Q, F, samples_at)
+
+
+def _samples(data: CheckData, i: int, readonly: bool = False):
+    Xs, Ys = data.samples_at(i)
+    Xs = np.array(Xs, dtype=float)
+    Ys = np.array(Ys, dtype=float)
+    if readonly:
+        Xs.flags.writeable = False
+        Ys.flags.writeable = False
+    return Xs, Ys
+
+
+def _learn(est, data: CheckData, i: int) -> None:
+    est.learn_one(data.X[i].copy(), data.F[i].copy(), _samples(data, i))
+
+
+def _train(est, data: CheckData):
+    """Fit (if the data and the estimator allow) and learn the training points."""
+    _fit(est, data)
+    for i in data.train_points():
+        _learn(est, data, i)
+    return est
+
+
+def _predictions(est, data: CheckData) -> np.ndarray:
+    return np.asarray(est.predict_many(data.X.copy(), data.F.copy()), dtype=float)
+
+
+def _predictions_one(est, data: CheckData) -> np.ndarray:
+    return np.array([np.asarray(est.predict_one(data.X[i].copy(), data.F[i].copy()).phi,
+                                dtype=float) for i in range(data.n)])
+
+
+# -- the checks --------------------------------------------------------------------------
+def check_predict_before_learn(make, data: CheckData) -> None:
+    """A fresh estimator predicts without raising: phi of shape (10,) / (N, 10), NaN allowed."""
+    name = "predict before learn"
+    est = make()
+    for i in (0, data.n - 1):
+        phi = np.asarray(est.predict_one(data.X[i].copy(), data.F[i].copy()).phi)
+        if phi.shape != (10,):
+            raise _fail(name, f"predict_one gave phi of shape {phi.shape}, expected (10,)")
+    out = np.asarray(est.predict_many(data.X.copy(), data.F.copy()))
+    if out.shape != (data.n, 10):
+        raise _fail(name, f"predict_many gave shape {out.shape}, expected ({data.n}, 10)")
+
+
+def check_inputs_not_mutated(make, data: CheckData) -> None:
+    """fit/learn_one/predict_one/predict_many leave inputs alone and accept read-only ones."""
+    name = "inputs not mutated"
+    X0 = data.X.copy()
+    F0 = data.F.copy()
+
+    # writable inputs: compare with copies after every call
+    est = make()
+    _fit(est, data)
+    X = data.X.copy()
+    F = data.F.copy()
+    for i in range(data.n):
+        x, f = X[i].copy(), F[i].copy()
+        Xs, Ys = _samples(data, i)
+        Xs0, Ys0 = Xs.copy(), Ys.copy()
+        lazy = i % 2 == 1  # every other point gives its samples lazily
+        est.learn_one(x, f, (lambda s=(Xs, Ys): s) if lazy else (Xs, Ys))
+        for label, arr, ref in (("x", x, X0[i]), ("flange", f, F0[i]),
+                                ("samples X", Xs, Xs0), ("samples Y", Ys, Ys0)):
+            if not _identical(arr, ref):
+                raise _fail(name, f"learn_one changed its input {label} at point {i}")
+        est.predict_one(x, f)
+        if not (_identical(x, X0[i]) and _identical(f, F0[i])):
+            raise _fail(name, f"predict_one changed its input x or flange at point {i}")
+    est.predict_many(X, F)
+    if not (_identical(X, X0) and _identical(F, F0)):
+        raise _fail(name, "predict_many changed its input X or F")
+
+    # read-only inputs: must not raise
+    est = make()
+    try:
+        _fit(est, data, readonly=True)
+        X.flags.writeable = False
+        F.flags.writeable = False
+        for i in range(data.n):
+            Xs, Ys = _samples(data, i, readonly=True)
+            est.learn_one(X[i], F[i], (Xs, Ys))
+            est.predict_one(X[i], F[i])
+        est.predict_many(X, F)
+    except ValueError as exc:
+        if "read-only" not in str(exc):
+            raise
+        raise _fail(name, f"the estimator writes into a read-only input: {exc}") from exc
+    if not (_identical(data.X, X0) and _identical(data.F, F0)):
+        raise _fail(name, "the estimator changed the CheckData's arrays")
+
+
+def check_copies_independent(make, data: CheckData) -> None:
+    """A deep copy learns on its own; ``clone()`` is untrained with equal ``params()``."""
+    name = "copies independent"
+    est = _train(make(), data)
+    before = _predictions(est, data)
+    twin = copy.deepcopy(est)
+    for i in data.further_points():
+        _learn(twin, data, i)
+    if not _identical(_predictions(est, data), before):
+        raise _fail(name, "learning on a deep copy changed the original's predictions")
+    twin_before = _predictions(twin, data)
+    for i in data.further_points():
+        _learn(est, data, i)
+    if not _identical(_predictions(twin, data), twin_before):
+        raise _fail(name, "learning on the original changed a deep copy's predictions")
+    fresh = est.clone()
+    if type(fresh) is not type(est):
+        raise _fail(name, f"clone() gave a {type(fresh).__name__}, expected {type(est).__name__}")
+    if not _same_params(fresh.params(), est.params()):
+        raise _fail(name, f"clone().params() = {fresh.params()} differs from "
+                          f"params() = {est.params()}")
+    untrained = make()
+    if fresh.n_bags != untrained.n_bags:
+        raise _fail(name, f"clone() has {fresh.n_bags} bags, a fresh estimator "
+                          f"{untrained.n_bags}: the clone is not untrained")
+    if not _identical(_predictions(fresh, data), _predictions(untrained, data)):
+        raise _fail(name, "clone() predicts differently from a fresh estimator: "
+                          "it is not untrained")
+
+
+def check_save_load(make, data: CheckData) -> None:
+    """Save and load (``iem.persistence``): identical predictions, now and after learning."""
+    from .persistence import load_model, save_model
+
+    name = "save/load round trip"
+    est = _train(make(), data)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "model.iem"
+        save_model(est, path)
+        loaded = load_model(path)
+    if type(loaded) is not type(est):
+        raise _fail(name, f"loaded a {type(loaded).__name__}, saved a {type(est).__name__}")
+    if loaded.n_bags != est.n_bags:
+        raise _fail(name, f"loaded model has {loaded.n_bags} bags, saved {est.n_bags}")
+    if not _identical(_predictions(loaded, data), _predictions(est, data)):
+        raise _fail(name, "predict_many differs after the round trip")
+    if not _identical(_predictions_one(loaded, data), _predictions_one(est, data)):
+        raise _fail(name, "predict_one differs after the round trip")
+    for i in data.further_points():
+        _learn(est, data, i)
+        _learn(loaded, data, i)
+        a = est.predict_one(data.X[i].copy(), data.F[i].copy()).phi
+        b = loaded.predict_one(data.X[i].copy(), data.F[i].copy()).phi
+        if not _identical(a, b):
+            raise _fail(name, f"after learning point {i} the loaded model predicts "
+                              f"{np.asarray(b).tolist()}, the original {np.asarray(a).tolist()}")
+    if not _identical(_predictions(loaded, data), _predictions(est, data)):
+        raise _fail(name, "predictions differ after both learnt the same further points")
+
+
+def check_seeded_determinism(make, data: CheckData) -> None:
+    """Two estimators from ``make()`` fed the same data predict bit for bit the same."""
+    name = "seeded determinism"
+    one, two = make(), make()
+    _fit(one, data)
+    _fit(two, data)
+    for i in data.train_points() + data.further_points():
+        _learn(one, data, i)
+        _learn(two, data, i)
+        a = one.predict_one(data.X[i].copy(), data.F[i].copy()).phi
+        b = two.predict_one(data.X[i].copy(), data.F[i].copy()).phi
+        if not _identical(a, b):
+            raise _fail(name, f"after point {i}: {np.asarray(a).tolist()} vs "
+                              f"{np.asarray(b).tolist()}")
+    if not _identical(_predictions(one, data), _predictions(two, data)):
+        raise _fail(name, "predict_many differs between two estimators with the same seed")
+
+
+def check_memory_bounded(make, data: CheckData) -> None:
+    """``nbytes()`` stays within the bag budget, and relearning the same points adds nothing."""
+    name = "memory bounded"
+    est = _train(make(), data)
+    for i in data.further_points():
+        _learn(est, data, i)
+
+    def within(when: str) -> int:
+        nbytes = int(est.nbytes())
+        bound = BYTES_PER_BAG * max(1, est.n_bags) + BYTES_FIXED
+        if nbytes > bound:
+            raise _fail(name, f"{when}: nbytes() = {nbytes} exceeds {bound} "
+                              f"({BYTES_PER_BAG} per bag x {est.n_bags} bags + {BYTES_FIXED})")
+        return nbytes
+
+    nbytes = within("after learning the data")
+    bags = est.n_bags
+    for p in range(REPEAT_PASSES):
+        for i in range(data.n):
+            _learn(est, data, i)
+        now = within(f"after relearning pass {p + 1}")
+        if est.n_bags == bags and now > nbytes:
+            raise _fail(name, f"relearning pass {p + 1} grew nbytes() from {nbytes} to {now} "
+                              f"with the number of bags unchanged ({bags})")
+        nbytes, bags = now, est.n_bags
+
+
+CHECKS: tuple[Callable[..., None], ...] = (
+    check_predict_before_learn,
+    check_inputs_not_mutated,
+    check_copies_independent,
+    check_save_load,
+    check_seeded_determinism,
+    check_memory_bounded,
+)
+"""Every check, in the order :func:`check_estimator` runs them."""
+
+
+def check_estimator(make: Callable[[], object], data: CheckData) -> None:
+    """Run every check of :data:`CHECKS` on ``make`` (a factory of fresh, seeded estimators).
+
+    Raises:
+        CheckFailed: the first check that fails, with what was expected and found.
+    """
+    for check in CHECKS:
+        check(make, data)

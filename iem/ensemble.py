@@ -1,0 +1,218 @@
+"""The proposed incremental ensemble model (IEM): the paper's Eq. 1-2 with Algorithms 1-2.
+
+- Initial bags and learners (:meth:`IncrementalEnsemble.fit`): the excitation path's points
+  form the bags (Algorithm 1); each bag's learner is then trained on the tandem samples of
+  (a stride of) the points that the finished bags route to it, all training payloads at each
+  point.
+- Online (:meth:`IncrementalEnsemble.learn_one`): a point inside a bag joins it. A point
+  outside every bag starts a new bag, whose learner is a copy of the nearest bag's learner
+  (Algorithm 2, line 4), trained at once on the point's tandem samples (``warmup_iters``
+  SGD steps) and then on each further point that joins the bag while it forms (``iters``
+  steps per point). The bag being formed is the *open* bag; it closes as soon as a point goes
+  elsewhere (the path left it) or :meth:`close` is called. A closed bag's learner never
+  changes again, so nothing learnt is overwritten.
+- Estimate (Eq. 1-2): the output is that of the learner of the bag the point falls in, or,
+  outside every bag, of the nearest bag (``n_s = 1`` for that bag, 0 for the others).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .base import Samples, resolve
+from .errors import InvalidInputError
+from .learner import N_IN, WeakLearner, output_range
+from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
+from .types import PayloadEstimate
+
+SENSOR_NOISE = np.repeat([1e-4, 2e-3, 0.05], 7)
+"""The sensor model's standard deviations ``[q (rad), dq (rad/s), tau (N·m)]`` x 7."""
+
+
+class IncrementalEnsemble:
+    """The proposed IEM.
+
+    Args:
+        delta: joint-space bag radius, rad (paper: 30°).
+        rho: flange-position bag radius, m (paper: 0.2 m).
+        lr: learning rate of the online SGD steps (normalised, see :mod:`iem.learner`).
+        iters: SGD steps on each point that joins the open bag.
+        warmup_iters: SGD steps on the point that starts a new bag.
+        input_noise: noise added to the training inputs (21 values; default: the sensor
+            model, since the measurements the learner sees carry it), or None.
+        fit_epochs, fit_lr, fit_stride: offline training of the initial bags: epochs, the
+            SGD step in whitened coordinates, and every how many path points to take.
+        seed: seed of everything random (the noise of each learner).
+    """
+
+    name = "IEM"
+
+    def __init__(self, delta: float = DEFAULT_DELTA, rho: float = DEFAULT_RHO, lr: float = 0.5,
+                 iters: int = 5, warmup_iters: int = 100, input_noise=SENSOR_NOISE,
+                 fit_epochs: int = 10, fit_lr: float = 0.1, fit_stride: int = 10,
+                 seed: int = 0) -> None:
+        self.delta = float(delta)
+        self.rho = float(rho)
+        self.lr = float(lr)
+        self.iters = int(iters)
+        self.warmup_iters = int(warmup_iters)
+        self.input_noise = None if input_noise is None else np.asarray(input_noise, float)
+        self.fit_epochs = int(fit_epochs)
+        self.fit_lr = float(fit_lr)
+        self.fit_stride = int(fit_stride)
+        self.seed = int(seed)
+        self._router = BagRouter(self.delta, self.rho)
+        self._learners: list[WeakLearner] = []
+        self._open = -1
+        self._out: tuple[np.ndarray, np.ndarray] | None = None
+
+    def params(self) -> dict:
+        """The hyper-parameters as given (``type(self)(**self.params())`` is a fresh clone)."""
+        return {"delta": self.delta, "rho": self.rho, "lr": self.lr, "iters": self.iters,
+                "warmup_iters": self.warmup_iters,
+                "input_noise": None if self.input_noise is None else self.input_noise.tolist(),
+                "fit_epochs": self.fit_epochs, "fit_lr": self.fit_lr,
+                "fit_stride": self.fit_stride, "seed": self.seed}
+
+    def clone(self):
+        """A fresh, untrained estimator with the same hyper-parameters."""
+        return type(self)(**self.params())
+
+    # -- views ---------------------------------------------------------------------------
+    @property
+    def n_bags(self) -> int:
+        return len(self._router)
+
+    @property
+    def router(self) -> BagRouter:
+        return self._router
+
+    @property
+    def open_bag(self) -> int:
+        """Index of the bag being formed, or -1."""
+        return self._open
+
+    def learner(self, bag: int) -> WeakLearner:
+        return self._learners[bag]
+
+    def nbytes(self) -> int:
+        return self._router.nbytes() + sum(lr.nbytes() for lr in self._learners)
+
+    # -- training ------------------------------------------------------------------------
+    def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
+        if self._out is None:
+            self._out = output_range(Y)
+        seed = [self.seed, bag]
+        if nearest < 0:  # the very first bag of an untrained model: a fresh learner
+            center, scale = X.mean(axis=0), X.std(axis=0)
+            return WeakLearner(*self._out, center, scale, lr=self.lr,
+                               input_noise=self.input_noise, seed=seed)
+        return self._learners[nearest].copy_for(X.mean(axis=0), seed=seed)
+
+    def fit(self, Q, F, samples_at) -> IncrementalEnsemble:
+        """Initial bags and learners from a path (the paper uses the excitation path).
+
+        Args:
+            Q: joint positions of the path's points, ``(N, 7)`` rad.
+            F: their flange positions, ``(N, 3)`` m.
+            samples_at: ``samples_at(i) -> (X (K, 21), Y (K, 10))``, the tandem samples at
+                point ``i``.
+        """
+        Q = np.asarray(Q, dtype=float)
+        F = np.asarray(F, dtype=float)
+        if Q.ndim != 2 or Q.shape[1] != 7 or F.shape != (Q.shape[0], 3) or len(Q) == 0:
+            raise InvalidInputError(f"fit needs Q (N, 7) and F (N, 3) with N >= 1, "
+                                    f"got {Q.shape} and {F.shape}")
+        first = len(self._router)
+        for q, f in zip(Q, F, strict=True):
+            self._router.add(q, f)
+        # Train each learner on the points that the finished bags route to it: the running
+        # means moved while the bags formed, so this is what the learner will be asked.
+        labels = self._router.route_many(Q, F)
+        for i in np.flatnonzero(labels < 0):
+            labels[i] = self._router.route(Q[i], F[i])[1]
+        for bag in range(first, len(self._router)):
+            idx = np.flatnonzero(labels == bag)[:: self.fit_stride]
+            if idx.size == 0:
+                idx = np.flatnonzero(labels == bag)[:1]
+            pairs = [samples_at(int(i)) for i in idx]
+            X = np.vstack([p[0] for p in pairs])
+            Y = np.vstack([p[1] for p in pairs])
+            if self._out is None:
+                self._out = output_range(Y)
+            self._learners.append(WeakLearner.fit(
+                X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
+                seed=[self.seed, bag], epochs=self.fit_epochs, batch=Y.shape[0] // len(idx),
+                fit_lr=self.fit_lr))
+        self._open = -1
+        return self
+
+    def learn_one(self, x, flange, samples: Samples) -> None:
+        """Algorithm 1 for the point, then Algorithm 2 if it starts or joins the open bag."""
+        q = np.asarray(x, dtype=float)[:7]
+        bag, created, nearest = self._router.add(q, flange)
+        if created:
+            X, Y = resolve(samples)
+            learner = self._new_learner(X, Y, bag, nearest)
+            learner.learn(X, Y, self.warmup_iters)
+            self._learners.append(learner)
+            self._open = bag
+        elif bag == self._open:
+            X, Y = resolve(samples)
+            self._learners[bag].learn(X, Y, self.iters)
+        else:
+            self._open = -1  # the path left the open bag: it is closed for good
+
+    def close(self) -> None:
+        """Close the open bag (end of a task): its learner is final."""
+        self._open = -1
+
+    # -- estimation ----------------------------------------------------------------------
+    def _bag_for(self, q: np.ndarray, flange) -> int:
+        bag, nearest = self._router.route(q, flange)
+        return bag if bag >= 0 else nearest
+
+    def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (N_IN,):
+            raise InvalidInputError(f"x must be [q, dq, tau] with {N_IN} values, got {x.shape}")
+        bag = self._bag_for(x[:7], flange)
+        if bag < 0:
+            return PayloadEstimate(t=t, phi=np.full(10, math.nan), bag=-1)
+        return PayloadEstimate(t=t, phi=self._learners[bag].predict_one(x), bag=bag,
+                               learning=bag == self._open)
+
+    def predict_many(self, X, F) -> np.ndarray:
+        X = np.asarray(X, dtype=float)
+        F = np.asarray(F, dtype=float)
+        out = np.full((X.shape[0], 10), math.nan)
+        if not self._learners:
+            return out
+        bags = self._router.route_many(X[:, :7], F)
+        outside = np.flatnonzero(bags < 0)
+        for i in outside:
+            bags[i] = self._router.route(X[i, :7], F[i])[1]
+        for bag in np.unique(bags):
+            rows = bags == bag
+            out[rows] = self._learners[bag].predict_many(X[rows])
+        return out
+
+    # -- persistence ---------------------------------------------------------------------
+    def to_state(self) -> dict:
+        return {"params": self.params(), "router": self._router.to_state(),
+                "learners": [lr.to_state() for lr in self._learners], "open": self._open,
+                "out": None if self._out is None else [v.tolist() for v in self._out]}
+
+    @classmethod
+    def from_state(cls, state: dict):
+        model = cls(**state["params"])
+        model._router = BagRouter.from_state(state["router"])
+        model._learners = [WeakLearner.from_state(s) for s in state["learners"]]
+        if len(model._learners) != len(model._router):
+            raise InvalidInputError(f"model state has {len(model._router)} bags but "
+                                    f"{len(model._learners)} learners")
+        model._open = int(state["open"])
+        model._out = None if state["out"] is None else tuple(np.array(v) for v in state["out"])
+        return model

@@ -1,0 +1,239 @@
+"""The weak learner: the paper's Algorithm 2, a single-layer network trained by SGD.
+
+Model: ``Y = ReLU(a x + b)`` with ``x`` the scaled input and ``Y`` the scaled output.
+
+Input scaling: ``x = (X - center) / scale`` per feature, ``X = [q, dq, tau]`` (21 values,
+rad, rad/s, N·m). ``center`` and ``scale`` are the mean and standard deviation of the
+learner's training inputs (including the sensor noise it is trained with). They belong to
+the bag: a learner copied for a new bag keeps the weights ``a, b`` and the ``scale`` of the
+learner it copies, and takes the mean of the new bag's first tandem samples as its
+``center`` (see :meth:`WeakLearner.copy_for`).
+
+Output scaling: ``Y = (phi - lo) / (hi - lo)`` per parameter, with ``lo``/``hi`` the training
+family's minimum/maximum widened by a quarter of the range on each side, so every training
+target lies in [1/6, 5/6] and the ReLU only ever acts as a floor at ``lo``.
+
+Training: stochastic gradient descent on the mean squared error of a mini-batch (Algorithm 2,
+lines 12-15)::
+
+    L = 1/N sum_k |Y_k - ReLU(a x_k + b)|²,   a <- a - alpha dL/da,   b <- b - alpha dL/db
+
+with the normalised step ``alpha = lr / mean_k(|x_k|² + 1)`` (normalised LMS), which keeps the
+step stable however far a path point lies from the learner's centre. Each mini-batch's inputs
+get fresh Gaussian noise with the sensor model's standard deviations (``input_noise``), since
+the measured inputs the learner will see carry that noise and the tandem simulators' do not.
+
+Offline batch training (:meth:`WeakLearner.fit`, used for the initial bags) runs the same SGD
+in whitened input coordinates (a change of variables that removes the strong correlations
+between q, dq and tau, which otherwise make SGD crawl) and maps the weights back exactly, so
+the stored learner always has the form above.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+N_IN = 21
+N_OUT = 10
+OUTPUT_MARGIN = 0.25
+"""Widening of the training range on each side for the output scaling (fraction of range)."""
+SCALE_FLOOR = np.repeat([1e-3, 1e-3, 1e-3], 7)
+"""Smallest input scale per feature (rad, rad/s, N·m): guards features constant in a batch."""
+
+
+def _gradient(a: np.ndarray, b: np.ndarray, x: np.ndarray, t: np.ndarray):
+    """``dL/da``, ``dL/db`` and ``L`` of ``L = 1/N sum_k |t_k - ReLU(a x_k + b)|²``."""
+    z = x @ a.T + b
+    r = np.maximum(z, 0.0) - t
+    loss = float((r * r).sum() / x.shape[0])
+    r = np.where(z > 0.0, r, 0.0) * (2.0 / x.shape[0])
+    return r.T @ x, r.sum(axis=0), loss
+
+
+def rng_state(rng: np.random.Generator) -> dict:
+    """A generator's state with its 128-bit integers as hex text (msgpack packs 64 bits)."""
+    st = rng.bit_generator.state
+    inner = {k: hex(v) for k, v in st["state"].items()}
+    return {"bit_generator": st["bit_generator"], "state": inner,
+            "has_uint32": st["has_uint32"], "uinteger": st["uinteger"]}
+
+
+def set_rng_state(rng: np.random.Generator, state: dict) -> None:
+    inner = {k: int(v, 16) for k, v in state["state"].items()}
+    rng.bit_generator.state = {"bit_generator": state["bit_generator"], "state": inner,
+                               "has_uint32": state["has_uint32"],
+                               "uinteger": state["uinteger"]}
+
+
+def output_range(phi: np.ndarray, margin: float = OUTPUT_MARGIN) -> tuple[np.ndarray, np.ndarray]:
+    """``lo, hi`` of the output scaling from a training family's ``(K, 10)`` phi."""
+    phi = np.asarray(phi, dtype=float)
+    span = phi.max(axis=0) - phi.min(axis=0)
+    span = np.where(span > 0, span, np.maximum(np.abs(phi).max(axis=0), 1e-6))
+    return phi.min(axis=0) - margin * span, phi.max(axis=0) + margin * span
+
+
+class WeakLearner:
+    """A single-layer network ``Y = ReLU(a x + b)`` on scaled inputs and outputs.
+
+    Args:
+        lo, hi: output scaling (10 values each, phi units), see :func:`output_range`.
+        center, scale: input scaling (21 values each, input units).
+        lr: SGD learning rate of the normalised step (see module docstring).
+        input_noise: standard deviation of the noise added to the inputs during training
+            (21 values in input units, or None for none).
+        seed: seed of that noise.
+    """
+
+    def __init__(self, lo, hi, center, scale, lr: float = 0.5, input_noise=None,
+                 seed: int | list[int] = 0) -> None:
+        self.lo = np.array(lo, dtype=float).reshape(N_OUT)
+        self.hi = np.array(hi, dtype=float).reshape(N_OUT)
+        if np.any(self.hi <= self.lo):
+            raise InvalidInputError("output scaling needs hi > lo for every parameter")
+        self.center = np.array(center, dtype=float).reshape(N_IN)
+        self.scale = np.maximum(np.array(scale, dtype=float).reshape(N_IN), SCALE_FLOOR)
+        self.lr = float(lr)
+        self.input_noise = None if input_noise is None else np.array(
+            input_noise, dtype=float).reshape(N_IN)
+        self.seed = seed
+        self._rng = np.random.default_rng(seed)
+        self.a = np.zeros((N_OUT, N_IN))
+        self.b = np.full(N_OUT, 0.5)
+        self._refresh()
+
+    def _refresh(self) -> None:
+        self._inv_scale = 1.0 / self.scale
+        self._span = self.hi - self.lo
+        self._noise_scaled = (None if self.input_noise is None
+                              else self.input_noise * self._inv_scale)
+
+    # -- prediction ----------------------------------------------------------------------
+    def predict_one(self, X) -> np.ndarray:
+        """phi (10) for one input ``X = [q, dq, tau]`` (21)."""
+        x = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
+        y = self.a @ x + self.b
+        np.maximum(y, 0.0, out=y)
+        return self.lo + y * self._span
+
+    def predict_many(self, X) -> np.ndarray:
+        """phi ``(N, 10)`` for inputs ``(N, 21)``."""
+        x = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
+        y = np.maximum(x @ self.a.T + self.b, 0.0)
+        return self.lo + y * self._span
+
+    # -- Algorithm 2 ---------------------------------------------------------------------
+    def gradient(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``dL/da``, ``dL/db`` and ``L`` of the MSE for scaled inputs ``x`` and targets ``t``."""
+        return _gradient(self.a, self.b, x, t)
+
+    def step(self, x: np.ndarray, t: np.ndarray, alpha: float) -> float:
+        """One gradient step on scaled inputs and targets; returns the loss before it."""
+        ga, gb, loss = self.gradient(x, t)
+        self.a -= alpha * ga
+        self.b -= alpha * gb
+        return loss
+
+    def learn(self, X, Y, iters: int = 1) -> float:
+        """``iters`` normalised SGD steps on one mini-batch ``(N, 21) -> (N, 10)``.
+
+        Fresh input noise each step (if ``input_noise``). Returns the last loss.
+        """
+        x0 = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
+        t = (np.asarray(Y, dtype=float) - self.lo) / self._span
+        loss = float("nan")
+        for _ in range(int(iters)):
+            x = x0
+            if self._noise_scaled is not None:
+                x = x0 + self._rng.standard_normal(x0.shape) * self._noise_scaled
+            alpha = self.lr / (float(np.einsum("ij,ij->", x, x)) / x.shape[0] + 1.0)
+            loss = self.step(x, t, alpha)
+        return loss
+
+    # -- offline batch training ----------------------------------------------------------
+    @classmethod
+    def fit(cls, X, Y, lo, hi, lr: float = 0.5, input_noise=None, seed=0,
+            epochs: int = 10, batch: int = 77, fit_lr: float = 0.1) -> WeakLearner:
+        """A learner trained on a whole bag's samples by SGD in whitened coordinates.
+
+        The scaling is fitted to ``X`` (plus the input noise's variance); the SGD runs on
+        ``u = W (x)`` with ``W`` the whitening of the scaled inputs, then the weights are
+        mapped back, so the returned learner is an ordinary :class:`WeakLearner`.
+        """
+        X = np.asarray(X, dtype=float)
+        Y = np.asarray(Y, dtype=float)
+        if X.ndim != 2 or X.shape[1] != N_IN or Y.shape != (X.shape[0], N_OUT):
+            raise InvalidInputError(f"fit needs X (N, {N_IN}) and Y (N, {N_OUT}), "
+                                    f"got {X.shape} and {Y.shape}")
+        noise = np.zeros(N_IN) if input_noise is None else np.asarray(input_noise, float)
+        center = X.mean(axis=0)
+        scale = np.sqrt(X.var(axis=0) + noise ** 2)
+        learner = cls(lo, hi, center, scale, lr=lr, input_noise=input_noise, seed=seed)
+        inv = learner._inv_scale
+        x_all = (X - center) * inv
+        cov = np.cov(x_all.T) + np.diag((noise * inv) ** 2)
+        lam, vec = np.linalg.eigh(cov)
+        lam = np.maximum(lam, 1e-6 * lam.max())
+        white = vec / np.sqrt(lam)  # u = x @ white
+        t_all = (Y - learner.lo) / learner._span
+        a_u = np.zeros((N_OUT, N_IN))  # weights in whitened coordinates
+        b = learner.b
+        rng = learner._rng
+        noise_scaled = noise * inv
+        n = X.shape[0]
+        for _ in range(int(epochs)):
+            order = rng.permutation(n)
+            for s in range(0, n, batch):
+                j = order[s:s + batch]
+                x = x_all[j]
+                if input_noise is not None:
+                    x = x + rng.standard_normal(x.shape) * noise_scaled
+                ga, gb, _ = _gradient(a_u, b, x @ white, t_all[j])
+                a_u -= fit_lr * ga
+                b -= fit_lr * gb
+        learner.a = a_u @ white.T  # a_u (W^T x) = (a_u W^T) x
+        learner.b = b
+        return learner
+
+    # -- copies --------------------------------------------------------------------------
+    def copy(self, seed=None) -> WeakLearner:
+        """An independent copy (same weights, scaling and hyper-parameters)."""
+        other = WeakLearner(self.lo, self.hi, self.center, self.scale, lr=self.lr,
+                            input_noise=self.input_noise,
+                            seed=self.seed if seed is None else seed)
+        other.a = self.a.copy()
+        other.b = self.b.copy()
+        if seed is None:
+            other._rng.bit_generator.state = self._rng.bit_generator.state
+        return other
+
+    def copy_for(self, center, seed=None) -> WeakLearner:
+        """A copy for a new bag: same weights and scale, the new bag's input ``center``."""
+        other = self.copy(seed=seed)
+        other.center = np.array(center, dtype=float).reshape(N_IN)
+        return other
+
+    # -- persistence ---------------------------------------------------------------------
+    def to_state(self) -> dict:
+        return {
+            "lo": self.lo.tolist(), "hi": self.hi.tolist(),
+            "center": self.center.tolist(), "scale": self.scale.tolist(),
+            "lr": self.lr,
+            "input_noise": None if self.input_noise is None else self.input_noise.tolist(),
+            "seed": self.seed, "rng": rng_state(self._rng),
+            "a": self.a.tolist(), "b": self.b.tolist(),
+        }
+
+    @classmethod
+    def from_state(cls, state: dict) -> WeakLearner:
+        learner = cls(state["lo"], state["hi"], state["center"], state["scale"],
+                      lr=state["lr"], input_noise=state["input_noise"], seed=state["seed"])
+        learner.a = np.array(state["a"], dtype=float).reshape(N_OUT, N_IN)
+        learner.b = np.array(state["b"], dtype=float).reshape(N_OUT)
+        set_rng_state(learner._rng, state["rng"])
+        return learner
+
+    def nbytes(self) -> int:
+        return self.a.nbytes + self.b.nbytes + self.center.nbytes + self.scale.nbytes

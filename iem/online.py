@@ -1,0 +1,91 @@
+"""One controller cycle through an estimator: the online loop shared by the plug-in and the
+benchmarks.
+
+Per :class:`iem.types.JointState`: the causal :class:`iem.filters.StateFilter` gives the
+state ``(q, dq, ddq)`` the tandem simulators run at (they move in tandem with the real arm,
+at its measured state); the flange position comes from forward kinematics of the measured
+``q``; the estimator learns from the point (the tandem samples are computed only if it asks
+for them) and predicts; the estimate is smoothed with :class:`iem.smoothing.ExponentialSmoother`
+(the raw estimate stays available).
+
+The kinematics and the tandem simulators are passed in as callables, so this module stays
+numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
+(``sim.robot.PandaModel.flange_position`` and ``sim.tandem.TandemSimulators.samples``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from .base import Estimator
+from .filters import StateFilter
+from .smoothing import ExponentialSmoother
+from .types import JointState, PayloadEstimate
+
+
+class OnlineIdentifier:
+    """Runs an estimator cycle by cycle.
+
+    Args:
+        estimator: any :class:`iem.base.Estimator`.
+        flange_position: forward kinematics, ``q -> flange position (3,)`` in m.
+        tandem: ``(q, dq, ddq) -> (X (K, 21), Y (K, 10))``, the tandem simulators.
+        learn: if False the estimator only predicts (evaluation of a frozen model).
+        state_filter: the causal filter giving the tandem state (default 50 Hz).
+        smoother: the output smoothing (default: EMA with 0.2 s).
+        timed: record the time of every ``learn_one`` and ``predict_one`` call (s) in
+            ``learn_times``/``predict_times``, and whether the point was learnt from
+            (asked for tandem samples) in ``learnt``.
+    """
+
+    def __init__(self, estimator: Estimator, flange_position: Callable,
+                 tandem: Callable | None, learn: bool = True,
+                 state_filter: StateFilter | None = None,
+                 smoother: ExponentialSmoother | None = None, timed: bool = False) -> None:
+        self.estimator = estimator
+        self.flange_position = flange_position
+        self.tandem = tandem
+        self.learn = learn
+        self.state_filter = StateFilter() if state_filter is None else state_filter
+        self.smoother = ExponentialSmoother() if smoother is None else smoother
+        self.raw: PayloadEstimate | None = None
+        self.learned_points = 0
+        self.timed = timed
+        self.learn_times: list[float] = []
+        self.predict_times: list[float] = []
+        self.learnt: list[bool] = []
+
+    def reset(self) -> None:
+        """Start a new task: filter and smoother restart (the model is kept)."""
+        self.state_filter.reset()
+        self.smoother.reset()
+        self.raw = None
+
+    def step(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
+        """Learn from and estimate at one cycle; returns the raw estimate and the smoothed phi."""
+        x = state.features()
+        q, dq, ddq = self.state_filter(state.q, state.dq)
+        flange = self.flange_position(state.q)
+        if self.learn:
+            tandem = self.tandem
+            asked = []
+
+            def samples():
+                asked.append(True)
+                return tandem(q, dq, ddq)
+
+            t0 = time.perf_counter()
+            self.estimator.learn_one(x, flange, samples)
+            if self.timed:
+                self.learn_times.append(time.perf_counter() - t0)
+                self.learnt.append(bool(asked))
+            self.learned_points += bool(asked)
+        t0 = time.perf_counter()
+        raw = self.estimator.predict_one(x, flange, t=state.t)
+        if self.timed:
+            self.predict_times.append(time.perf_counter() - t0)
+        self.raw = raw
+        return raw, self.smoother(raw.phi)

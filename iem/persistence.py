@@ -1,0 +1,224 @@
+"""Saving and loading estimators: one msgpack file per model, written atomically.
+
+A model file is one msgpack map::
+
+    {"schema": "iem-payload-model", "version": 1, "kind": "IEM",
+     "crc32": <zlib.crc32 of state>, "state": <msgpack bytes of model.to_state()>}
+
+The state is packed on its own so that its CRC can be checked before anything in it is
+trusted. ``kind`` is the estimator's ``name``, looked up in :data:`MODELS` (name ->
+``"module:Class"``, imported only when a file of that kind is loaded, as python-can does with
+its interfaces); the class rebuilds itself with ``Class.from_state(state)``.
+
+Writing goes to a temporary file in the target's directory, which is flushed, fsynced and
+then renamed over the target (``os.replace``), and the directory is fsynced: a crash or an
+error at any point leaves either the old file or the new one, never a mix. Every problem with
+a file, on saving or on loading, raises :class:`iem.errors.ModelFileError` naming the file and
+what was wrong; nothing else escapes for a bad file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import importlib
+import os
+import secrets
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+
+import msgpack
+
+from .errors import ModelFileError
+
+SCHEMA = "iem-payload-model"
+"""The ``schema`` field of every model file."""
+VERSION = 1
+"""The version this module writes."""
+SUPPORTED_VERSIONS: tuple[int, ...] = (1,)
+"""The versions this module reads."""
+
+MODELS: dict[str, str] = {
+    "IEM": "iem.ensemble:IncrementalEnsemble",
+}
+"""Estimator kinds that can be loaded: ``name -> "module:Class"``. Add one line per kind (or
+call :func:`register_model`); the module is imported only when a file of that kind is read."""
+
+_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "schema": str, "version": int, "kind": str, "crc32": int, "state": bytes}
+
+
+def register_model(kind: str, target: str) -> None:
+    """Make files of ``kind`` loadable by :func:`load_model` (``target``: ``"module:Class"``)."""
+    if not isinstance(kind, str) or not kind:
+        raise ValueError(f"model kind must be a non-empty str, got {kind!r}")
+    if not isinstance(target, str) or target.count(":") != 1:
+        raise ValueError(f"model target must be 'module:Class', got {target!r}")
+    MODELS[kind] = target
+
+
+# -- encoding ----------------------------------------------------------------------------
+def dumps(model) -> bytes:
+    """The bytes of a model file for ``model`` (see the module docstring).
+
+    Raises:
+        ModelFileError: the model's state holds something msgpack cannot pack.
+    """
+    kind = getattr(model, "name", None)
+    if not isinstance(kind, str) or not kind:
+        raise ModelFileError(f"cannot save {type(model).__name__}: it has no str 'name' "
+                             f"to record as the model kind")
+    plain = model.to_state()
+    try:
+        state = msgpack.packb(plain, use_bin_type=True)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ModelFileError(f"cannot save {kind} model: its state is not plain data "
+                             f"(lists, floats, ints, str, None, dicts): {exc}") from exc
+    return msgpack.packb({"schema": SCHEMA, "version": VERSION, "kind": kind,
+                          "crc32": zlib.crc32(state), "state": state}, use_bin_type=True)
+
+
+def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>"):
+    """The model in the bytes of a model file; ``source`` names them in error messages.
+
+    Raises:
+        ModelFileError: the bytes are not a valid model file of a registered kind.
+    """
+    where = f"model file {source}"
+    if not data:
+        raise ModelFileError(f"{where} is empty")
+    try:
+        head = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        raise ModelFileError(f"{where} is not a msgpack model file (truncated or "
+                             f"corrupt): {type(exc).__name__}: {exc}") from exc
+    if not isinstance(head, dict):
+        raise ModelFileError(f"{where} holds a {type(head).__name__}, not the map of a "
+                             f"model file (keys {sorted(_FIELDS)})")
+    for key in ("schema", "version"):
+        if key not in head:
+            raise ModelFileError(f"{where} lacks the field {key!r}, so it is not a model "
+                                 f"file (a model file has {sorted(_FIELDS)})")
+    if head["schema"] != SCHEMA:
+        raise ModelFileError(f"{where} has schema {head['schema']!r}, expected {SCHEMA!r}")
+    version = head["version"]
+    if type(version) is not int or version not in SUPPORTED_VERSIONS:
+        raise ModelFileError(f"{where} has version {version!r}; this build reads versions "
+                             f"{', '.join(map(str, SUPPORTED_VERSIONS))}")
+    for key, typ in _FIELDS.items():
+        if key not in head:
+            raise ModelFileError(f"{where} lacks the field {key!r} (a model file has "
+                                 f"{sorted(_FIELDS)})")
+        value = head[key]
+        if not isinstance(value, typ) or isinstance(value, bool):
+            raise ModelFileError(f"{where}: field {key!r} is a {type(value).__name__}, "
+                                 f"expected {typ.__name__}")
+    state_bytes = head["state"]
+    crc = zlib.crc32(state_bytes)
+    if crc != head["crc32"]:
+        raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
+                             f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
+    cls = _model_class(head["kind"], MODELS if registry is None else registry, where)
+    try:
+        state = msgpack.unpackb(state_bytes, raw=False, strict_map_key=False)
+    except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        raise ModelFileError(f"{where}: the state is not valid msgpack: "
+                             f"{type(exc).__name__}: {exc}") from exc
+    if not isinstance(state, dict):
+        raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
+    try:
+        return cls.from_state(state)
+    except Exception as exc:  # any failure to rebuild from the file is a bad file
+        raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
+                             f"model: {type(exc).__name__}: {exc}") from exc
+
+
+def _model_class(kind: str, registry: Mapping[str, str], where: str):
+    if kind not in registry:
+        raise ModelFileError(f"{where} holds a model of unknown kind {kind!r}; known kinds: "
+                             f"{', '.join(sorted(registry)) or '(none)'}")
+    target = registry[kind]
+    module_name, _, class_name = str(target).partition(":")
+    try:
+        return getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError, ValueError) as exc:
+        raise ModelFileError(f"{where} holds a model of kind {kind!r}, registered as "
+                             f"{target!r}, which cannot be imported: {exc}") from exc
+
+
+# -- files -------------------------------------------------------------------------------
+def save_model(model, path) -> None:
+    """Write ``model`` to ``path`` atomically (the previous file survives any failure).
+
+    Raises:
+        ModelFileError: the state cannot be packed, or the file cannot be written; the
+            temporary file is removed and whatever was at ``path`` is left as it was.
+    """
+    path = Path(path)
+    try:
+        data = dumps(model)
+    except ModelFileError as exc:
+        raise ModelFileError(f"cannot save model to {path}: {exc}") from exc
+    directory = path.parent
+    tmp = directory / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+        try:
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+    except OSError as exc:
+        raise ModelFileError(f"cannot save model to {path}: {exc.strerror or exc} "
+                             f"(the previous file, if any, is unchanged)") from exc
+    _fsync_dir(directory, path)
+
+
+def _fsync_dir(directory: Path, path: Path) -> None:
+    """Make the rename durable; filesystems that cannot fsync a directory are tolerated."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return  # e.g. no read permission on the directory: the rename itself is done
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF, errno.EACCES):
+            raise ModelFileError(f"model written to {path}, but its directory could not be "
+                                 f"synced, so the new file may not survive a power loss: "
+                                 f"{exc.strerror or exc}") from exc
+    finally:
+        os.close(fd)
+
+
+def load_model(path, registry: Mapping[str, str] | None = None):
+    """The model saved at ``path``.
+
+    Args:
+        path: the model file.
+        registry: ``kind -> "module:Class"`` to resolve the model's kind (default
+            :data:`MODELS`).
+
+    Raises:
+        ModelFileError: the file is missing, unreadable, empty, truncated, corrupt, of an
+            unknown schema, version or kind, or its state does not rebuild a model.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise ModelFileError(f"model file {path} does not exist") from exc
+    except OSError as exc:
+        raise ModelFileError(f"model file {path} cannot be read: {exc.strerror or exc}") from exc
+    return loads(data, registry=registry, source=str(path))

@@ -1,0 +1,54 @@
+"""The causal smoothing applied to every model's output, the same for all of them.
+
+An exponential moving average with time constant ``tau_s`` (default 0.2 s): at each sample
+``s <- s + alpha (phi - s)`` with ``alpha = 1 - exp(-dt / tau_s)``, started at the first
+estimate. It uses only samples up to now. Its noise bandwidth is ``1 / (4 tau_s)`` (1.25 Hz
+at 0.2 s), so white estimate noise shrinks by ``sqrt(dt / (2 tau_s))`` (x 0.05 at 1 kHz);
+a step in the estimate is 95 % through after ``3 tau_s`` (0.6 s).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import InvalidInputError
+
+DEFAULT_TAU_S = 0.2
+"""Default time constant of the output smoothing, s."""
+
+
+class ExponentialSmoother:
+    """Exponential moving average of a vector signal sampled every ``dt`` s."""
+
+    def __init__(self, tau_s: float = DEFAULT_TAU_S, dt: float = 1e-3) -> None:
+        if not tau_s >= 0.0 or not dt > 0.0:
+            raise InvalidInputError(f"tau_s must be >= 0 s and dt > 0 s, got {tau_s}, {dt}")
+        self.tau_s = float(tau_s)
+        self.dt = float(dt)
+        self.alpha = 1.0 if tau_s == 0.0 else 1.0 - math.exp(-dt / tau_s)
+        self._s: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._s = None
+
+    @property
+    def value(self) -> np.ndarray | None:
+        return None if self._s is None else self._s.copy()
+
+    def __call__(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if self._s is None or not np.all(np.isfinite(self._s)):
+            self._s = x.copy()
+        elif np.all(np.isfinite(x)):
+            self._s += self.alpha * (x - self._s)
+        return self._s.copy()
+
+    def run(self, X) -> np.ndarray:
+        """Smooth a whole ``(N, d)`` sequence from the current state (causal, row by row)."""
+        X = np.asarray(X, dtype=float)
+        out = np.empty_like(X)
+        for i, x in enumerate(X):
+            out[i] = self(x)
+        return out
