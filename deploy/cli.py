@@ -19,6 +19,7 @@ Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 BENCHES: Table = {
     "sim": ("sim.bench", "RNEA, regressor and tandem speed, plant real-time factor"),
     "paper": ("iem.bench.paper", "the paper's experiments in simulation: results.json, report"),
+    "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
 }
 
 COMMANDS: Table = {

@@ -41,6 +41,9 @@ SUPPORTED_VERSIONS: tuple[int, ...] = (1,)
 
 MODELS: dict[str, str] = {
     "IEM": "iem.ensemble:IncrementalEnsemble",
+    "old_IEM": "iem.old_iem:InPlaceEnsemble",
+    "BEM": "iem.bem:BatchEnsemble",
+    "LS": "iem.least_squares:RecursiveLeastSquares",
 }
 """Estimator kinds that can be loaded: ``name -> "module:Class"``. Add one line per kind (or
 call :func:`register_model`); the module is imported only when a file of that kind is read."""

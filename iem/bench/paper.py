@@ -31,6 +31,7 @@ import copy
 import json
 import time
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path as FsPath
 
 import numpy as np
@@ -81,15 +82,24 @@ class Bench:
         self.excitation = excitation_path()
         self.new_path = new_task_path()
         self._plant_cls = PandaPlant
-        t0 = time.perf_counter()
-        self.exc_rollout = self.rollout(self.excitation, self.payload, seed)
-        self.new_rollout = self.rollout(self.new_path, self.payload, seed + 1)
-        self.log(f"rollouts: excitation {self.excitation.duration:.0f} s, new task "
-                 f"{self.new_path.duration:.0f} s ({time.perf_counter() - t0:.1f} s)")
+
+    @cached_property
+    def exc_rollout(self):
+        """The plant along the excitation path with the test payload (noise seed ``seed``)."""
+        return self.rollout(self.excitation, self.payload, self.seed)
+
+    @cached_property
+    def new_rollout(self):
+        """The plant along the new task path with the test payload (noise seed ``seed + 1``)."""
+        return self.rollout(self.new_path, self.payload, self.seed + 1)
 
     def rollout(self, path, payload, seed):
+        t0 = time.perf_counter()
         plant = self._plant_cls(payload=payload, seed=seed, controller_load=payload)
-        return plant.follow(path)
+        out = plant.follow(path)
+        self.log(f"rollout {path.name} ({path.duration:.1f} s) with {payload.name}: "
+                 f"{time.perf_counter() - t0:.1f} s")
+        return out
 
     # -- models --------------------------------------------------------------------------
     def make_models(self) -> dict:

@@ -12,13 +12,19 @@ import numpy as np
 import pytest
 
 from iem import checks
+from iem.bem import BatchEnsemble
 from iem.checks import CheckData, CheckFailed, check_estimator
 from iem.ensemble import IncrementalEnsemble
 from iem.errors import IemError, InvalidInputError
+from iem.least_squares import RecursiveLeastSquares
+from iem.old_iem import InPlaceEnsemble
 
 # One line per estimator under check; each lambda returns a fresh, seeded estimator.
 ESTIMATORS = {
     "IEM": lambda: IncrementalEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
+    "old_IEM": lambda: InPlaceEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
+    "BEM": lambda: BatchEnsemble(seed=0, n_networks=2, n_trees=2, fit_epochs=2, max_depth=4),
+    "LS": lambda: RecursiveLeastSquares(),
 }
 
 N_POINTS = 300
