@@ -82,6 +82,14 @@ def dumps(model) -> bytes:
                           "crc32": zlib.crc32(state), "state": state}, use_bin_type=True)
 
 
+def _unpack(data: bytes, failure: str):
+    """msgpack-decode ``data``; any decoding failure is a ModelFileError saying ``failure``."""
+    try:
+        return msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except (ValueError, TypeError, msgpack.UnpackException) as exc:
+        raise ModelFileError(f"{failure}: {type(exc).__name__}: {exc}") from exc
+
+
 def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>"):
     """The model in the bytes of a model file; ``source`` names them in error messages.
 
@@ -91,11 +99,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     where = f"model file {source}"
     if not data:
         raise ModelFileError(f"{where} is empty")
-    try:
-        head = msgpack.unpackb(data, raw=False, strict_map_key=False)
-    except (ValueError, TypeError, msgpack.UnpackException) as exc:
-        raise ModelFileError(f"{where} is not a msgpack model file (truncated or "
-                             f"corrupt): {type(exc).__name__}: {exc}") from exc
+    head = _unpack(data, f"{where} is not a msgpack model file (truncated or corrupt)")
     if not isinstance(head, dict):
         raise ModelFileError(f"{where} holds a {type(head).__name__}, not the map of a "
                              f"model file (keys {sorted(_FIELDS)})")
@@ -123,11 +127,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
         raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
     cls = _model_class(head["kind"], MODELS if registry is None else registry, where)
-    try:
-        state = msgpack.unpackb(state_bytes, raw=False, strict_map_key=False)
-    except (ValueError, TypeError, msgpack.UnpackException) as exc:
-        raise ModelFileError(f"{where}: the state is not valid msgpack: "
-                             f"{type(exc).__name__}: {exc}") from exc
+    state = _unpack(state_bytes, f"{where}: the state is not valid msgpack")
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
     try:

@@ -29,10 +29,7 @@ def run_custom(payload_file, path_file, out_dir, quick: bool = False, seed: int 
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bench = Bench(quick=quick, seed=seed, log=log)
-    models = bench.make_models()
-    if extra_models:
-        models.update({name: make(bench) for name, make in extra_models.items()})
-    bench.fit(models)
+    models = bench.trained_models(extra_models)
     bags_before = models["IEM"].n_bags
     rollout = bench.rollout(path, payload, seed + 2)
     phi = payload.to_phi()

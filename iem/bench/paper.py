@@ -115,6 +115,14 @@ class Bench:
             "LS": RecursiveLeastSquares(),
         }
 
+    def trained_models(self, extra_models: dict | None = None) -> dict:
+        """The benchmark's models (plus ``extra_models``: name -> ``make(bench)``), trained."""
+        models = self.make_models()
+        if extra_models:
+            models.update({name: make(self) for name, make in extra_models.items()})
+        self.fit(models)
+        return models
+
     def fit(self, models: dict) -> None:
         """Offline training on the planned excitation path (bags and tandem samples)."""
         path = self.excitation
@@ -183,10 +191,7 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bench = Bench(quick=quick, seed=seed, log=log)
-    models = bench.make_models()
-    if extra_models:
-        models.update({name: make(bench) for name, make in extra_models.items()})
-    bench.fit(models)
+    models = bench.trained_models(extra_models)
     names = list(models)
 
     scen: dict = {"excitation": {}, "new_path": {}, "forgetting": {}}
