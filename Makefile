@@ -21,6 +21,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/iem bench sim
+	$(VENV)/bin/iem bench paper --out out/bench-paper
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
