@@ -151,3 +151,26 @@ def test_sim_controller_over_a_pty_with_the_serial_link():
         link.close()
         pty.close()
     assert controller.error is None
+
+
+@pytest.mark.hil
+def test_iem_sim_controller_on_a_serial_pty(tmp_path):
+    from firmware_bridge.links import open_link
+
+    from .hil import Controller
+
+    child = Controller(["--interface", "serial-pty", "--once"], tmp_path / "controller.log",
+                       announce=True)
+    link = None
+    try:
+        link = open_link("serial", child.line)
+        states = [link.read(10.0)] + [link.read(1.0) for _ in range(99)]
+        cycles = [s.cycle for s in states]
+        assert cycles == sorted(set(cycles))  # bytes written before we opened may be lost
+        ack = link.wait_ack(link.send(default_test_payload()), 5.0)
+        assert ack.applied
+    finally:
+        if link is not None:
+            link.close()
+        log = child.stop()
+    assert "Traceback" not in log and "commands 1" in log
