@@ -21,6 +21,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/iem bench sim
+	$(VENV)/bin/iem bench bridge
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
