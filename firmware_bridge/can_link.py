@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import can
 
 from iem.types import JointState
+from sim.payload import Payload
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, DecodeError, LinkError
 from .faults import FaultInjector, FaultSpec
@@ -305,7 +306,7 @@ class CanLink:
     def last_ack(self) -> LoadAck | None:
         return self.decoder.last_ack
 
-    def send(self, payload) -> int:
+    def send(self, payload: Payload | None) -> int:
         """Send a payload command (``None`` clears the load); return its sequence number."""
         if payload is not None:
             payload.check()

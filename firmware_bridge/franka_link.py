@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 
 from iem.types import JointState
+from sim.payload import Payload
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
 from .links import LinkCounters
@@ -96,9 +97,7 @@ class FrankaLink:
                 return state
 
     # -- sink ------------------------------------------------------------------------------
-    def send(self, payload) -> int:
-        from sim.payload import Payload
-
+    def send(self, payload: Payload | None) -> int:
         if payload is not None:
             payload.check()
             mass, com, inertia = payload.set_load_args()

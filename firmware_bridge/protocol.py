@@ -37,6 +37,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.types import N_JOINTS, JointState
+from sim.payload import Payload
 
 from .e2e import Profile2
 from .errors import BridgeConfigError, DecodeError, EncodeError
@@ -79,7 +80,7 @@ class LoadCommand:
     """
 
     seq: int
-    load: object | None
+    load: Payload | None
 
 
 @dataclass(frozen=True)
@@ -96,7 +97,7 @@ class LoadAck:
 
     seq: int
     applied: bool
-    load: object | None
+    load: Payload | None
     t: float = 0.0
 
 
@@ -393,8 +394,6 @@ class LoadCodec:
 
     def values(self, raw: Mapping[str, int]):
         """(seq, status, load) of a complete raw set; load None when mass is 0."""
-        from sim.payload import Payload
-
         f = self.frame.fields
         seq = raw["Seq"]
         status = raw.get("Status", 0)

@@ -35,6 +35,7 @@ import msgpack
 import numpy as np
 
 from iem.types import N_JOINTS, JointState
+from sim.payload import Payload
 
 from .errors import AckTimeout, ControllerSilent, DecodeError, LinkError
 from .faults import FaultInjector, FaultSpec
@@ -198,9 +199,7 @@ def decode_message(body: bytes):
     return tag, (_int(msg[1], "seq", 0, 255), msg[2], _load(msg[3], msg[4], msg[5]))
 
 
-def _load(mass, com, inertia):
-    from sim.payload import Payload
-
+def _load(mass, com, inertia) -> Payload | None:
     m = _number(mass, "mass")
     c = _numbers(com, 3, "F_x_Cload")
     i9 = _numbers(inertia, 9, "load_inertia")
@@ -354,7 +353,7 @@ class SerialLink:
                                        f" {self.counters.summary()}")
         return self._ready.popleft()
 
-    def send(self, payload) -> int:
+    def send(self, payload: Payload | None) -> int:
         if payload is not None:
             payload.check()
         self._seq = self._seq % 255 + 1
