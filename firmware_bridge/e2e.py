@@ -8,7 +8,11 @@ Layout of a protected frame (every frame of ``protocol.dbc``):
   (modulo 16) for every transmission of that message;
 - ``DataIDList``: 16 data identifiers per message, from the DBC attribute ``E2EDataIDList``.
   A frame checked against the wrong message's list fails, so a frame cannot masquerade as
-  another message.
+  another message. Because the counter picks the DataID, a flipped counter bit changes the
+  checked data in two places, which a CRC does not catch by itself: for some lists and
+  counters such a flip passes for every payload. The DBC's lists are chosen so that every
+  single-bit error of every frame, counter bits included, fails the check (a test goes
+  through all messages, counters and bits).
 
 This is exactly ``cantools.autosar.end_to_end.compute_profile2_crc(frame, DataIDList[c])``
 (the tests compare the two on random frames). It is re-implemented here table-driven because

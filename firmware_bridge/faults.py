@@ -2,8 +2,9 @@
 
 Each frame the controller sends (CAN frame, or serial message before framing) draws one
 uniform number ``u`` from a seeded generator and gets at most one fault:
-``u < drop`` dropped; then ``corrupt`` (one random bit flipped, so the receiver's CRC
-catches it: CRC8-H2F and CRC32 detect every single-bit error), ``duplicate`` (sent twice,
+``u < drop`` dropped; then ``corrupt`` (one random bit flipped, which the receiver's
+check always catches: CRC32 by its polynomial, the CAN frames' E2E CRC8 by its polynomial
+and the DBC's DataID lists, see :mod:`firmware_bridge.e2e`), ``duplicate`` (sent twice,
 back to back), ``delay`` (held back ``delay_cycles`` controller cycles, so it arrives after
 newer frames). During ``silence_for`` s of controller time from ``silence_at`` nothing is sent
 at all (joint state, acknowledgements, heartbeats).
