@@ -49,7 +49,9 @@ class LinkCounters:
             after it (at most ``window`` cycles old), or a classic-profile joint frame whose
             alive counter is behind the last delivered cycle's.
         stale: a valid cycle that does not advance the cycle counter (the same counter
-            again with different content, or older than ``window`` cycles).
+            again with different content, or older than ``window`` cycles), or a frame that
+            repeats the last delivered E2E alive counter with new content (a sender whose
+            counter is stuck).
         orphaned: valid frames discarded because their cycle never completed (a sibling
             frame was lost, corrupt or late); the cycle itself counts in ``lost``.
         lost: cycles that never completed: gaps in the delivered cycle counter, in

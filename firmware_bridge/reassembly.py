@@ -115,6 +115,11 @@ class _Slot:
 class CycleAssembler:
     """Checked joint-state frames of one profile -> complete, ordered cycles.
 
+    The alive counter: a first part (the FD frame, the classic header) that repeats the last
+    delivered cycle's counter with other content is ``stale`` (the sender did not advance
+    it); classic joint frames are grouped by it. Loss and order are judged on the 32-bit
+    cycle counter, which is wider (a gap of exactly 16k cycles costs one more cycle).
+
     ``push(part, counter, data, unpack)`` takes one frame that passed the length and CRC
     checks and returns ``(values, cycle, t)`` when it completes a cycle that is delivered
     (``values``: the parts' raw tuples concatenated), else None (the frame is counted under
@@ -160,6 +165,9 @@ class CycleAssembler:
             self._drop_slot(counter, "orphaned")  # the alive counter wrapped: an old cycle
             slot = None
         if slot is None:
+            if part == 0 and counter == last_c:
+                c.stale += 1  # the sender repeated its alive counter (AUTOSAR P02: REPEATED)
+                return None
             if part != 0 and last_c is not None and not 0 < (counter - last_c) % 16 < 8:
                 c.out_of_order += 1  # a joint frame behind the last delivered cycle
                 return None

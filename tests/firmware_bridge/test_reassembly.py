@@ -91,6 +91,15 @@ def test_the_same_cycle_number_with_new_content_is_stale():
     assert dec.counters.stale == 1
 
 
+def test_a_repeated_alive_counter_is_stale():
+    js = profile("fd").joint_state
+    s0, s1, s2 = synthetic_states(3)
+    frames = [_message(c, d) for s, k in ((s0, 4), (s1, 4), (s2, 5)) for c, d in js.encode(s, k)[0]]
+    dec = CanDecoder("fd")
+    assert [s.cycle for s in feed(dec, frames)] == [0, 2]
+    assert dec.counters.stale == 1 and dec.counters.lost == 1
+
+
 def test_much_older_cycles_are_stale_and_a_restart_is_accepted_after_a_silence():
     old = frames_of("fd", synthetic_states(1, start=10_000))[0][0]
     new = frames_of("fd", synthetic_states(3, start=20_000), counter0=5)
