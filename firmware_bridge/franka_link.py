@@ -134,6 +134,8 @@ class FrankaLink:
             self.robot = None
 
 
-def open_franka_link(kind: str, channel: str, realtime: bool = False, **options) -> FrankaLink:
-    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the robot's IP."""
+def open_franka_link(kind: str, channel: str, profile: str | None = None,
+                     realtime: bool = False) -> FrankaLink:
+    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the robot's IP
+    (``profile`` is a CAN notion and not used)."""
     return FrankaLink.open(channel, realtime=realtime)

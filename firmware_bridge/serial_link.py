@@ -387,9 +387,10 @@ class SerialLink:
         self.close()
 
 
-def open_serial_link(kind: str, channel: str, baudrate: int = 1_000_000, **options
-                     ) -> SerialLink:
-    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is a device or URL."""
+def open_serial_link(kind: str, channel: str, profile: str | None = None,
+                     baudrate: int = 1_000_000, **options) -> SerialLink:
+    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is a device or URL
+    (``profile`` is a CAN notion and not used)."""
     return SerialLink(open_serial(channel, baudrate), name=f"serial link {channel!r}", **options)
 
 

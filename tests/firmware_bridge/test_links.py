@@ -11,7 +11,6 @@ from firmware_bridge.errors import (
     LinkError,
 )
 from firmware_bridge.links import LINKS, JointStateSource, PayloadSink, open_link
-from firmware_bridge.serial_link import SerialLink, open_serial
 from iem.errors import IemError, PayloadError
 from sim.payload import Payload
 
@@ -35,7 +34,7 @@ def test_socketcan_failure_is_a_link_error_with_a_hint():
 
 def test_links_implement_the_seam(channel):
     link = open_link("virtual", channel, profile="classic")
-    serial_link = SerialLink(open_serial("loop://"))
+    serial_link = open_link("serial", "loop://", profile="fd")  # a config may name one for all
     for x in (link, serial_link):
         assert isinstance(x, JointStateSource) and isinstance(x, PayloadSink)
     link.close()
