@@ -22,6 +22,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/iem bench sim
 	$(VENV)/bin/iem bench paper --out out/bench-paper
+	$(VENV)/bin/iem bench bridge
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

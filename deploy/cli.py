@@ -20,11 +20,16 @@ BENCHES: Table = {
     "sim": ("sim.bench", "RNEA, regressor and tandem speed, plant real-time factor"),
     "paper": ("iem.bench.paper", "the paper's experiments in simulation: results.json, report"),
     "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
+    "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
 }
 
 COMMANDS: Table = {
     "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
+    "sim-controller": ("firmware_bridge.sim_controller",
+                       "the simulated controller: the plant at 1 kHz behind a bus or link"),
+    "bus-load": ("firmware_bridge.busload", "bits per frame and bus load of a wire profile"),
+    "record": ("firmware_bridge.record", "record a CAN bus to .blf, .log, .asc or .trc"),
 }
 
 

@@ -1,1 +1,22 @@
-"""The hardware-abstraction layer: wire protocol, CAN and serial links, record and replay."""
+"""The hardware-abstraction layer: wire protocol, CAN and serial links, record and replay.
+
+The plug-in's only way to the robot. Modules, one concept each:
+
+- ``protocol.dbc``: every frame, its signals, scaling, rates and E2E data IDs (cantools).
+- :mod:`.protocol`: the DBC loaded once; codecs per profile (``fd``, ``classic``).
+- :mod:`.e2e`: AUTOSAR end-to-end protection, profile 2 (CRC8H2F + alive counter).
+- :mod:`.reassembly`: frames -> ordered cycles, every drop counted by kind.
+- :mod:`.links`: the seam (``JointStateSource``, ``PayloadSink``, counters) and the table of
+  link kinds (``open_link``).
+- :mod:`.can_link`: python-can buses by name (virtual, socketcan, slcan), the plug-in's link
+  and the controller's port.
+- :mod:`.serial_link`: msgpack over pyserial, framed with COBS + CRC32.
+- :mod:`.franka_link`: a real Franka through pylibfranka (extra ``franka``).
+- :mod:`.sim_controller`: the MuJoCo plant at 1 kHz behind any of the above.
+- :mod:`.slcan_adapter`, :mod:`.pty_pair`: an emulated slcan adapter on a pty, for
+  cross-process tests on a machine without AF_CAN.
+- :mod:`.faults`: drop, corrupt, duplicate, delay, silence.
+- :mod:`.record`, :mod:`.replay`: bus logs with python-can's writers and readers.
+- :mod:`.busload`, :mod:`.bench`: bus load and the bridge's speed.
+- :mod:`.errors`: the bridge's errors under :class:`iem.errors.IemError`.
+"""

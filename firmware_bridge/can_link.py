@@ -1,0 +1,475 @@
+"""The bridge over python-can: buses by name, the plug-in's link and the controller's port.
+
+:data:`BUS_KINDS` is the one table of CAN bus kinds and how each is opened with
+``can.Bus(interface=..., **options)`` for a profile:
+
+- ``virtual``: python-can's in-process bus; ``channel`` is any name shared by both ends.
+- ``socketcan``: Linux SocketCAN (``can0``, ``vcan0``); FD frames need ``fd=True``, which the
+  ``fd`` profile sets. The interface's bitrates are set outside (``ip link set can0 type can
+  bitrate 1000000 dbitrate 5000000 fd on``; see the README).
+- ``slcan``: a serial-line adapter speaking the LAWICEL/slcan ASCII protocol, on any pyserial
+  URL or device. python-can 4.6.1's slcan also sends and receives CAN FD frames (the
+  CANable 2.0 firmware's ``d``/``b`` frames, data bitrate 2 or 5 Mbit/s), so both profiles
+  run over it. ``sleep_after_open`` defaults to 0 for a pty or URL channel (python-can's 2 s
+  wait is for adapters that reset when opened).
+
+python-can imports the interface module itself when a bus of that kind is opened.
+
+:class:`CanDecoder` turns received frames into joint states, heartbeats and acks (shared by
+the live link and :mod:`firmware_bridge.replay`); :class:`CanLink` is the plug-in's
+:class:`~firmware_bridge.links.JointStateSource` and
+:class:`~firmware_bridge.links.PayloadSink` over one bus; :class:`CanControllerPort` is the
+controller's side (used by the simulated controller), with optional fault injection.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import can
+
+from iem.types import JointState
+from sim.payload import Payload
+
+from .errors import AckTimeout, BridgeConfigError, ControllerSilent, DecodeError, LinkError
+from .faults import FaultInjector, FaultSpec
+from .links import BUFFERED_CYCLES, LinkCounters
+from .protocol import (
+    Heartbeat,
+    LoadAck,
+    LoadAssembler,
+    LoadCommand,
+    WireProfile,
+)
+from .protocol import (
+    profile as get_profile,
+)
+from .reassembly import CycleAssembler
+
+SEND_TIMEOUT = 0.1
+"""Seconds a send may block before it counts as a bus error."""
+
+
+# -- bus kinds -----------------------------------------------------------------------------
+def _virtual(channel: str, prof: WireProfile) -> dict:
+    return {"channel": channel or "iem",
+            "protocol": can.CanProtocol.CAN_FD if prof.is_fd else can.CanProtocol.CAN_20}
+
+
+def _socketcan(channel: str, prof: WireProfile) -> dict:
+    return {"channel": channel or "can0", "fd": prof.is_fd}
+
+
+def _slcan(channel: str, prof: WireProfile) -> dict:
+    if not channel:
+        raise BridgeConfigError("slcan needs a channel: a serial device (/dev/ttyACM0) or a "
+                                "pyserial URL")
+    opts: dict = {"channel": channel}
+    if channel.startswith("/dev/pts/") or "://" in channel:
+        opts["sleep_after_open"] = 0.0
+    if prof.is_fd:
+        opts["timing"] = can.BitTimingFd.from_sample_point(
+            f_clock=80_000_000, nom_bitrate=prof.bitrate, nom_sample_point=80.0,
+            data_bitrate=prof.data_bitrate, data_sample_point=75.0)
+    else:
+        opts["bitrate"] = prof.bitrate
+    return opts
+
+
+@dataclass(frozen=True)
+class BusKind:
+    """How to open one kind of bus: python-can interface name and options for a profile."""
+
+    interface: str
+    options: Callable[[str, WireProfile], dict]
+    help: str
+
+
+BUS_KINDS: dict[str, BusKind] = {
+    "virtual": BusKind("virtual", _virtual, "python-can in-process virtual bus"),
+    "socketcan": BusKind("socketcan", _socketcan, "Linux SocketCAN (can0, vcan0)"),
+    "slcan": BusKind("slcan", _slcan, "slcan serial adapter (device or pyserial URL)"),
+}
+
+
+def open_bus(kind: str, channel: str, profile: str = "fd", **overrides) -> can.BusABC:
+    """Open a python-can bus of ``kind`` for ``profile``; ``overrides`` replace options."""
+    try:
+        spec = BUS_KINDS[kind]
+    except KeyError:
+        raise BridgeConfigError(f"unknown CAN bus kind {kind!r}; valid kinds are "
+                                f"{', '.join(BUS_KINDS)}") from None
+    prof = get_profile(profile)
+    options = {**spec.options(channel, prof), **overrides}
+    try:
+        return can.Bus(interface=spec.interface, **options)
+    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        hint = ""
+        if kind == "socketcan":
+            hint = ("; SocketCAN needs a Linux kernel with AF_CAN and the interface up "
+                    "(vcan: 'ip link add dev vcan0 type vcan && ip link set up vcan0')")
+        raise LinkError(f"cannot open {kind} bus on channel {options.get('channel')!r}: "
+                        f"{exc}{hint}") from exc
+
+
+def _message(codec, data: bytes) -> can.Message:
+    return can.Message(arbitration_id=codec.frame_id, data=data, is_extended_id=False,
+                       is_fd=codec.is_fd, bitrate_switch=codec.is_fd, check=False)
+
+
+# -- receiving -----------------------------------------------------------------------------
+class CanDecoder:
+    """Received CAN frames -> joint states (returned), heartbeats and acks (kept)."""
+
+    def __init__(self, profile: str | WireProfile = "fd", counters: LinkCounters | None = None,
+                 window: int = 16) -> None:
+        prof = get_profile(profile) if isinstance(profile, str) else profile
+        self.profile = prof
+        self.counters = LinkCounters() if counters is None else counters
+        self._js = prof.joint_state
+        self._joint = prof.joint_state.by_id
+        self._assembler = CycleAssembler(prof.joint_state, self.counters, window)
+        self._ack = LoadAssembler(prof.ack)
+        self._ack_id = prof.ack.frame.frame_id
+        self._hb_id = prof.heartbeat.frame.frame_id
+        self.last_heartbeat: Heartbeat | None = None
+        self.last_ack: LoadAck | None = None
+        self.acks: dict[int, LoadAck] = {}
+        self.last_error: DecodeError | None = None
+        self.foreign_ids: dict[int, int] = {}
+
+    def resync(self) -> None:
+        self._assembler.resync()
+
+    def push(self, msg: can.Message) -> JointState | None:
+        """Take one received frame; return the joint state of a cycle it completes."""
+        c = self.counters
+        c.received += 1
+        if msg.is_error_frame:
+            c.error_frames += 1
+            return None
+        fid = msg.arbitration_id
+        entry = None if msg.is_extended_id else self._joint.get(fid)
+        try:
+            if entry is not None:
+                part, codec, unpack = entry
+                data = bytes(msg.data)
+                counter = codec.check(data, msg.is_fd, msg.is_remote_frame)
+                done = self._assembler.push(part, counter, data, unpack)
+                if done is None:
+                    return None
+                return self._js.state(*done)
+            if msg.is_extended_id:
+                pass
+            elif fid == self._hb_id:
+                self._heartbeat(msg)
+                return None
+            elif fid == self._ack_id:
+                self._load_ack(msg)
+                return None
+        except DecodeError as exc:
+            setattr(c, exc.kind, getattr(c, exc.kind) + 1)
+            self.last_error = exc
+            return None
+        c.foreign += 1
+        if len(self.foreign_ids) < 32 or fid in self.foreign_ids:
+            self.foreign_ids[fid] = self.foreign_ids.get(fid, 0) + 1
+        return None
+
+    def _heartbeat(self, msg: can.Message) -> None:
+        codec = self.profile.heartbeat
+        data = bytes(msg.data)
+        codec.frame.check(data, msg.is_fd, msg.is_remote_frame)
+        self.last_heartbeat = codec.decode(data, t=time.perf_counter())
+        self.counters.heartbeats += 1
+
+    def _load_ack(self, msg: can.Message) -> None:
+        codec = self.profile.ack
+        data = bytes(msg.data)
+        codec.frame.check(data, msg.is_fd, msg.is_remote_frame)
+        before = self._ack.orphaned
+        raw = self._ack.push(data)
+        self.counters.orphaned += self._ack.orphaned - before
+        if raw is None:
+            return
+        seq, status, load = codec.values(raw)
+        ack = LoadAck(seq=seq, applied=status == 0, load=load, t=time.perf_counter())
+        self.last_ack = ack
+        self.acks[seq] = ack
+        self.counters.acks += 1
+
+    def diagnosis(self) -> str:
+        """Why frames might not be getting through, in words (for silence messages)."""
+        c = self.counters
+        parts = [c.summary()]
+        if c.error_frames:
+            parts.append(f"{c.error_frames} error frames: check bitrate, termination, wiring")
+        if self.last_error is not None:
+            parts.append(f"last bad frame: {self.last_error}")
+        if self.foreign_ids:
+            ids = ", ".join(f"0x{k:03X}" for k in sorted(self.foreign_ids)[:8])
+            other = next(p for p in ("fd", "classic") if p != self.profile.name)
+            theirs = {f.frame_id for f in get_profile(other).frames()}
+            hint = (f" (the {other} profile's IDs: is the controller running --profile {other}?)"
+                    if theirs & set(self.foreign_ids) else "")
+            parts.append(f"frames with other IDs seen: {ids}{hint}")
+        hb = self.last_heartbeat
+        if hb is None:
+            parts.append("no heartbeat yet")
+        else:
+            parts.append(f"last heartbeat {time.perf_counter() - hb.t:.2f} s ago "
+                         f"(controller {hb.state}, cycle {hb.cycle})")
+        return "; ".join(parts)
+
+
+class CanLink:
+    """The plug-in's end of the CAN protocol on one bus: joint-state source and payload sink.
+
+    Args:
+        bus: an open python-can bus.
+        profile: ``"fd"`` or ``"classic"``.
+        silence_timeout: default ``read`` timeout, s.
+        window: how many published cycles back a late cycle counts as ``out_of_order``
+            rather than ``stale``.
+        name: how the link names itself in messages.
+        owns_bus: close the bus with the link.
+    """
+
+    def __init__(self, bus: can.BusABC, profile: str = "fd", *, silence_timeout: float = 0.1,
+                 window: int = 16, name: str | None = None, owns_bus: bool = True) -> None:
+        self.bus = bus
+        self.profile = get_profile(profile)
+        self.silence_timeout = float(silence_timeout)
+        self.name = name or f"{getattr(bus, 'channel_info', 'CAN bus')} ({profile} profile)"
+        self.decoder = CanDecoder(self.profile, window=window)
+        self.counters = self.decoder.counters
+        self._owns_bus = owns_bus
+        self._ready: deque[JointState] = deque()
+        self._seq = 0
+        self._cmd_counter = 0
+        self._closed = False
+
+    @classmethod
+    def open(cls, kind: str, channel: str, profile: str = "fd", *,
+             bus_options: dict | None = None, **link_options) -> CanLink:
+        """Open a bus of ``kind`` (see :data:`BUS_KINDS`) and a link on it."""
+        bus = open_bus(kind, channel, profile, **(bus_options or {}))
+        return cls(bus, profile, name=f"{kind} bus {channel!r} ({profile} profile)",
+                   **link_options)
+
+    # -- source ----------------------------------------------------------------------------
+    @property
+    def last_heartbeat(self) -> Heartbeat | None:
+        return self.decoder.last_heartbeat
+
+    def _recv(self, timeout: float) -> can.Message | None:
+        try:
+            return self.bus.recv(timeout)
+        except can.CanError as exc:
+            raise LinkError(f"{self.name}: receiving failed: {exc}") from exc
+
+    def _pump(self, deadline: float) -> JointState | None:
+        """Read frames until one completes a cycle or ``deadline`` (perf_counter) passes."""
+        push = self.decoder.push
+        while True:
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                return None
+            msg = self._recv(remaining)
+            if msg is not None:
+                state = push(msg)
+                if state is not None:
+                    return state
+
+    def read(self, timeout: float | None = None) -> JointState:
+        """The next complete cycle; ``ControllerSilent`` after ``timeout`` s without one."""
+        if self._ready:
+            return self._ready.popleft()
+        timeout = self.silence_timeout if timeout is None else float(timeout)
+        state = self._pump(time.perf_counter() + timeout)
+        if state is None:
+            self.counters.silences += 1
+            self.decoder.resync()
+            raise ControllerSilent(f"{self.name}: no complete joint state for "
+                                   f"{timeout * 1e3:.0f} ms; {self.decoder.diagnosis()}")
+        return state
+
+    def __iter__(self):
+        while True:
+            yield self.read()
+
+    # -- sink ------------------------------------------------------------------------------
+    @property
+    def last_ack(self) -> LoadAck | None:
+        return self.decoder.last_ack
+
+    def send(self, payload: Payload | None) -> int:
+        """Send a payload command (``None`` clears the load); return its sequence number."""
+        if payload is not None:
+            payload.check()
+        self._seq = self._seq % 255 + 1
+        self.decoder.acks.pop(self._seq, None)  # an ack of the previous use of this number
+        codec = self.profile.command
+        frames, self._cmd_counter = codec.encode(self._seq, payload, self._cmd_counter)
+        for data in frames:
+            try:
+                self.bus.send(_message(codec.frame, data), timeout=SEND_TIMEOUT)
+            except can.CanError as exc:
+                raise LinkError(f"{self.name}: sending the payload command failed: {exc}"
+                                ) from exc
+        return self._seq
+
+    def wait_ack(self, seq: int, timeout: float = 1.0) -> LoadAck:
+        """Read the bus until the ack of ``seq`` arrives (cycles read meanwhile are kept for
+        ``read``); ``AckTimeout`` after ``timeout`` s."""
+        deadline = time.perf_counter() + float(timeout)
+        acks = self.decoder.acks
+        while seq not in acks:
+            state = self._pump(min(deadline, time.perf_counter() + 0.01))
+            if state is not None:
+                if len(self._ready) >= BUFFERED_CYCLES:
+                    self._ready.popleft()
+                    self.counters.overflow += 1
+                self._ready.append(state)
+            elif time.perf_counter() >= deadline:
+                raise AckTimeout(f"{self.name}: no acknowledgement of payload command {seq} "
+                                 f"within {timeout:g} s; {self.decoder.diagnosis()}")
+        return acks[seq]
+
+    # -- life ------------------------------------------------------------------------------
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            if self._owns_bus:
+                try:
+                    self.bus.shutdown()
+                except (can.CanError, OSError) as exc:
+                    raise LinkError(f"{self.name}: closing the bus failed: {exc}") from exc
+
+    def __enter__(self) -> CanLink:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_can_link(kind: str, channel: str, profile: str = "fd", **options) -> CanLink:
+    """Opener for :func:`firmware_bridge.links.open_link`."""
+    return CanLink.open(kind, channel, profile, **options)
+
+
+# -- the controller's side -----------------------------------------------------------------
+class CanControllerPort:
+    """The controller's end: publishes joint state, heartbeats and acks; receives commands.
+
+    ``publish`` is called every controller cycle and sends every ``stride``-th (the
+    profile's rate). Frames pass through the optional fault injector. Send errors are
+    counted (``send_errors``), not raised: a controller keeps its cycle.
+    """
+
+    def __init__(self, bus: can.BusABC, profile: str = "fd", faults: FaultSpec | None = None,
+                 owns_bus: bool = True, record_faults: bool = False) -> None:
+        self.bus = bus
+        self.profile = get_profile(profile)
+        self.stride = self.profile.joint_state.stride
+        self.faults = FaultInjector(faults, record=record_faults) if faults and faults.active \
+            else None
+        self.counters = LinkCounters()
+        self._owns_bus = owns_bus
+        self._js_counter = 0
+        self._hb_counter = 0
+        self._ack_counter = 0
+        self._cmd = LoadAssembler(self.profile.command)
+        self._cmd_id = self.profile.command.frame.frame_id
+        self._cycle = 0
+        self._silent = False
+        self.saturated = 0
+        self.sent = 0
+        self.send_errors = 0
+        self.last_send_error: Exception | None = None
+
+    def tick(self, cycle: int, t: float) -> None:
+        """Start of a controller cycle: release delayed frames, enter or leave a silence."""
+        self._cycle = cycle
+        if self.faults is not None:
+            self._silent = self.faults.silent(t)
+            for codec, data in self.faults.due(cycle):
+                self._send_now(codec, data)
+
+    def _send(self, codec, data: bytes) -> None:
+        if self._silent:
+            self.faults.silenced += 1
+            return
+        if self.faults is None:
+            self._send_now(codec, data)
+            return
+        for out in self.faults.apply(codec, data, self._cycle):
+            self._send_now(codec, out)
+
+    def _send_now(self, codec, data: bytes) -> None:
+        try:
+            self.bus.send(_message(codec, data), timeout=SEND_TIMEOUT)
+            self.sent += 1
+        except can.CanError as exc:
+            self.send_errors += 1
+            self.last_send_error = exc
+
+    def publish(self, state: JointState) -> None:
+        if state.cycle % self.stride:
+            return
+        frames, saturated = self.profile.joint_state.encode(state, self._js_counter)
+        self._js_counter = (self._js_counter + 1) & 0x0F
+        self.saturated += saturated
+        for codec, data in frames:
+            self._send(codec, data)
+
+    def heartbeat(self, hb: Heartbeat) -> None:
+        codec = self.profile.heartbeat
+        data = codec.encode(hb.state, hb.load_seq, hb.cycle, hb.overruns, self._hb_counter)
+        self._hb_counter = (self._hb_counter + 1) & 0x0F
+        self._send(codec.frame, data)
+
+    def send_ack(self, ack: LoadAck) -> None:
+        codec = self.profile.ack
+        frames, self._ack_counter = codec.encode(ack.seq, ack.load, self._ack_counter,
+                                                 status=0 if ack.applied else 1)
+        for data in frames:
+            self._send(codec.frame, data)
+
+    def poll_commands(self) -> list[LoadCommand]:
+        """Every complete payload command received since the last call (non-blocking)."""
+        out = []
+        c = self.counters
+        codec = self.profile.command
+        while True:
+            try:
+                msg = self.bus.recv(0.0)
+            except can.CanError as exc:
+                raise LinkError(f"controller port: receiving failed: {exc}") from exc
+            if msg is None:
+                return out
+            c.received += 1
+            if msg.is_error_frame:
+                c.error_frames += 1
+                continue
+            if msg.is_extended_id or msg.arbitration_id != self._cmd_id:
+                c.foreign += 1
+                continue
+            try:
+                data = bytes(msg.data)
+                codec.frame.check(data, msg.is_fd, msg.is_remote_frame)
+                before = self._cmd.orphaned
+                raw = self._cmd.push(data)
+                c.orphaned += self._cmd.orphaned - before
+                if raw is not None:
+                    seq, _, load = codec.values(raw)
+                    out.append(LoadCommand(seq=seq, load=load))
+            except DecodeError as exc:
+                setattr(c, exc.kind, getattr(c, exc.kind) + 1)
+
+    def close(self) -> None:
+        if self._owns_bus:
+            self.bus.shutdown()

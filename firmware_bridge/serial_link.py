@@ -1,0 +1,484 @@
+"""The serial link: msgpack messages over pyserial, framed so a bad byte costs one message.
+
+Framing (both directions): ``COBS(body + CRC32(body)) + b"\\x00"``, where ``body`` is one
+msgpack message and CRC32 is ``zlib.crc32`` as 4 bytes little-endian. COBS (consistent
+overhead byte stuffing, Cheshire and Baker 1999) removes every 0x00 from the frame, so 0x00
+only ever delimits frames: after garbage or lost bytes the receiver drops what it has up to
+the next 0x00 and is in step again. (A plain msgpack stream cannot do this: its streaming
+Unpacker cannot find the next message after a lost byte.) Frames longer than ``MAX_FRAME``
+bytes without a delimiter are discarded up to the next one.
+
+Messages (msgpack arrays; numbers as msgpack floats/ints):
+
+- ``["J", cycle, t, q[7], dq[7], tau_J[7]]``: joint state (cycle modulo 2**32, t in s,
+  rad, rad/s, N·m); about 215 bytes framed, so 1 kHz needs about 2.2 Mbit/s of line rate;
+- ``["H", state, load_seq, cycle, overruns]``: heartbeat (state 0 running, 1 holding);
+- ``["L", seq, mass, [x, y, z], [9 values]]``: payload command, exactly libfranka's
+  ``setLoad(load_mass, F_x_Cload, load_inertia)`` (inertia column-major); mass 0 clears;
+- ``["A", seq, applied, mass, [x, y, z], [9 values]]``: acknowledgement with the load in
+  force (mass 0: none).
+
+Drops are counted as on CAN (see :class:`~firmware_bridge.links.LinkCounters`): ``crc``
+(CRC32 mismatch), ``malformed`` (bad COBS, too short, not msgpack, wrong schema),
+``duplicate`` (the same message bytes as the last delivered), ``out_of_order``/``stale``
+(cycle order), ``lost`` (cycle gaps, in published cycles of ``stride``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import zlib
+from collections import deque
+
+import msgpack
+import numpy as np
+
+from iem.types import N_JOINTS, JointState
+from sim.payload import Payload
+
+from .errors import AckTimeout, ControllerSilent, DecodeError, LinkError
+from .faults import FaultInjector, FaultSpec
+from .links import BUFFERED_CYCLES, LinkCounters
+from .protocol import Heartbeat, LoadAck, LoadCommand
+from .reassembly import CYCLE_MOD, Sequencer
+
+MAX_FRAME = 4096
+"""Longest frame accepted (bytes between delimiters)."""
+HEARTBEAT_STATES = ("running", "holding")
+
+
+# -- COBS ----------------------------------------------------------------------------------
+def cobs_encode(data: bytes) -> bytes:
+    """COBS-encode ``data`` (the result contains no 0x00; the delimiter is not added)."""
+    out = bytearray()
+    for chunk in data.split(b"\x00"):
+        while len(chunk) >= 254:
+            out.append(0xFF)
+            out += chunk[:254]
+            chunk = chunk[254:]
+        out.append(len(chunk) + 1)
+        out += chunk
+    return bytes(out)
+
+
+def cobs_decode(data: bytes) -> bytes:
+    """Inverse of :func:`cobs_encode`; DecodeError (malformed) for an invalid encoding."""
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        code = data[i]
+        if code == 0:
+            raise DecodeError("serial frame: a 0x00 inside a COBS frame")
+        end = i + code
+        if end > n:
+            raise DecodeError(f"serial frame: COBS block of {code - 1} bytes runs past the "
+                              f"end of the {n}-byte frame")
+        out += data[i + 1:end]
+        i = end
+        if code < 0xFF and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+def frame(body: bytes) -> bytes:
+    """``COBS(body + CRC32(body)) + 0x00``."""
+    return cobs_encode(body + zlib.crc32(body).to_bytes(4, "little")) + b"\x00"
+
+
+def unframe(encoded: bytes) -> bytes:
+    """The body of one frame (delimiter already removed); DecodeError if bad."""
+    raw = cobs_decode(encoded)
+    if len(raw) < 5:
+        raise DecodeError(f"serial frame: {len(raw)} bytes after COBS; valid is at least 5 "
+                          "(a message and its CRC32)")
+    body, crc = raw[:-4], int.from_bytes(raw[-4:], "little")
+    if zlib.crc32(body) != crc:
+        raise DecodeError("serial frame: CRC32 mismatch", kind="crc")
+    return body
+
+
+class Deframer:
+    """Bytes in, complete frames out (delimiters stripped, empty frames skipped)."""
+
+    def __init__(self, max_frame: int = MAX_FRAME) -> None:
+        self.max_frame = max_frame
+        self._buf = bytearray()
+        self._skipping = False
+        self.oversize = 0
+
+    def feed(self, data: bytes) -> list[bytes]:
+        self._buf += data
+        if b"\x00" not in data:
+            if len(self._buf) > self.max_frame:
+                self._buf.clear()
+                if not self._skipping:
+                    self.oversize += 1
+                self._skipping = True
+            return []
+        parts = bytes(self._buf).split(b"\x00")
+        tail = parts.pop()
+        if self._skipping:
+            parts = parts[1:]  # the rest of the oversize frame
+            self._skipping = False
+        self._buf = bytearray(tail)
+        out = []
+        for p in parts:
+            if len(p) > self.max_frame:
+                self.oversize += 1
+            elif p:
+                out.append(p)
+        return out
+
+
+# -- messages ------------------------------------------------------------------------------
+def _unpack(body: bytes):
+    try:
+        return msgpack.unpackb(body, raw=False, use_list=True, strict_map_key=True)
+    except (ValueError, TypeError, msgpack.UnpackException, UnicodeDecodeError,
+            OverflowError, RecursionError) as exc:
+        raise DecodeError(f"serial message: not valid msgpack ({type(exc).__name__}: {exc})"
+                          ) from None
+
+
+def _number(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise DecodeError(f"serial message: {what} must be a number, got "
+                          f"{type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise DecodeError(f"serial message: {what} must be finite, got {value}")
+    return value
+
+
+def _int(value, what: str, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise DecodeError(f"serial message: {what} must be an integer in {lo}..{hi}, "
+                          f"got {value!r}")
+    return value
+
+
+def _numbers(value, n: int, what: str) -> list[float]:
+    if not isinstance(value, list) or len(value) != n:
+        raise DecodeError(f"serial message: {what} must be a list of {n} numbers, got "
+                          f"{type(value).__name__}"
+                          + (f" of {len(value)}" if isinstance(value, list) else ""))
+    return [_number(v, f"{what}[{i}]") for i, v in enumerate(value)]
+
+
+def _shape(msg, tag: str, n: int) -> None:
+    if len(msg) != n:
+        raise DecodeError(f"serial message {tag!r}: {len(msg)} fields; valid is {n}")
+
+
+def decode_message(body: bytes):
+    """``(tag, fields)`` of a checked body; every schema problem is a DecodeError."""
+    msg = _unpack(body)
+    if not isinstance(msg, list) or not msg or msg[0] not in ("J", "H", "L", "A"):
+        tag = msg[0] if isinstance(msg, list) and msg else msg
+        raise DecodeError(f"serial message: must be an array starting with 'J', 'H', 'L' or "
+                          f"'A', got {str(tag)[:40]!r}")
+    tag = msg[0]
+    if tag == "J":
+        _shape(msg, tag, 6)
+        return tag, (_int(msg[1], "cycle", 0, CYCLE_MOD - 1), _number(msg[2], "t"),
+                     _numbers(msg[3], N_JOINTS, "q"), _numbers(msg[4], N_JOINTS, "dq"),
+                     _numbers(msg[5], N_JOINTS, "tau_J"))
+    if tag == "H":
+        _shape(msg, tag, 5)
+        state = _int(msg[1], "state", 0, len(HEARTBEAT_STATES) - 1)
+        return tag, (HEARTBEAT_STATES[state], _int(msg[2], "load_seq", 0, 255),
+                     _int(msg[3], "cycle", 0, CYCLE_MOD - 1),
+                     _int(msg[4], "overruns", 0, 1 << 62))
+    if tag == "L":
+        _shape(msg, tag, 5)
+        return tag, (_int(msg[1], "seq", 0, 255), _load(msg[2], msg[3], msg[4]))
+    _shape(msg, tag, 6)
+    if not isinstance(msg[2], bool):
+        raise DecodeError(f"serial message 'A': applied must be true or false, got {msg[2]!r}")
+    return tag, (_int(msg[1], "seq", 0, 255), msg[2], _load(msg[3], msg[4], msg[5]))
+
+
+def _load(mass, com, inertia) -> Payload | None:
+    m = _number(mass, "mass")
+    c = _numbers(com, 3, "F_x_Cload")
+    i9 = _numbers(inertia, 9, "load_inertia")
+    if m == 0.0:
+        return None
+    return Payload.from_set_load(m, c, i9, name="serial")
+
+
+def _load_args(load) -> list:
+    if load is None:
+        return [0.0, [0.0, 0.0, 0.0], [0.0] * 9]
+    mass, com, inertia = load.set_load_args()
+    return [float(mass), [float(v) for v in com], [float(v) for v in inertia]]
+
+
+def encode_joint_state(state: JointState) -> bytes:
+    return msgpack.packb(["J", int(state.cycle) % CYCLE_MOD, float(state.t), state.q.tolist(),
+                          state.dq.tolist(), state.tau_J.tolist()])
+
+
+# -- the plug-in's side --------------------------------------------------------------------
+def open_serial(url: str, baudrate: int = 1_000_000, timeout: float = 0.01):
+    """A pyserial port on a device or URL (``loop://``, ``socket://``, ``rfc2217://``)."""
+    import serial
+
+    try:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout)
+    except (serial.SerialException, ValueError, OSError) as exc:
+        raise LinkError(f"cannot open serial port {url!r}: {exc}") from exc
+
+
+class SerialDecoder:
+    """Bytes in, joint states out; heartbeats and acks kept."""
+
+    def __init__(self, counters: LinkCounters | None = None, stride: int = 1,
+                 window: int = 16) -> None:
+        self.counters = LinkCounters() if counters is None else counters
+        self.deframer = Deframer()
+        self.seq = Sequencer(self.counters, stride=stride, window=window)
+        self._last_body: bytes | None = None
+        self.last_heartbeat: Heartbeat | None = None
+        self.last_ack: LoadAck | None = None
+        self.acks: dict[int, LoadAck] = {}
+        self.last_error: DecodeError | None = None
+
+    def feed(self, data: bytes) -> list[JointState]:
+        c = self.counters
+        before = self.deframer.oversize
+        frames = self.deframer.feed(data)
+        c.malformed += self.deframer.oversize - before
+        out = []
+        for encoded in frames:
+            c.received += 1
+            try:
+                state = self._message(unframe(encoded))
+            except DecodeError as exc:
+                setattr(c, exc.kind, getattr(c, exc.kind) + 1)
+                self.last_error = exc
+                continue
+            if state is not None:
+                out.append(state)
+        return out
+
+    def _message(self, body: bytes) -> JointState | None:
+        c = self.counters
+        tag, f = decode_message(body)
+        if tag == "J":
+            if body == self._last_body:
+                c.duplicate += 1
+                return None
+            cycle = f[0]
+            verdict = self.seq.judge(cycle)
+            if verdict != "deliver":
+                setattr(c, verdict, getattr(c, verdict) + 1)
+                return None
+            self.seq.deliver(cycle)
+            self._last_body = body
+            return JointState(t=f[1], q=np.array(f[2]), dq=np.array(f[3]),
+                              tau_J=np.array(f[4]), cycle=cycle)
+        now = time.perf_counter()
+        if tag == "H":
+            self.last_heartbeat = Heartbeat(*f, t=now)
+            c.heartbeats += 1
+        elif tag == "A":
+            seq, applied, load = f
+            self.last_ack = self.acks[seq] = LoadAck(seq=seq, applied=applied, load=load, t=now)
+            c.acks += 1
+        else:
+            c.foreign += 1  # a command: the other direction
+        return None
+
+    def resync(self) -> None:
+        self.seq.resync()
+
+
+class SerialLink:
+    """The plug-in's end of the serial link: joint-state source and payload sink.
+
+    Args:
+        port: an open pyserial port (or anything with ``read``, ``write``, ``in_waiting``).
+        silence_timeout: default ``read`` timeout, s.
+        stride: controller cycles per published cycle (for ``lost``).
+        name: how the link names itself in messages.
+    """
+
+    def __init__(self, port, *, silence_timeout: float = 0.1, stride: int = 1,
+                 window: int = 16, name: str | None = None, owns_port: bool = True) -> None:
+        self.port = port
+        self.silence_timeout = float(silence_timeout)
+        self.name = name or f"serial link {getattr(port, 'name', port)!r}"
+        self.decoder = SerialDecoder(stride=stride, window=window)
+        self.counters = self.decoder.counters
+        self._owns_port = owns_port
+        self._ready: deque[JointState] = deque()
+        self._seq = 0
+        self._closed = False
+
+    @property
+    def last_heartbeat(self) -> Heartbeat | None:
+        return self.decoder.last_heartbeat
+
+    @property
+    def last_ack(self) -> LoadAck | None:
+        return self.decoder.last_ack
+
+    def _fill(self, deadline: float) -> bool:
+        """Read what is there (waiting up to the port timeout); True if a cycle is ready."""
+        try:
+            data = self.port.read(max(1, self.port.in_waiting))
+        except Exception as exc:  # pyserial raises SerialException and OSError subclasses
+            raise LinkError(f"{self.name}: reading failed: {exc}") from exc
+        if data:
+            states = self.decoder.feed(data)
+            if states:
+                self._ready.extend(states)
+                while len(self._ready) > BUFFERED_CYCLES:
+                    self._ready.popleft()
+                    self.counters.overflow += 1
+        return bool(self._ready)
+
+    def read(self, timeout: float | None = None) -> JointState:
+        if self._ready:
+            return self._ready.popleft()
+        timeout = self.silence_timeout if timeout is None else float(timeout)
+        deadline = time.perf_counter() + timeout
+        while not self._fill(deadline):
+            if time.perf_counter() >= deadline:
+                self.counters.silences += 1
+                self.decoder.resync()
+                raise ControllerSilent(f"{self.name}: no joint state for {timeout * 1e3:.0f} ms;"
+                                       f" {self.counters.summary()}")
+        return self._ready.popleft()
+
+    def send(self, payload: Payload | None) -> int:
+        if payload is not None:
+            payload.check()
+        self._seq = self._seq % 255 + 1
+        self.decoder.acks.pop(self._seq, None)
+        body = msgpack.packb(["L", self._seq, *_load_args(payload)])
+        try:
+            self.port.write(frame(body))
+        except Exception as exc:
+            raise LinkError(f"{self.name}: sending the payload command failed: {exc}") from exc
+        return self._seq
+
+    def wait_ack(self, seq: int, timeout: float = 1.0) -> LoadAck:
+        deadline = time.perf_counter() + float(timeout)
+        while seq not in self.decoder.acks:
+            if time.perf_counter() >= deadline:
+                raise AckTimeout(f"{self.name}: no acknowledgement of payload command {seq} "
+                                 f"within {timeout:g} s; {self.counters.summary()}")
+            self._fill(deadline)
+        return self.decoder.acks[seq]
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            if self._owns_port:
+                self.port.close()
+
+    def __enter__(self) -> SerialLink:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_serial_link(kind: str, channel: str, profile: str | None = None,
+                     baudrate: int = 1_000_000, **options) -> SerialLink:
+    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is a device or URL
+    (``profile`` is a CAN notion and not used)."""
+    return SerialLink(open_serial(channel, baudrate), name=f"serial link {channel!r}", **options)
+
+
+# -- the controller's side -----------------------------------------------------------------
+class SerialControllerPort:
+    """The controller's end of the serial link (see :class:`SimController`).
+
+    Faults apply to ``body + CRC32`` before COBS, so a corrupted message fails its CRC.
+    """
+
+    def __init__(self, port, faults: FaultSpec | None = None, stride: int = 1,
+                 owns_port: bool = True, record_faults: bool = False) -> None:
+        self.port = port
+        self.stride = max(1, int(stride))
+        self.faults = FaultInjector(faults, record=record_faults) if faults and faults.active \
+            else None
+        self.counters = LinkCounters()
+        self.deframer = Deframer()
+        self._owns_port = owns_port
+        self._cycle = 0
+        self._silent = False
+        self.sent = 0
+        self.send_errors = 0
+
+    def tick(self, cycle: int, t: float) -> None:
+        self._cycle = cycle
+        if self.faults is not None:
+            self._silent = self.faults.silent(t)
+            for _, raw in self.faults.due(cycle):
+                self._write(raw)
+
+    def _write(self, raw: bytes) -> None:
+        try:
+            self.port.write(cobs_encode(raw) + b"\x00")
+            self.sent += 1
+        except Exception:  # a controller keeps its cycle; the count tells
+            self.send_errors += 1
+
+    def _send(self, body: bytes, key: str) -> None:
+        if self._silent:
+            self.faults.silenced += 1
+            return
+        raw = body + zlib.crc32(body).to_bytes(4, "little")
+        if self.faults is None:
+            self._write(raw)
+            return
+        for out in self.faults.apply(key, raw, self._cycle):
+            self._write(out)
+
+    def publish(self, state: JointState) -> None:
+        if state.cycle % self.stride == 0:
+            self._send(encode_joint_state(state), "J")
+
+    def heartbeat(self, hb: Heartbeat) -> None:
+        state = HEARTBEAT_STATES.index(hb.state)
+        self._send(msgpack.packb(["H", state, hb.load_seq, hb.cycle % CYCLE_MOD, hb.overruns]),
+                   "H")
+
+    def send_ack(self, ack: LoadAck) -> None:
+        self._send(msgpack.packb(["A", ack.seq, bool(ack.applied), *_load_args(ack.load)]), "A")
+
+    def poll_commands(self) -> list[LoadCommand]:
+        out = []
+        try:
+            waiting = self.port.in_waiting
+            data = self.port.read(waiting) if waiting else b""
+        except Exception as exc:
+            raise LinkError(f"controller port: reading failed: {exc}") from exc
+        if not data:
+            return out
+        c = self.counters
+        before = self.deframer.oversize
+        frames = self.deframer.feed(data)
+        c.malformed += self.deframer.oversize - before
+        for encoded in frames:
+            c.received += 1
+            try:
+                tag, f = decode_message(unframe(encoded))
+            except DecodeError as exc:
+                setattr(c, exc.kind, getattr(c, exc.kind) + 1)
+                continue
+            if tag == "L":
+                out.append(LoadCommand(seq=f[0], load=f[1]))
+            else:
+                c.foreign += 1
+        return out
+
+    def close(self) -> None:
+        if self._owns_port:
+            self.port.close()
+

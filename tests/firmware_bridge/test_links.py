@@ -1,0 +1,89 @@
+"""The link table, the protocols at the seam, bus errors and silence diagnostics."""
+
+import can
+import pytest
+
+from firmware_bridge.can_link import CanControllerPort, CanLink, open_bus
+from firmware_bridge.errors import (
+    AckTimeout,
+    BridgeConfigError,
+    ControllerSilent,
+    LinkError,
+)
+from firmware_bridge.links import LINKS, JointStateSource, PayloadSink, open_link
+from iem.errors import IemError, PayloadError
+from sim.payload import Payload
+
+from .conftest import synthetic_states
+
+
+def test_unknown_kinds_name_the_valid_ones():
+    with pytest.raises(BridgeConfigError, match="valid kinds are virtual, socketcan, slcan"):
+        open_link("carrier-pigeon", "x")
+    with pytest.raises(BridgeConfigError, match="valid kinds are virtual, socketcan, slcan"):
+        open_bus("pcan", "x")
+    with pytest.raises(BridgeConfigError, match="slcan needs a channel"):
+        open_bus("slcan", "")
+    assert set(LINKS) == {"virtual", "socketcan", "slcan", "serial", "franka", "replay"}
+
+
+def test_socketcan_failure_is_a_link_error_with_a_hint():
+    with pytest.raises(LinkError, match="cannot open socketcan bus on channel 'iemnone0'"):
+        open_bus("socketcan", "iemnone0")
+
+
+def test_links_implement_the_seam(channel):
+    link = open_link("virtual", channel, profile="classic")
+    serial_link = open_link("serial", "loop://", profile="fd")  # a config may name one for all
+    for x in (link, serial_link):
+        assert isinstance(x, JointStateSource) and isinstance(x, PayloadSink)
+    link.close()
+    serial_link.close()
+
+
+class BrokenBus(can.BusABC):
+    def __init__(self, **kwargs):
+        super().__init__(channel="broken", **kwargs)
+
+    def _recv_internal(self, timeout):
+        raise can.CanOperationError("bus-off")
+
+    def send(self, msg, timeout=None):
+        raise can.CanOperationError("transmit buffer full")
+
+
+def test_bus_errors_are_surfaced_not_swallowed():
+    link = CanLink(BrokenBus(), "fd")
+    with pytest.raises(LinkError, match="receiving failed: bus-off") as info:
+        link.read(0.1)
+    assert isinstance(info.value.__cause__, can.CanOperationError)
+    assert isinstance(info.value, IemError)
+    with pytest.raises(LinkError, match="sending the payload command failed"):
+        link.send(None)
+    link.close()
+
+
+def test_silence_names_what_was_seen(channel):
+    """A classic controller talking to an fd link: the message says so."""
+    port = CanControllerPort(open_bus("virtual", channel, "classic"), "classic")
+    link = CanLink.open("virtual", channel, "fd", silence_timeout=0.05)
+    for s in synthetic_states(20, 2):
+        port.publish(s)
+    with pytest.raises(ControllerSilent) as info:
+        link.read()
+    message = str(info.value)
+    assert "no complete joint state for 50 ms" in message
+    assert "is the controller running --profile classic?" in message
+    assert "no heartbeat yet" in message
+    assert isinstance(info.value, TimeoutError)
+    with pytest.raises(AckTimeout, match="no acknowledgement of payload command 1"):
+        link.wait_ack(link.send(None), 0.05)
+    link.close()
+    port.close()
+
+
+def test_the_sink_refuses_impossible_payloads_before_sending(channel):
+    link = CanLink.open("virtual", channel, "fd")
+    with pytest.raises(PayloadError, match="not physically consistent"):
+        link.send(Payload("bad", -1.0, (0, 0, 0), (1, 0, 0, 1, 0, 1)))
+    link.close()
