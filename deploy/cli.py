@@ -25,6 +25,8 @@ BENCHES: Table = {
 
 COMMANDS: Table = {
     "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
+    "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
+    "train": ("deploy.training", "make an initial model from the excitation path"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
     "sim-controller": ("firmware_bridge.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),

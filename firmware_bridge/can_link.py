@@ -247,7 +247,11 @@ class CanLink:
         self.decoder = CanDecoder(self.profile, window=window)
         self.counters = self.decoder.counters
         self._owns_bus = owns_bus
-        self._ready: deque[JointState] = deque()
+        self._ready: deque[tuple[JointState, float]] = deque()
+        self._frame_time = 0.0
+        self.last_frame_time = 0.0
+        """Receive time (python-can's ``Message.timestamp``, epoch s) of the frame that
+        completed the cycle ``read`` returned last: where frame-to-estimate latency starts."""
         self._seq = 0
         self._cmd_counter = 0
         self._closed = False
@@ -282,12 +286,14 @@ class CanLink:
             if msg is not None:
                 state = push(msg)
                 if state is not None:
+                    self._frame_time = msg.timestamp
                     return state
 
     def read(self, timeout: float | None = None) -> JointState:
         """The next complete cycle; ``ControllerSilent`` after ``timeout`` s without one."""
         if self._ready:
-            return self._ready.popleft()
+            state, self.last_frame_time = self._ready.popleft()
+            return state
         timeout = self.silence_timeout if timeout is None else float(timeout)
         state = self._pump(time.perf_counter() + timeout)
         if state is None:
@@ -295,6 +301,7 @@ class CanLink:
             self.decoder.resync()
             raise ControllerSilent(f"{self.name}: no complete joint state for "
                                    f"{timeout * 1e3:.0f} ms; {self.decoder.diagnosis()}")
+        self.last_frame_time = self._frame_time
         return state
 
     def __iter__(self):
@@ -333,7 +340,7 @@ class CanLink:
                 if len(self._ready) >= BUFFERED_CYCLES:
                     self._ready.popleft()
                     self.counters.overflow += 1
-                self._ready.append(state)
+                self._ready.append((state, self._frame_time))
             elif time.perf_counter() >= deadline:
                 raise AckTimeout(f"{self.name}: no acknowledgement of payload command {seq} "
                                  f"within {timeout:g} s; {self.decoder.diagnosis()}")

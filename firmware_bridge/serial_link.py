@@ -313,7 +313,9 @@ class SerialLink:
         self.decoder = SerialDecoder(stride=stride, window=window)
         self.counters = self.decoder.counters
         self._owns_port = owns_port
-        self._ready: deque[JointState] = deque()
+        self._ready: deque[tuple[JointState, float]] = deque()
+        self.last_frame_time = 0.0
+        """Time (epoch s) the message of the cycle ``read`` returned last was decoded."""
         self._seq = 0
         self._closed = False
 
@@ -334,7 +336,8 @@ class SerialLink:
         if data:
             states = self.decoder.feed(data)
             if states:
-                self._ready.extend(states)
+                now = time.time()
+                self._ready.extend((state, now) for state in states)
                 while len(self._ready) > BUFFERED_CYCLES:
                     self._ready.popleft()
                     self.counters.overflow += 1
@@ -342,7 +345,8 @@ class SerialLink:
 
     def read(self, timeout: float | None = None) -> JointState:
         if self._ready:
-            return self._ready.popleft()
+            state, self.last_frame_time = self._ready.popleft()
+            return state
         timeout = self.silence_timeout if timeout is None else float(timeout)
         deadline = time.perf_counter() + timeout
         while not self._fill(deadline):
@@ -351,7 +355,8 @@ class SerialLink:
                 self.decoder.resync()
                 raise ControllerSilent(f"{self.name}: no joint state for {timeout * 1e3:.0f} ms;"
                                        f" {self.counters.summary()}")
-        return self._ready.popleft()
+        state, self.last_frame_time = self._ready.popleft()
+        return state
 
     def send(self, payload: Payload | None) -> int:
         if payload is not None:

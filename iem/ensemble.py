@@ -149,6 +149,10 @@ class IncrementalEnsemble:
 
     def learn_one(self, x, flange, samples: Samples) -> None:
         """Algorithm 1 for the point, then Algorithm 2 if it starts or joins the open bag."""
+        self._learn_one(x, flange, samples)
+
+    def _learn_one(self, x, flange, samples: Samples) -> int | None:
+        """:meth:`learn_one`; returns the bag the point is in now."""
         q = np.asarray(x, dtype=float)[:7]
         bag, created, nearest = self._router.add(q, flange)
         if created:
@@ -162,6 +166,20 @@ class IncrementalEnsemble:
             self._learners[bag].learn(X, Y, self.iters)
         else:
             self._open = -1  # the path left the open bag: it is closed for good
+        return bag
+
+    def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
+        """:meth:`learn_one` then :meth:`predict_one` with one routing instead of two.
+
+        The bag Algorithm 1 put the point in is the bag :meth:`predict_one` would route it
+        to: a joined bag's mean only moved toward the point, and a new bag's mean is it.
+        """
+        bag = self._learn_one(x, flange, samples)
+        if bag is None:
+            return self.predict_one(x, flange, t)
+        x = np.asarray(x, dtype=float)
+        return PayloadEstimate(t=t, phi=self._learners[bag].predict_one(x), bag=bag,
+                               learning=bag == self._open)
 
     def close(self) -> None:
         """Close the open bag (end of a task): its learner is final."""

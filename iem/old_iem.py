@@ -39,15 +39,16 @@ class InPlaceEnsemble(IncrementalEnsemble):
     def params(self) -> dict:
         return {**super().params(), "center_rate": self.center_rate}
 
-    def learn_one(self, x, flange, samples: Samples) -> None:
+    def _learn_one(self, x, flange, samples: Samples) -> None:
         if not self._learners:  # nothing to update yet: start the first bag
-            super().learn_one(x, flange, samples)
+            super()._learn_one(x, flange, samples)
             self._open = -1
-            return
+            return None
         bag, nearest = self._router.route(np.asarray(x, dtype=float)[:7], flange)
         if bag >= 0:
-            return  # inside the trained range: estimate only
+            return None  # inside the trained range: estimate only
         X, Y = resolve(samples)
         learner = self._learners[nearest]
         learner.center += self.center_rate * (X.mean(axis=0) - learner.center)
         learner.learn(X, Y, self.iters)
+        return None

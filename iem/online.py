@@ -77,6 +77,12 @@ class OnlineIdentifier:
                 asked.append(True)
                 return tandem(q, dq, ddq)
 
+            combined = None if self.timed else getattr(self.estimator, "learn_predict_one", None)
+            if combined is not None:
+                raw = combined(x, flange, samples, t=state.t)
+                self.learned_points += bool(asked)
+                self.raw = raw
+                return raw, self.smoother(raw.phi)
             t0 = time.perf_counter()
             self.estimator.learn_one(x, flange, samples)
             if self.timed:

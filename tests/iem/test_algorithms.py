@@ -621,3 +621,20 @@ def test_predicting_changes_nothing():
         model.predict_one(_x(q), _flange(q))
     model.predict_many(np.array([_x(q7(2.0))] * 4), np.array([_flange(q7(2.0))] * 4))
     assert model.to_state() == state
+
+
+def test_learn_predict_one_equals_learn_then_predict():
+    """The combined online step routes once and gives exactly learn_one + predict_one."""
+    import copy
+
+    from tests.iem.test_checks import DATA
+
+    one = IncrementalEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2)
+    two = copy.deepcopy(one)
+    for i in range(DATA.n):
+        a = one.learn_predict_one(DATA.X[i], DATA.F[i], lambda i=i: DATA.samples_at(i), t=0.1)
+        two.learn_one(DATA.X[i], DATA.F[i], lambda i=i: DATA.samples_at(i))
+        b = two.predict_one(DATA.X[i], DATA.F[i], t=0.1)
+        assert a.bag == b.bag and a.learning == b.learning
+        np.testing.assert_array_equal(a.phi, b.phi)
+    assert one.n_bags == two.n_bags >= 2

@@ -1,0 +1,347 @@
+"""The plug-in service: joint states in, identified payload out (``iem run``).
+
+One loop, one thread: the link's ``read`` gives the next controller cycle;
+:class:`iem.online.OnlineIdentifier` learns from it (new bags are trained with the tandem
+simulators of the configured payload family) and estimates; the smoothed estimate goes to
+the :class:`deploy.gate.SafetyGate`, and a load it lets through goes to the link's ``send``
+(libfranka ``setLoad`` semantics). Acknowledgements come back through the link.
+
+Around the loop: the model is loaded at start (or trained if there is none and
+``train_if_missing``), saved every ``checkpoint_period_s`` and at exit (atomically: a failed
+save leaves the last good file; the periodic save runs in a background thread on a copy);
+a silent controller stops the writes until it returns; link failures end the run with the
+error (under systemd, the unit restarts it). ``Service.stop()`` (SIGTERM, SIGINT) ends the
+loop after the current cycle.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from iem.filters import StateFilter
+from iem.online import OnlineIdentifier
+from iem.persistence import load_model, save_model
+from iem.smoothing import ExponentialSmoother
+
+from .config import CellConfig
+from .gate import SafetyGate
+from .sdnotify import Notifier
+from .status import StatusLine
+
+log = logging.getLogger("iem.service")
+
+
+@dataclass
+class CycleRecord:
+    """What the service made of one cycle (given to ``on_cycle`` observers)."""
+
+    state: object
+    raw: object
+    smoothed: np.ndarray
+    latency_s: float
+
+
+def load_or_train_model(config: CellConfig):
+    """The model of the configuration: its file, or a new one trained on the excitation path."""
+    mc = config.model
+    path = FsPath(mc.path)
+    if path.exists():
+        model = load_model(path)
+        log.info("loaded model %s: %s with %d bags", path, model.name, model.n_bags,
+                 extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
+        if model.name != mc.kind:
+            log.warning("model file %s holds a %s model, the configuration asks for %s; using "
+                        "the file's", path, model.name, mc.kind)
+        return model
+    if not mc.train_if_missing:
+        from iem.errors import ModelFileError
+
+        raise ModelFileError(f"model file {path} does not exist and [model] train_if_missing "
+                             "is false; create one with 'iem train --out FILE' or set "
+                             "train_if_missing = true")
+    from .training import train_initial_model
+
+    model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
+                                log=lambda msg: log.info(msg, extra={"event": "trained"}))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_model(model, path)
+    log.info("saved the new model to %s", path, extra={"event": "model_saved"})
+    return model
+
+
+class Service:
+    """The running plug-in.
+
+    Args:
+        config: the cell configuration.
+        link: an open link (a joint-state source and, unless replaying, a payload sink);
+            None: open the configured one.
+        model: the estimator to use; None: :func:`load_or_train_model`.
+        notifier: systemd notifications (default: from the environment).
+        status: the live status line (default: per ``[log] status_line``).
+        write: send loads the gate lets through (False: decide only, as for replay).
+    """
+
+    def __init__(self, config: CellConfig, link=None, model=None,
+                 notifier: Notifier | None = None, status: StatusLine | None = None,
+                 write: bool = True) -> None:
+        self.config = config
+        self.link = link
+        self.model = model
+        self.notifier = Notifier() if notifier is None else notifier
+        self.status = status if status is not None else StatusLine.from_config(config.log)
+        self.write = write
+        self.gate = SafetyGate(config.gate)
+        self.on_cycle: list[Callable[[CycleRecord], None]] = []
+        self._stop = threading.Event()
+        self._saver: threading.Thread | None = None
+        self.latencies: list[float] = []
+        self.cycles = 0
+        self.refused = 0
+        self.silent = False
+        self.silences = 0
+        self.checkpoints = 0
+        self.cpu_s = 0.0
+        self.wall_s = 0.0
+
+    # -- set-up ----------------------------------------------------------------------------
+    def open(self) -> Service:
+        from sim.robot import PandaModel
+
+        from .training import tandem_for
+
+        if self.model is None:
+            self.model = load_or_train_model(self.config)
+        if self.link is None:
+            from firmware_bridge.links import open_link
+
+            lc = self.config.link
+            self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
+                                  silence_timeout=lc.silence_timeout_s)
+        est = self.config.estimate
+        self.kinematics = PandaModel()
+        self.tandem = tandem_for(self.config.model.family)
+        self.online = OnlineIdentifier(
+            self.model, self.kinematics.flange_position, self.tandem.samples,
+            learn=est.learn, state_filter=StateFilter(cutoff_hz=est.filter_cutoff_hz),
+            smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s))
+        return self
+
+    def stop(self) -> None:
+        """Ask the loop to end after the current cycle (safe from a signal handler)."""
+        self._stop.set()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    # -- the loop --------------------------------------------------------------------------
+    def run(self, duration: float | None = None,
+            until: Callable[[], bool] | None = None) -> dict:
+        """Run until stopped, ``duration`` s passed, ``until()`` is true or a replay ends."""
+        from firmware_bridge.errors import ControllerSilent, EndOfStream
+
+        if self.link is None or self.model is None:
+            self.open()
+        cfg = self.config
+        link, online, gate = self.link, self.online, self.gate
+        sink = self.write and hasattr(link, "send")
+        started = time.monotonic()
+        cpu0 = time.thread_time()
+        next_checkpoint = started + cfg.model.checkpoint_period_s
+        watchdog = self.notifier.watchdog_period()
+        next_watchdog = started
+        last_ack = None
+        self.notifier.ready(f"identifying the payload; {self.model.n_bags} bags")
+        log.info("running: link %s, model %s (%d bags), writes %s", getattr(link, "name", link),
+                 self.model.name, self.model.n_bags, "on" if sink else "off",
+                 extra={"event": "started"})
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if duration is not None and now - started >= duration:
+                    break
+                if until is not None and until():
+                    break
+                if watchdog is not None and now >= next_watchdog:
+                    self.notifier.watchdog()
+                    next_watchdog = now + watchdog
+                try:
+                    state = link.read(cfg.link.silence_timeout_s)
+                except ControllerSilent as exc:
+                    self._controller_silent(str(exc))
+                    continue
+                except EndOfStream:
+                    break
+                if self.silent:
+                    self._controller_back()
+                raw, smoothed = online.step(state)
+                t_est = time.time()
+                frame_t = getattr(link, "last_frame_time", 0.0)
+                latency = t_est - frame_t if frame_t > 0 else math.nan
+                self.latencies.append(latency)
+                self.cycles += 1
+                if self.on_cycle:
+                    record = CycleRecord(state, raw, smoothed, latency)
+                    for observer in self.on_cycle:
+                        observer(record)
+                ack = getattr(link, "last_ack", None)
+                if ack is not None and ack is not last_ack:
+                    last_ack = ack
+                    self._acknowledged(ack)
+                now = time.monotonic()
+                gate.observe(now, smoothed)
+                if gate.due(now):
+                    decision = gate.decide(now, smoothed)
+                    if decision.send and sink:
+                        seq = link.send(decision.payload)
+                        gate.sent_command(seq, now)
+                        log.info("load sent (command %d): %s", seq, decision.detail,
+                                 extra={"event": "load_sent", "seq": seq})
+                if now >= next_checkpoint:
+                    self._checkpoint_async()
+                    next_checkpoint = now + cfg.model.checkpoint_period_s
+                if self.status.due(now):
+                    self.status.show(self._status_text(now - started, smoothed))
+        finally:
+            self.wall_s = time.monotonic() - started
+            self.cpu_s = time.thread_time() - cpu0
+            self.status.clear()
+            self.notifier.stopping()
+        return self.summary()
+
+    def close(self) -> None:
+        """Final checkpoint (synchronous), then close the link."""
+        try:
+            if self.model is not None:
+                self.checkpoint()
+        finally:
+            if self.link is not None:
+                self.link.close()
+            self.notifier.close()
+
+    # -- events ----------------------------------------------------------------------------
+    def _controller_silent(self, why: str) -> None:
+        if not self.silent:
+            self.silent = True
+            self.silences += 1
+            self.gate.controller_silent(True)
+            log.warning("controller silent: writes stopped (%s)", why,
+                        extra={"event": "controller_silent"})
+            self.notifier.status("controller silent: writes stopped")
+        self.status.show("controller silent: writes stopped", force=True)
+
+    def _controller_back(self) -> None:
+        self.silent = False
+        self.gate.controller_silent(False)
+        self.online.state_filter.reset()  # the signal was interrupted
+        log.info("controller back: writes resume", extra={"event": "controller_back"})
+        self.notifier.status("identifying the payload")
+
+    def _acknowledged(self, ack) -> None:
+        self.gate.acknowledged(ack.seq)
+        if ack.applied:
+            log.info("controller acknowledged load command %d", ack.seq,
+                     extra={"event": "load_acked", "seq": ack.seq})
+        else:
+            self.refused += 1
+            log.warning("controller refused load command %d; its load stays %s", ack.seq,
+                        ack.load, extra={"event": "load_refused", "seq": ack.seq})
+
+    # -- checkpoints ---------------------------------------------------------------------
+    def checkpoint(self) -> None:
+        """Save the model now (atomic), waiting for a background save first."""
+        if self._saver is not None:
+            self._saver.join()
+        save_model(self.model, self.config.model.path)
+        self.checkpoints += 1
+        log.info("model saved to %s (%d bags)", self.config.model.path, self.model.n_bags,
+                 extra={"event": "checkpoint", "bags": self.model.n_bags})
+
+    def _checkpoint_async(self) -> None:
+        if self._saver is not None and self._saver.is_alive():
+            return  # the previous save is still writing; the next period catches up
+        snapshot = copy.deepcopy(self.model)
+        path = self.config.model.path
+
+        def save() -> None:
+            try:
+                save_model(snapshot, path)
+                self.checkpoints += 1
+                log.info("checkpoint: model saved to %s (%d bags)", path, snapshot.n_bags,
+                         extra={"event": "checkpoint", "bags": snapshot.n_bags})
+            except Exception:  # a failed save keeps the last good file; say so and go on
+                log.exception("checkpoint to %s failed; the previous file is kept", path)
+
+        self._saver = threading.Thread(target=save, name="iem-checkpoint", daemon=True)
+        self._saver.start()
+
+    # -- reporting -----------------------------------------------------------------------
+    def _status_text(self, elapsed: float, phi: np.ndarray) -> str:
+        c = self.link.counters
+        rate = self.cycles / elapsed if elapsed > 0 else 0.0
+        m = phi[0]
+        com = phi[1:4] / m if m > 0 else np.full(3, np.nan)
+        drops = sum(c.dropped().values())
+        return (f"{elapsed:6.1f} s  m {m:6.3f} kg  c [{com[0]:+.3f} {com[1]:+.3f} "
+                f"{com[2]:+.3f}] m  bags {self.model.n_bags}  {rate:6.0f} est/s  writes "
+                f"{self.gate.sent}/{self.gate.acked}  drops {drops} lost {c.lost}"
+                + ("  SILENT" if self.silent else ""))
+
+    def summary(self) -> dict:
+        lat = np.array([v for v in self.latencies if math.isfinite(v)]) * 1e6
+        c = self.link.counters
+        gate = self.gate.summary()
+        return {
+            "cycles": self.cycles,
+            "estimates": self.cycles,
+            "bags": self.model.n_bags,
+            "model": self.model.name,
+            "latency_us": {"p50": float(np.percentile(lat, 50)) if lat.size else None,
+                           "p99": float(np.percentile(lat, 99)) if lat.size else None},
+            "writes": {"sent": gate["sent"], "acked": gate["acked"],
+                       "rejected": gate["rejected"], "refused_by_controller": self.refused},
+            "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost},
+            "gate": gate["decisions"],
+            "silences": self.silences,
+            "checkpoints": self.checkpoints,
+            "wall_s": self.wall_s,
+            "cpu_s": self.cpu_s,
+        }
+
+
+def configure(parser) -> None:
+    parser.add_argument("--config", required=True, metavar="FILE", help="cell.toml")
+    parser.add_argument("--duration", type=float, help="stop after this many s")
+
+
+def run(args) -> int:
+    import signal
+
+    from .config import load_config
+    from .logs import setup_logging
+
+    config = load_config(args.config)
+    setup_logging(config.log.level, config.log.format)
+    service = Service(config)
+    signal.signal(signal.SIGTERM, lambda *_: service.stop())
+    signal.signal(signal.SIGINT, lambda *_: service.stop())
+    try:
+        service.open()
+        summary = service.run(duration=args.duration)
+    finally:
+        service.close()
+    log.info("stopped: %s", summary, extra={"event": "stopped"})
+    print(f"iem run: {summary['cycles']} cycles, {summary['bags']} bags, writes "
+          f"{summary['writes']}", file=sys.stderr)
+    return 0
