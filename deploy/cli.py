@@ -21,12 +21,14 @@ BENCHES: Table = {
     "paper": ("iem.bench.paper", "the paper's experiments in simulation: results.json, report"),
     "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
     "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
+    "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
 }
 
 COMMANDS: Table = {
     "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
     "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
+    "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
     "sim-controller": ("firmware_bridge.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),
