@@ -10,7 +10,8 @@ decides whether to write it to the controller. In order, an estimate is refused 
 4. ``com_too_far``: the centre of mass lies farther than ``max_com_radius_m`` from the flange;
 5. ``controller_silent``: no joint state has arrived for the source's silence timeout;
 6. ``ack_missing``: an earlier write was not acknowledged within ``ack_timeout_s``; writes stay
-   stopped until an acknowledgement arrives or, after ``ack_retry_s``, one retry;
+   stopped until an acknowledgement arrives, the controller returns from a silence, or,
+   after ``ack_retry_s``, one retry;
 7. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
    (hysteresis: it becomes stable when the spread is below the band and unstable again only
    when the spread exceeds twice the band);
@@ -105,6 +106,11 @@ class SafetyGate:
     # -- inputs from the service ---------------------------------------------------------
     def controller_silent(self, silent: bool) -> None:
         self._silent = silent
+        if not silent:
+            # the controller is back: an ack missed during the silence is explained by it,
+            # so a write may be tried again at once rather than after ack_retry_s
+            self._awaiting = None
+            self._ack_failed_t = None
 
     def sent_command(self, seq: int, t: float) -> None:
         """The service wrote the load of the last ``send`` decision as command ``seq``."""

@@ -79,6 +79,14 @@ def load_or_train_model(config: CellConfig):
     return model
 
 
+def sample_rate(link) -> float:
+    """Joint states per second the link delivers: its wire profile's rate (the classic CAN
+    profile publishes every other controller cycle), else the controller's 1 kHz."""
+    profile = getattr(link, "profile", None)
+    joint_state = getattr(profile, "joint_state", None)
+    return float(getattr(joint_state, "rate_hz", 1000.0))
+
+
 class Service:
     """The running plug-in.
 
@@ -90,11 +98,17 @@ class Service:
         notifier: systemd notifications (default: from the environment).
         status: the live status line (default: per ``[log] status_line``).
         write: send loads the gate lets through (False: decide only, as for replay).
+        gate_clock: ``"monotonic"``: the gate's times are this PC's monotonic clock;
+            ``"controller"``: the joint states' own time stamps (a replay as fast as
+            possible then decides as the cell did at recorded pace).
     """
 
     def __init__(self, config: CellConfig, link=None, model=None,
                  notifier: Notifier | None = None, status: StatusLine | None = None,
-                 write: bool = True) -> None:
+                 write: bool = True, gate_clock: str = "monotonic") -> None:
+        if gate_clock not in ("monotonic", "controller"):
+            raise ValueError(f"gate_clock {gate_clock!r}; valid are 'monotonic', 'controller'")
+        self.gate_clock = gate_clock
         self.config = config
         self.link = link
         self.model = model
@@ -129,12 +143,15 @@ class Service:
             self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
                                   silence_timeout=lc.silence_timeout_s)
         est = self.config.estimate
+        self.rate_hz = sample_rate(self.link)
         self.kinematics = PandaModel()
         self.tandem = tandem_for(self.config.model.family)
         self.online = OnlineIdentifier(
             self.model, self.kinematics.flange_position, self.tandem.samples,
-            learn=est.learn, state_filter=StateFilter(cutoff_hz=est.filter_cutoff_hz),
-            smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s))
+            learn=est.learn,
+            state_filter=StateFilter(cutoff_hz=min(est.filter_cutoff_hz, 0.45 * self.rate_hz),
+                                     rate_hz=self.rate_hz),
+            smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s, dt=1.0 / self.rate_hz))
         return self
 
     def stop(self) -> None:
@@ -162,6 +179,8 @@ class Service:
         watchdog = self.notifier.watchdog_period()
         next_watchdog = started
         last_ack = None
+        last_smoothed = None
+        controller_clock = self.gate_clock == "controller"
         self.notifier.ready(f"identifying the payload; {self.model.n_bags} bags")
         log.info("running: link %s, model %s (%d bags), writes %s", getattr(link, "name", link),
                  self.model.name, self.model.n_bags, "on" if sink else "off",
@@ -180,12 +199,15 @@ class Service:
                     state = link.read(cfg.link.silence_timeout_s)
                 except ControllerSilent as exc:
                     self._controller_silent(str(exc))
+                    if last_smoothed is not None:  # the gate decides (and counts) on
+                        gate.decide(time.monotonic(), last_smoothed)  # no write
                     continue
                 except EndOfStream:
                     break
                 if self.silent:
                     self._controller_back()
                 raw, smoothed = online.step(state)
+                last_smoothed = smoothed
                 t_est = time.time()
                 frame_t = getattr(link, "last_frame_time", 0.0)
                 latency = t_est - frame_t if frame_t > 0 else math.nan
@@ -200,12 +222,13 @@ class Service:
                     last_ack = ack
                     self._acknowledged(ack)
                 now = time.monotonic()
-                gate.observe(now, smoothed)
-                if gate.due(now):
-                    decision = gate.decide(now, smoothed)
+                t_gate = state.t if controller_clock else now
+                gate.observe(t_gate, smoothed)
+                if gate.due(t_gate):
+                    decision = gate.decide(t_gate, smoothed)
                     if decision.send and sink:
                         seq = link.send(decision.payload)
-                        gate.sent_command(seq, now)
+                        gate.sent_command(seq, t_gate)
                         log.info("load sent (command %d): %s", seq, decision.detail,
                                  extra={"event": "load_sent", "seq": seq})
                 if now >= next_checkpoint:

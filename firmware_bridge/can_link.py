@@ -24,6 +24,7 @@ controller's side (used by the simulated controller), with optional fault inject
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections import deque
 from collections.abc import Callable
@@ -81,17 +82,23 @@ def _slcan(channel: str, prof: WireProfile) -> dict:
 
 @dataclass(frozen=True)
 class BusKind:
-    """How to open one kind of bus: python-can interface name and options for a profile."""
+    """How to open one kind of bus: python-can interface name and options for a profile.
+
+    ``bus_class`` ("module:Class"), if given, is a python-can bus class to instantiate
+    instead of looking the interface up (a subclass of python-can's own).
+    """
 
     interface: str
     options: Callable[[str, WireProfile], dict]
     help: str
+    bus_class: str | None = None
 
 
 BUS_KINDS: dict[str, BusKind] = {
     "virtual": BusKind("virtual", _virtual, "python-can in-process virtual bus"),
     "socketcan": BusKind("socketcan", _socketcan, "Linux SocketCAN (can0, vcan0)"),
-    "slcan": BusKind("slcan", _slcan, "slcan serial adapter (device or pyserial URL)"),
+    "slcan": BusKind("slcan", _slcan, "slcan serial adapter (device or pyserial URL)",
+                     "firmware_bridge.slcan_buffered:BufferedSlcanBus"),
 }
 
 
@@ -105,7 +112,10 @@ def open_bus(kind: str, channel: str, profile: str = "fd", **overrides) -> can.B
     prof = get_profile(profile)
     options = {**spec.options(channel, prof), **overrides}
     try:
-        return can.Bus(interface=spec.interface, **options)
+        if spec.bus_class is None:
+            return can.Bus(interface=spec.interface, **options)
+        module, _, name = spec.bus_class.partition(":")
+        return getattr(importlib.import_module(module), name)(**options)
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         hint = ""
         if kind == "socketcan":

@@ -45,6 +45,7 @@ class ReplaySource:
             if pace == "recorded" else self._reader
         self._it = iter(messages)
         self.decoder = CanDecoder(profile, window=window)
+        self.profile = self.decoder.profile  # the wire profile (its sample rate, for one)
         self.counters = self.decoder.counters
         self.frames = 0
 

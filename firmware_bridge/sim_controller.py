@@ -161,7 +161,7 @@ class SimController:
             if deadline - now > spin:
                 sleep(deadline - now - spin)
             while perf() < deadline:
-                pass
+                sleep(0)  # yield the GIL while spinning: the plug-in may share the process
 
     def start(self) -> SimController:
         """Run in a daemon thread until :meth:`stop`."""

@@ -14,6 +14,13 @@
   steps per point). The bag being formed is the *open* bag; it closes as soon as a point goes
   elsewhere (the path left it) or :meth:`close` is called. A closed bag's learner never
   changes again, so nothing learnt is overwritten.
+- Closing a bag: a learner trained one point at a time follows the path and ends fitted to
+  the bag's last stretch (re-running a learnt path through such bags gave a mass MAE of
+  0.3-0.46 kg against 0.004 kg on the first pass). So the open bag keeps a uniform sample of
+  its points' tandem samples (:class:`iem.reservoir.Reservoir`, ``reservoir`` points), and
+  when it closes its learner is trained on that sample once more, by the offline training
+  of the initial bags (``fit_epochs``), before it is frozen. The estimates made while the
+  bag formed are unchanged; ``reservoir = 0`` turns this off (the paper's rule alone).
 - Estimate (Eq. 1-2): the output is that of the learner of the bag the point falls in, or,
   outside every bag, of the nearest bag (``n_s = 1`` for that bag, 0 for the others).
 """
@@ -27,6 +34,7 @@ import numpy as np
 from .base import Samples, resolve
 from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
+from .reservoir import Reservoir
 from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
 from .types import PayloadEstimate
 
@@ -47,6 +55,7 @@ class IncrementalEnsemble:
             model, since the measurements the learner sees carry it), or None.
         fit_epochs, fit_lr, fit_stride: offline training of the initial bags: epochs, the
             SGD step in whitened coordinates, and every how many path points to take.
+        reservoir: points of the open bag kept for its training at close (0: none).
         seed: seed of everything random (the noise of each learner).
     """
 
@@ -55,7 +64,7 @@ class IncrementalEnsemble:
     def __init__(self, delta: float = DEFAULT_DELTA, rho: float = DEFAULT_RHO, lr: float = 0.5,
                  iters: int = 5, warmup_iters: int = 100, input_noise=SENSOR_NOISE,
                  fit_epochs: int = 10, fit_lr: float = 0.1, fit_stride: int = 10,
-                 seed: int = 0) -> None:
+                 reservoir: int = 100, seed: int = 0) -> None:
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -65,10 +74,12 @@ class IncrementalEnsemble:
         self.fit_epochs = int(fit_epochs)
         self.fit_lr = float(fit_lr)
         self.fit_stride = int(fit_stride)
+        self.reservoir = int(reservoir)
         self.seed = int(seed)
         self._router = BagRouter(self.delta, self.rho)
         self._learners: list[WeakLearner] = []
         self._open = -1
+        self._kept: Reservoir | None = None
         self._out: tuple[np.ndarray, np.ndarray] | None = None
 
     def params(self) -> dict:
@@ -77,7 +88,7 @@ class IncrementalEnsemble:
                 "warmup_iters": self.warmup_iters,
                 "input_noise": None if self.input_noise is None else self.input_noise.tolist(),
                 "fit_epochs": self.fit_epochs, "fit_lr": self.fit_lr,
-                "fit_stride": self.fit_stride, "seed": self.seed}
+                "fit_stride": self.fit_stride, "reservoir": self.reservoir, "seed": self.seed}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -101,7 +112,8 @@ class IncrementalEnsemble:
         return self._learners[bag]
 
     def nbytes(self) -> int:
-        return self._router.nbytes() + sum(lr.nbytes() for lr in self._learners)
+        kept = 0 if self._kept is None else self._kept.nbytes()
+        return self._router.nbytes() + sum(lr.nbytes() for lr in self._learners) + kept
 
     # -- training ------------------------------------------------------------------------
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
@@ -156,16 +168,22 @@ class IncrementalEnsemble:
         q = np.asarray(x, dtype=float)[:7]
         bag, created, nearest = self._router.add(q, flange)
         if created:
+            self.close()  # the path left the open bag
             X, Y = resolve(samples)
             learner = self._new_learner(X, Y, bag, nearest)
             learner.learn(X, Y, self.warmup_iters)
             self._learners.append(learner)
             self._open = bag
+            if self.reservoir > 0:
+                self._kept = Reservoir(self.reservoir, [self.seed, bag, 2])
+                self._kept.add(X, Y)
         elif bag == self._open:
             X, Y = resolve(samples)
             self._learners[bag].learn(X, Y, self.iters)
+            if self._kept is not None:
+                self._kept.add(X, Y)
         else:
-            self._open = -1  # the path left the open bag: it is closed for good
+            self.close()  # the path left the open bag: it is closed for good
         return bag
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
@@ -182,8 +200,17 @@ class IncrementalEnsemble:
                                learning=bag == self._open)
 
     def close(self) -> None:
-        """Close the open bag (end of a task): its learner is final."""
-        self._open = -1
+        """Close the open bag (the path left it, or a task ended): train its learner once
+        more on the bag's kept points, then it is final."""
+        bag, kept = self._open, self._kept
+        self._open, self._kept = -1, None
+        if bag < 0 or kept is None or len(kept) < 2:
+            return
+        X, Y = kept.stacked()
+        self._learners[bag] = WeakLearner.fit(
+            X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
+            seed=[self.seed, bag, 3], epochs=self.fit_epochs, batch=kept.batch(),
+            fit_lr=self.fit_lr)
 
     # -- estimation ----------------------------------------------------------------------
     def _bag_for(self, q: np.ndarray, flange) -> int:
@@ -219,6 +246,7 @@ class IncrementalEnsemble:
     def to_state(self) -> dict:
         return {"params": self.params(), "router": self._router.to_state(),
                 "learners": [lr.to_state() for lr in self._learners], "open": self._open,
+                "kept": None if self._kept is None else self._kept.to_state(),
                 "out": None if self._out is None else [v.tolist() for v in self._out]}
 
     @classmethod
@@ -230,5 +258,7 @@ class IncrementalEnsemble:
             raise InvalidInputError(f"model state has {len(model._router)} bags but "
                                     f"{len(model._learners)} learners")
         model._open = int(state["open"])
+        kept = state.get("kept")
+        model._kept = None if kept is None else Reservoir.from_state(kept)
         model._out = None if state["out"] is None else tuple(np.array(v) for v in state["out"])
         return model

@@ -65,25 +65,43 @@ class LowPass2:
 
 
 class StateFilter:
-    """Causal estimate of ``(q, dq, ddq)`` from measured ``q, dq`` at a fixed rate.
+    """Causal estimate of ``(q, dq, ddq)`` from measured ``q, dq`` at a nominal rate.
+
+    Given the samples' time stamps, the derivative divides by the real interval, so a lost
+    cycle does not double ``ddq``; a gap longer than ``max_gap_s`` (a silent controller)
+    restarts the filter.
 
     Args:
         cutoff_hz: low-pass cut-off for ``dq``, Hz (default 50).
-        rate_hz: sample rate, Hz (default 1000, the controller's cycle).
+        rate_hz: nominal sample rate, Hz (default 1000, the controller's cycle).
+        max_gap_s: a longer interval between two samples restarts the filter, s.
     """
 
-    def __init__(self, cutoff_hz: float = 50.0, rate_hz: float = 1000.0) -> None:
+    def __init__(self, cutoff_hz: float = 50.0, rate_hz: float = 1000.0,
+                 max_gap_s: float = 0.05) -> None:
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)
+        self.max_gap_s = float(max_gap_s)
         self._lp = LowPass2(cutoff_hz, rate_hz, channels=7)
         self._prev: np.ndarray | None = None
+        self._t: float | None = None
 
     def reset(self) -> None:
         self._lp.reset()
         self._prev = None
+        self._t = None
 
-    def __call__(self, q, dq) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def __call__(self, q, dq, t: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        dt = 1.0 / self.rate_hz
+        if t is not None:
+            if self._t is not None:
+                gap = t - self._t
+                if gap > self.max_gap_s or gap <= 0.0:
+                    self.reset()  # a silence, or time went backwards: start again
+                else:
+                    dt = gap
+            self._t = t
         dq_f = self._lp(dq)
-        ddq = np.zeros(7) if self._prev is None else (dq_f - self._prev) * self.rate_hz
+        ddq = np.zeros(7) if self._prev is None else (dq_f - self._prev) / dt
         self._prev = dq_f
         return np.asarray(q, dtype=float), dq_f, ddq

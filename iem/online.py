@@ -67,7 +67,7 @@ class OnlineIdentifier:
     def step(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
         """Learn from and estimate at one cycle; returns the raw estimate and the smoothed phi."""
         x = state.features()
-        q, dq, ddq = self.state_filter(state.q, state.dq)
+        q, dq, ddq = self.state_filter(state.q, state.dq, state.t)
         flange = self.flange_position(state.q)
         if self.learn:
             tandem = self.tandem

@@ -30,6 +30,9 @@ DEFAULT_DELTA = math.radians(30.0)
 DEFAULT_RHO = 0.2
 """Cartesian threshold ρ of the paper, m."""
 
+_SMALL = 64
+"""Up to this many bags a query computes the exact distances to all of them directly."""
+
 _SCAN_MARGIN = 1e-4
 """Slack on the squared thresholds (rad², m²) of the float32 scan; float64 decides."""
 
@@ -115,6 +118,8 @@ class BagRouter:
             return -1, -1
         q = np.asarray(q, dtype=float)
         x = np.asarray(flange, dtype=float)
+        if n <= _SMALL:
+            return self._route_small(q, x)
         q32 = q.astype(np.float32)
         # |m|² - 2 m·q, i.e. the squared distance minus the constant |q|²
         d2q = self._sqq[:n] - 2.0 * (q32 @ self._qT[:, :n])
@@ -136,6 +141,21 @@ class BagRouter:
         if not ok.any():
             return -1, nearest
         return int(cand[np.flatnonzero(ok)[np.argmin(eq[ok])]]), nearest
+
+    def _route_small(self, q: np.ndarray, x: np.ndarray) -> tuple[int, int]:
+        """:meth:`route` for a few bags: exact float64 distances to every bag directly."""
+        m = self._means[: self._n]
+        dq = m[:, :7] - q
+        dx = m[:, 7:] - x
+        d2q = (dq * dq).sum(axis=1)  # the same arithmetic as _exact2 and route_many
+        d2x = (dx * dx).sum(axis=1)
+        nearest = int(d2q.argmin())
+        inside = (d2q < self._delta2) & (d2x < self._rho2)
+        if inside[nearest]:
+            return nearest, nearest
+        if not inside.any():
+            return -1, nearest
+        return int(np.where(inside, d2q, np.inf).argmin()), nearest
 
     def route_many(self, Q, F) -> np.ndarray:
         """:meth:`route`'s bag for many points at once, ``(N,)`` (-1: outside every bag).

@@ -39,9 +39,11 @@ class ExponentialSmoother:
 
     def __call__(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=float)
-        if self._s is None or not np.all(np.isfinite(self._s)):
-            self._s = x.copy()
-        elif np.all(np.isfinite(x)):
+        if self._s is None:
+            if np.isfinite(x).all():
+                self._s = x.copy()  # start at the first finite estimate
+            return x.copy()
+        if np.isfinite(x).all():
             self._s += self.alpha * (x - self._s)
         return self._s.copy()
 

@@ -29,6 +29,9 @@ N_JOINTS = 7
 
 
 def _vec7(name: str, value) -> np.ndarray:
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (N_JOINTS,) \
+            and not value.flags.writeable:
+        return value  # already what we keep: read-only float64 (7)
     arr = np.array(value, dtype=float).reshape(-1)
     if arr.shape != (N_JOINTS,):
         raise InvalidInputError(f"{name} must have {N_JOINTS} entries, got shape {arr.shape}")

@@ -184,18 +184,19 @@ def _boundary_points(router: BagRouter, n_bags: int, rng):
             yield m + d * hi, f
 
 
-def _crowded_router() -> BagRouter:
+def _crowded_router(n: int = 200) -> BagRouter:
     rng = np.random.default_rng(1)
     router = BagRouter(delta=0.5, rho=10.0)
-    for _ in range(200):
+    for _ in range(n):
         router.add(rng.normal(size=7) * 0.6 + 1.0, np.zeros(3))
     return router
 
 
-def test_route_many_equals_route_on_bag_boundaries():
-    router = _crowded_router()
+@pytest.mark.parametrize("n_bags", [12, 200])
+def test_route_many_equals_route_on_bag_boundaries(n_bags):
+    router = _crowded_router(n_bags)
     rng = np.random.default_rng(3)
-    for q, f in _boundary_points(router, 20, rng):
+    for q, f in _boundary_points(router, min(20, len(router)), rng):
         assert router.route_many(q[None], f[None])[0] == router.route(q, f)[0]
 
 
@@ -526,10 +527,17 @@ def test_online_rules_step_by_step():
     assert model.learner(1).b.tobytes() == expected.b.tobytes()
     assert _weights(model.learner(0)) == w0  # a closed bag is never trained
 
-    # C: goes to bag 0 -> bag 1 closes; nothing trains and no samples are asked for
-    w1 = _weights(model.learner(1))
+    # C: goes to bag 0 -> bag 1 closes: its learner is trained once more on the points it
+    # kept (A and B; no new samples are asked for) and is final from then on
+    before = _weights(model.learner(1))
     model.learn_one(_x(q7(0.05)), _flange(q7(0.05)), _never)
     assert model.open_bag == -1 and model.router.counts.tolist() == [4, 2]
+    w1 = _weights(model.learner(1))
+    assert w1 != before
+    refit = WeakLearner.fit(np.vstack((XA, XB)), np.vstack((YA, YB)), *model._out,
+                            lr=model.lr, input_noise=model.input_noise, seed=[0, 1, 3],
+                            epochs=model.fit_epochs, batch=XA.shape[0], fit_lr=model.fit_lr)
+    assert w1 == _weights(refit)
 
     # more points in and out of bag 1, and a new bag 2 that forms and closes in turn
     for q in (q7(2.0, -0.1), q7(1.9), q7(2.1, 0.05)):  # into closed bag 1
@@ -537,15 +545,25 @@ def test_online_rules_step_by_step():
     _learn(model, q7(0.0, 0.0, 2.0))  # bag 2, open
     assert model.n_bags == 3 and model.open_bag == 2
     _learn(model, q7(0.0, 0.1, 2.0))  # trains bag 2
-    w2 = _weights(model.learner(2))
     model.learn_one(_x(q7(2.0)), _flange(q7(2.0)), _never)  # bag 1: closes bag 2
     assert model.open_bag == -1
+    w2 = _weights(model.learner(2))
     for q in (q7(0.0, 0.0, 2.1), q7(2.0, 0.05), q7(0.02), q7(0.0, -0.1, 2.0)):
         model.learn_one(_x(q), _flange(q), _never)
     assert model.router.counts.tolist() == [5, 7, 4]
     assert _weights(model.learner(0)) == w0
     assert _weights(model.learner(1)) == w1
     assert _weights(model.learner(2)) == w2
+
+
+def test_without_a_reservoir_closing_leaves_the_learner_as_it_was():
+    """``reservoir = 0``: the paper's rule alone, the learner is final as the bag closes."""
+    model = _ensemble(reservoir=0)
+    _learn(model, q7(2.0))
+    _learn(model, q7(2.0, 0.1))
+    before = _weights(model.learner(1))
+    model.learn_one(_x(q7(0.05)), _flange(q7(0.05)), _never)
+    assert model.open_bag == -1 and _weights(model.learner(1)) == before
 
 
 def test_lazy_samples_are_asked_for_only_when_a_learner_trains():

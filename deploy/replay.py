@@ -1,0 +1,225 @@
+"""``iem replay``: the plug-in over recorded traffic, as fast as the machine goes.
+
+A CAN log (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes them) is decoded
+by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus, and
+fed to the same :class:`deploy.service.Service` that ``iem run`` uses, with writes off:
+nothing is sent, but the safety gate still decides on every estimate, so the report says what
+the plug-in would have written. The gate runs on the recorded controller clock (the joint
+states' ``t``), not on the wall clock, so its decisions do not depend on how fast the replay
+runs; a replay has no silences (a gap in the recording is just a gap).
+
+The model is the one of ``--model FILE`` or, by default, a fresh IEM trained on the built-in
+excitation path with seed 0. Either way the replay learns in memory only: the file is never
+written unless ``--save-model FILE`` asks for it. Decoding, training and learning are
+deterministic, so replaying the same file twice gives identical estimates (``--out``).
+
+Outputs: ``--out`` a CSV with one row per estimate (``t,cycle,bag``, the raw ``m..Izz`` and
+the smoothed ``m_s..Izz_s``, the paper's parameter order, kg, kg·m, kg·m²); ``--truth`` the
+MAE of the smoothed estimates against a payload file, by group; ``--json`` the summary.
+A missing, unknown or unreadable log, or one without a single complete cycle of the given
+profile, is a :class:`firmware_bridge.errors.LogFileError` (``iem``: exit status 2).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import sys
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from iem.errors import InvalidInputError
+from iem.types import PARAMS
+
+CSV_HEADER = ("t", "cycle", "bag", *PARAMS, *(f"{p}_s" for p in PARAMS))
+"""Columns of ``--out``: controller time (s), cycle, bag, raw then smoothed phi."""
+
+DEFAULT_KIND = "IEM"
+
+
+class Estimates:
+    """The estimates of a replay, one row per cycle (an ``on_cycle`` observer)."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.cycle: list[int] = []
+        self.bag: list[int] = []
+        self.raw: list[np.ndarray] = []
+        self.smoothed: list[np.ndarray] = []
+
+    def __call__(self, record) -> None:
+        self.t.append(float(record.state.t))
+        self.cycle.append(int(record.state.cycle))
+        self.bag.append(int(record.raw.bag))
+        self.raw.append(np.array(record.raw.phi, dtype=float))
+        self.smoothed.append(np.array(record.smoothed, dtype=float))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def smoothed_array(self) -> np.ndarray:
+        return np.array(self.smoothed).reshape(-1, len(PARAMS))
+
+    def csv_text(self) -> str:
+        """The CSV (exact: every float as its shortest round-trip repr)."""
+        lines = [",".join(CSV_HEADER)]
+        for t, cycle, bag, raw, sm in zip(self.t, self.cycle, self.bag, self.raw,
+                                          self.smoothed, strict=True):
+            lines.append(",".join([repr(t), str(cycle), str(bag),
+                                   *map(repr, raw.tolist()), *map(repr, sm.tolist())]))
+        return "\n".join(lines) + "\n"
+
+    def write_csv(self, path) -> None:
+        _write(path, self.csv_text())
+
+
+def _write(path, text: str) -> None:
+    try:
+        FsPath(path).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise InvalidInputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+
+
+def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_to=None,
+           status: bool = False, log=print) -> tuple[dict, Estimates]:
+    """Run the plug-in over ``log_file`` as fast as possible, writes off.
+
+    Args:
+        log_file: a ``.blf``, ``.log``, ``.asc`` or ``.trc`` CAN log.
+        profile: the wire profile it was recorded with (``fd`` or ``classic``).
+        model: the estimator to start from (copied, never changed); None: a fresh
+            ``IEM`` trained on the built-in excitation path with seed 0.
+        truth: a :class:`sim.payload.Payload` to compute the MAE against, or None.
+        save_model_to: save the model learnt during the replay to this file (atomic).
+        status: show the live status line on stderr.
+        log: where progress lines go.
+
+    Returns:
+        ``(summary, estimates)``: the summary dict (the keys of the demo's summary where
+        they apply) and the per-cycle :class:`Estimates`.
+    """
+    from firmware_bridge.links import open_link
+    from iem.metrics import mae_groups
+    from iem.persistence import save_model
+
+    from .config import config_from_dict
+    from .sdnotify import Notifier
+    from .service import Service
+    from .status import StatusLine
+    from .training import train_initial_model
+
+    link = open_link("replay", str(log_file), profile=profile, pace="fast")
+    try:
+        if model is None:
+            model = train_initial_model(DEFAULT_KIND, "paper", "builtin", 0, log=log)
+        else:
+            model = copy.deepcopy(model)
+        config = config_from_dict({
+            "link": {"kind": "replay", "channel": str(log_file), "profile": profile},
+            # the model path is only written by --save-model; no periodic checkpoints
+            "model": {"path": str(save_model_to or "replay-model.msgpack"),
+                      "train_if_missing": False, "checkpoint_period_s": 86400.0},
+            "log": {"status_line": "on" if status else "off"},
+        }, where="iem replay")
+        # the gate decides on the recorded clock, so a fast replay decides as the cell did
+        service = Service(config, link=link, model=model, notifier=Notifier(environ={}),
+                          status=StatusLine.from_config(config.log), write=False,
+                          gate_clock="controller")
+        estimates = Estimates()
+        service.on_cycle.append(estimates)
+        service.open()
+        summary = service.run()
+        if save_model_to is not None:
+            save_model(service.model, save_model_to)
+            log(f"saved the learnt model ({service.model.n_bags} bags) to {save_model_to}")
+    finally:
+        link.close()
+
+    if not estimates.t:  # nothing to report on: say why rather than print zeros
+        from firmware_bridge.errors import LogFileError
+
+        c = link.counters
+        if not c.received:
+            raise LogFileError(f"{log_file}: no CAN frames in it; is it a CAN log written by "
+                               "'iem record' or python-can?")
+        other = "classic" if profile == "fd" else "fd"
+        raise LogFileError(f"{log_file}: {c.received} frames but no complete joint-state "
+                           f"cycle of the {profile} profile ({c.summary()}; {c.foreign} "
+                           f"frames of other IDs); recorded with --profile {other}?")
+    decisions = service.gate.summary()
+    for key in ("latency_us", "checkpoints"):  # no wall-clock latency, no checkpoints here
+        summary.pop(key, None)
+    summary.update({
+        "log_file": str(log_file),
+        "profile": profile,
+        "recorded_s": estimates.t[-1] - estimates.t[0],
+        "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
+                   "rejected": decisions["rejected"]},
+        "estimates_per_s": summary["estimates"] / summary["wall_s"]
+        if summary["wall_s"] > 0 else None,
+    })
+    if truth is not None:
+        sm = estimates.smoothed_array()
+        summary["payload"] = truth.name
+        summary["mae_groups"] = mae_groups(sm, truth.to_phi())
+        summary["final_estimate"] = {"phi": sm[-1].tolist(), "truth": truth.to_phi().tolist()}
+    return summary, estimates
+
+
+def print_summary(s: dict, log=print) -> None:
+    log(f"replay of {s['log_file']} ({s['profile']} profile, {s['model']}):")
+    log(f"  {s['estimates']} estimates over {s['recorded_s']:.3f} s of recorded time, "
+        f"{s['bags']} bags; {s['wall_s']:.2f} s wall"
+        + (f" ({s['estimates_per_s']:.0f} estimates per s)" if s["estimates_per_s"] else ""))
+    g = s.get("mae_groups")
+    if g:
+        log(f"  MAE against {s['payload']}: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
+            f"inertia {g['inertia']:.5f} kg·m²")
+    w = s["writes"]
+    gate = ", ".join(f"{k} {v}" for k, v in sorted(s["gate"].items())) or "none"
+    log(f"  writes: none sent (replay); the gate would have sent {w['would_send']}, rejected "
+        f"{w['rejected']}; decisions: {gate}")
+    f = s["frames"]
+    drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
+    log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}")
+
+
+def configure(parser) -> None:
+    parser.add_argument("file", metavar="FILE", help="CAN log: .blf, .log, .asc or .trc")
+    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+                        help="wire profile the log was recorded with (default fd)")
+    parser.add_argument("--model", metavar="FILE", help="model file to start from (read "
+                        "only; default: a fresh IEM trained on the built-in excitation path, "
+                        "seed 0)")
+    parser.add_argument("--truth", metavar="PAYLOAD", help="payload TOML: report the MAE of "
+                        "the smoothed estimates against it")
+    parser.add_argument("--out", metavar="CSV", help="write every estimate (raw and smoothed)")
+    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    parser.add_argument("--save-model", metavar="FILE",
+                        help="save the model learnt during the replay here")
+    parser.add_argument("--no-status", action="store_true", help="no live status line")
+
+
+def run(args) -> int:
+    from iem.persistence import load_model
+    from sim.payload import load_payload
+
+    from .logs import setup_logging
+
+    setup_logging("warning", "text")
+    truth = load_payload(args.truth) if args.truth else None  # fail early on a bad file
+    model = load_model(args.model) if args.model else None
+
+    def log(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    summary, estimates = replay(args.file, profile=args.profile, model=model, truth=truth,
+                                save_model_to=args.save_model,
+                                status=not args.no_status and sys.stderr.isatty(), log=log)
+    if args.out:
+        estimates.write_csv(args.out)
+    if args.json:
+        _write(args.json, json.dumps(summary, indent=2, default=float) + "\n")
+    print_summary(summary)
+    return 0

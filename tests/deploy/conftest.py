@@ -1,0 +1,126 @@
+"""Shared pieces of the plug-in's end-to-end tests: a trained model, controllers, configs."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="session")
+def trained_model_file(tmp_path_factory) -> Path:
+    """An IEM trained on the excitation path (a light training, to keep tests quick)."""
+    from deploy.training import train_initial_model
+    from iem.persistence import save_model
+
+    model = train_initial_model("IEM", seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20)
+    path = tmp_path_factory.mktemp("model") / "trained.msgpack"
+    save_model(model, path)
+    return path
+
+
+@pytest.fixture
+def model_file(trained_model_file, tmp_path) -> Path:
+    """A private copy of the trained model that a test may overwrite."""
+    path = tmp_path / "model.msgpack"
+    shutil.copyfile(trained_model_file, path)
+    return path
+
+
+def cell_config(model_path, link: dict, **sections) -> dict:
+    """A cell.toml as a dict: the given link, the model file, no status line."""
+    doc = {"link": link, "model": {"path": str(model_path), "train_if_missing": False},
+           "log": {"status_line": "off", "level": "info", "format": "json"}}
+    for name, table in sections.items():
+        doc.setdefault(name, {}).update(table)
+    return doc
+
+
+def write_toml(path: Path, doc: dict) -> Path:
+    lines = []
+    for section, table in doc.items():
+        lines.append(f"[{section}]")
+        for key, value in table.items():
+            if isinstance(value, bool):
+                text = "true" if value else "false"
+            elif isinstance(value, str):
+                text = '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+            else:
+                text = repr(value)
+            lines.append(f"{key} = {text}")
+        lines.append("")
+    path.write_text("\n".join(lines))
+    return path
+
+
+def new_task_csv(path: Path) -> Path:
+    from sim.paths import new_task_path, save_path_csv
+
+    save_path_csv(new_task_path(), path)
+    return path
+
+
+@contextlib.contextmanager
+def controller_process(*args: str, timeout: float = 30.0):
+    """``iem sim-controller`` in its own process on a pty; yields ``(process, pty path)``.
+
+    The process is stopped (SIGTERM, then SIGKILL) and waited for on the way out.
+    """
+    cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", *args]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        line = proc.stdout.readline().strip()
+        if not line.startswith("/dev/"):
+            proc.kill()
+            _, err = proc.communicate(timeout=timeout)
+            raise RuntimeError(f"sim-controller did not announce its pty: {line!r}; {err}")
+        yield proc, line
+    finally:
+        stop_process(proc)
+
+
+def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> tuple[str, str]:
+    """Stop ``proc`` (SIGTERM, then SIGKILL), wait for it; its remaining ``(stdout, stderr)``.
+
+    Safe to call twice: the second call returns what the first collected.
+    """
+    done = getattr(proc, "_collected", None)
+    if done is not None:
+        return done
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate(timeout=timeout)
+    proc._collected = (out or "", err or "")
+    return proc._collected
+
+
+def service_process(config: Path, *extra: str) -> subprocess.Popen:
+    """``iem run --config`` in its own process (its JSON logs on stderr)."""
+    return subprocess.Popen([sys.executable, "-m", "deploy.cli", "run", "--config",
+                             str(config), *extra], cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+def wait_for(predicate, timeout: float, step: float = 0.1):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(step)
+    return None
