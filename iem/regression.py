@@ -24,8 +24,9 @@ equations are withheld until it has decayed (:func:`settle_samples`).
 
 The robot model is named, not passed, so that estimators stay plain data for persistence:
 ``dynamics = "module:function"`` names a factory returning ``f(q, dq, ddq) -> (tau_robot (7,),
-Y (7, 10), M (7, 7))``; ``"sim.robot:panda_dynamics"`` is the nominal Panda (imported only
-when the first equation is formed).
+Y (7, 10), M (7, 7))`` (optionally with a method ``payload_mass_matrix(q, phi)``, else the
+payload's share is taken from ``Y``); ``"sim.robot:panda_dynamics"`` is the nominal Panda
+(imported only when the first equation is formed).
 """
 
 from __future__ import annotations
@@ -64,15 +65,15 @@ def noise_gains(cutoff_hz: float, rate_hz: float) -> tuple[float, float]:
 def settle_samples(cutoff_hz: float, rate_hz: float, tol: float = 0.1) -> int:
     """Samples after a steady-state start until the first sample's noise is small.
 
-    Started at ``x0 = s0 + n0``, the filtered output carries ``n0 (1 - step_k)`` and its
-    differentiated output ``-n0 rate h_k``. This is the first ``k`` from which both stay
-    below ``tol`` times the steady filtered noise (standard deviations).
+    Started at ``x0 = s0 + n0``, the filtered output at sample ``k`` (0 the first) carries
+    ``n0 (1 - step_k)`` and its difference ``-n0 rate h_k``. This is the first ``k`` from
+    which both stay below ``tol`` times the steady filtered noise (standard deviations).
     """
     n = int(40 * rate_hz / cutoff_hz) + 10
     h = impulse_response(cutoff_hz, rate_hz, n)
     gain, dgain = noise_gains(cutoff_hz, rate_hz)
-    tail = np.abs(1.0 - np.cumsum(h))  # weight of n0 in the output after k samples
-    dtail = np.abs(np.concatenate((h[1:], [0.0]))) * rate_hz  # and in the difference
+    tail = np.abs(1.0 - np.cumsum(h))  # weight of n0 in the output at sample k
+    dtail = np.abs(h) * rate_hz  # and in the difference at sample k
     bad = np.flatnonzero((tail > tol * math.sqrt(gain)) | (dtail > tol * math.sqrt(dgain)))
     return int(bad[-1] + 1) if bad.size else 0
 
@@ -147,9 +148,13 @@ class PayloadRegression:
         """The payload's share of the mass matrix, ``M_p = d(Y phi)/d ddq`` (7x7).
 
         ``Y = Y(q, dq, ddq)`` is linear in ``ddq``, so column ``i`` is
-        ``(Y(q, dq, ddq + e_i) - Y) phi``.
+        ``(Y(q, dq, ddq + e_i) - Y) phi``; a dynamics callable with a
+        ``payload_mass_matrix(q, phi)`` method gives it directly instead.
         """
         f = self.model()
+        direct = getattr(f, "payload_mass_matrix", None)
+        if direct is not None:
+            return np.asarray(direct(q, phi), dtype=float)
         base = Y @ phi
         out = np.empty((7, 7))
         step = np.array(ddq, dtype=float)
