@@ -34,3 +34,11 @@ def test_bench_sim_writes_json(tmp_path):
     for key in ("rnea_us", "regressor_us", "tandem_us_per_point", "plant_realtime_factor"):
         assert figures[key] > 0
     assert "tandem" in proc.stdout
+
+
+def test_demo_identifies_writes_back_and_detects_the_swap(capsys):
+    assert main(["demo"]) == 0
+    out = capsys.readouterr().out
+    assert "model IEM+phys" in out
+    assert out.count("setLoad(") == 2
+    assert "payload change detected" in out
