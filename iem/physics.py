@@ -8,13 +8,18 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   sample is the evidence the robot's motion need not provide.
 - **The prior** is a summary of the ensemble's estimates since the last payload change: their
   running mean ``mu_p``, with the covariance ``C_p`` = the mean, over those samples, of the
-  covariance of the estimating bag's learner's error (plus the input noise's share, which the
-  mean divides by the number of samples). A bag's error covariance is measured on what the
+  covariance of the estimating bag's learner's error, plus the mean's own noise: the scatter
+  of the estimates divided by their number (shrunk toward the sensor noise's share while
+  there are few). A bag's error covariance is measured on what the
   model has: the tandem samples of the training payloads at the bag's points, noise-free
   inputs, learner output minus true phi (:meth:`PhysicsInformedEnsemble.fit` for the initial
   bags, every learnt point for new ones). A learner sees 7 torques and outputs 10 parameters,
   so at one instant 3 directions (mostly inertia) are guessed from the family; that spread is
   exactly what this covariance measures. ``prior_scale`` multiplies its standard deviations.
+  The calibration holds where the learners were trained; far from that an ensemble can be
+  off by more than it says, so the data judge the prior: its covariance is scaled by the
+  empirical-Bayes factor ``s² >= 1`` that makes the data most likely
+  (:func:`prior_inflation`), 1 while they agree.
 - **The data**: the regression equations ``r = Y phi + e``, ``e ~ N(0, R)`` of
   :class:`iem.regression.PayloadRegression` (q, dq and tau through the same ``cutoff_hz``
   low-pass, ddq the difference of the filtered dq, ``R`` the torque noise plus the ddq noise
@@ -28,11 +33,13 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   projected onto physically consistent parameters in the metric ``Lambda``
   (:func:`iem.consistency.project`), so the least certain parameters move the most.
 - **Payload change**: each equation's innovation, whitened by its covariance
-  ``R + Y Lambda^-1 Y^T``, feeds a CUSUM (:class:`iem.change.ChangeDetector`). On a change the
-  data window, the prior summary and the detector restart, the equations of the next
-  ``holdoff_s`` are skipped (the filter still holds the old payload's torque), and the next
-  estimates carry ``extra = {"change": True, "reset": True}`` so the caller restarts its
-  smoothing (:class:`iem.online.OnlineIdentifier` does).
+  ``R + Y Lambda^-1 Y^T``, feeds a CUSUM (:class:`iem.change.ChangeDetector`), from the
+  window's :data:`DETECT_AFTER`-th equation on (before, a conflict is the prior's, which the
+  inflation resolves, not a new payload's). On a change the data
+  window, the prior summary and the detector restart, the equations of the next
+  ``holdoff_s`` are skipped (the filter still holds the old payload's torque), and the
+  estimate of that sample carries ``extra = {"change": True, "reset": True}`` so the caller
+  restarts its smoothing (:class:`iem.online.OnlineIdentifier` does).
 
 ``observe_one(x, flange)`` does everything but train the ensemble: the payload part of
 ``learn_one`` for a frozen model (the benchmark's runs on the ensemble's own training path).
@@ -62,6 +69,54 @@ invertible where the learners happen to agree with every training payload."""
 NOISE_PSEUDO_COUNT = 10
 """Weight, in samples, of the input-noise covariance against the sample covariance of the
 ensemble's estimates in the prior's noise term (see :meth:`PhysicsInformedEnsemble._prior`)."""
+
+
+DETECT_AFTER = 10
+"""Equations a window holds before the change detector tests new ones (0.1 s by default)."""
+MAX_INFLATION = 1e6
+"""Largest factor :func:`prior_inflation` puts on the prior covariance."""
+
+
+def prior_inflation(mu_p, c_p, info, eta) -> float:
+    """The factor ``s² >= 1`` on the prior covariance that makes the data most likely.
+
+    The data's sufficient statistics ``eta = sum Y^T R^-1 r`` and ``info = sum Y^T R^-1 Y``
+    have, under the prior ``phi ~ N(mu_p, s² C_p)``, ``eta ~ N(info mu_p, info + s² info C_p
+    info)``. Whitened by ``info`` and diagonalised (``gamma_i``: how much sharper the data
+    are than the prior along direction ``i``, ``a_i``: the whitened prior-data difference),
+    the log-likelihood is ``-1/2 sum [log(1 + s² gamma_i) + a_i² / (1 + s² gamma_i)]``; this
+    returns its maximiser over ``[1, MAX_INFLATION]`` (empirical Bayes). It stays 1 while the
+    data agree with the prior, and grows when they show the prior's mean off by more than
+    its covariance allows (e.g. an ensemble far outside its training data): then the prior's
+    claims elsewhere, e.g. on the inertia the data barely see, are not trusted either.
+    """
+    d, U = np.linalg.eigh(0.5 * (info + info.T))
+    keep = d > 1e-9 * max(float(d.max()), 1e-300)
+    if not keep.any():
+        return 1.0
+    U, root = U[:, keep], np.sqrt(d[keep])
+    v = (U.T @ (eta - info @ mu_p)) / root
+    G = root[:, None] * (U.T @ c_p @ U) * root[None, :]
+    gamma, V = np.linalg.eigh(0.5 * (G + G.T))
+    gamma = np.maximum(gamma, 0.0)
+    a2 = np.square(V.T @ v)
+
+    def slope(s2: float) -> float:  # 2 d(log-likelihood)/d(s²)
+        k = 1.0 + s2 * gamma
+        return float(np.sum(gamma * (a2 / (k * k) - 1.0 / k)))
+
+    if slope(1.0) <= 0.0:
+        return 1.0
+    lo, hi = 0.0, math.log(MAX_INFLATION)
+    if slope(MAX_INFLATION) >= 0.0:
+        return MAX_INFLATION
+    for _ in range(40):  # bisection on log s²
+        mid = 0.5 * (lo + hi)
+        if slope(math.exp(mid)) > 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return math.exp(0.5 * (lo + hi))
 
 
 def _sym_inv(A: np.ndarray) -> np.ndarray:
@@ -149,6 +204,7 @@ class PhysicsInformedEnsemble:
 
     def _forget(self) -> None:
         self._info = np.zeros((10, 10))
+        self._m = 0  # equations in the window
         self._eta = np.zeros(10)
         self._n = 0
         self._sum_phi = np.zeros(10)
@@ -163,6 +219,12 @@ class PhysicsInformedEnsemble:
     @property
     def n_bags(self) -> int:
         return self._ens.n_bags
+
+    @property
+    def prior_inflation(self) -> float:
+        """The factor the data currently put on the prior covariance (1: they agree)."""
+        post = self._posterior()
+        return 1.0 if post is None else float(post[4])
 
     @property
     def ensemble_model(self) -> IncrementalEnsemble:
@@ -257,6 +319,7 @@ class PhysicsInformedEnsemble:
                 Ri = _sym_inv(R * self._weight)
                 YtRi = Y.T @ Ri
                 self._info += YtRi @ Y
+                self._m += 1
                 self._eta += YtRi @ r
                 self._post = None
         if self._holdoff > 0:
@@ -281,7 +344,11 @@ class PhysicsInformedEnsemble:
         return None if post is None else post[0]
 
     def _test(self, Y, r, R) -> bool:
-        """Innovation test of one equation against the current posterior."""
+        """Innovation test of one equation against the current posterior (whose prior the
+        data have already inflated if they contradict it); silent for the window's first
+        :data:`DETECT_AFTER` equations, so a wrong prior is not taken for a new payload."""
+        if self._m < DETECT_AFTER:
+            return False
         post = self._posterior()
         if post is None:
             return False
@@ -318,15 +385,20 @@ class PhysicsInformedEnsemble:
         return mean, 0.5 * (cov + cov.T) + np.diag(self._floor)
 
     def _combine(self, prior) -> list:
-        """Posterior ``[mean, cov, precision, None]`` of a prior and the data since the change
-        (the last slot caches the projected mean)."""
+        """Posterior ``[mean, cov, precision, None, s²]`` of a prior (its covariance inflated
+        by :func:`prior_inflation`) and the data since the change (the fourth slot caches the
+        projected mean)."""
         mu_p, c_p = prior
+        inflation = 1.0
+        if np.any(self._info):
+            inflation = prior_inflation(mu_p, c_p, self._info, self._eta)
+            c_p = c_p * inflation
         prec_p = _sym_inv(c_p)
         precision = prec_p + self._info
         precision = 0.5 * (precision + precision.T)
         cov = _sym_inv(precision)
         mean = cov @ (prec_p @ mu_p + self._eta)
-        return [mean, cov, precision, None]
+        return [mean, cov, precision, None, inflation]
 
     def posterior(self, x=None, flange=None):
         """``(mean, cov)`` of the payload before the projection, or None.
@@ -363,7 +435,7 @@ class PhysicsInformedEnsemble:
         return inside if inside >= 0 else nearest
 
     def _estimate(self, post, t: float, bag: int = -1, learning: bool = False):
-        mean, cov, precision, phi = post
+        mean, cov, precision, phi, _ = post
         if phi is None:
             phi = post[3] = project(mean, precision, eps=self.eps)
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -403,11 +475,13 @@ class PhysicsInformedEnsemble:
         return {"params": self.params(), "ensemble": self._ens.to_state(),
                 "calib": [c.tolist() for c in self._calib], "calib_n": list(self._calib_n),
                 "regression": self._reg.to_state(), "info": self._info.tolist(),
-                "eta": self._eta.tolist(), "n": self._n, "sum_phi": self._sum_phi.tolist(),
+                "eta": self._eta.tolist(), "m": self._m, "n": self._n,
+                "sum_phi": self._sum_phi.tolist(),
                 "sum_c": self._sum_c.tolist(), "noise0": self._noise0.tolist(),
                 "sum_outer": self._sum_outer.tolist(),
                 "detector": self._detector.to_state(), "changed": self._changed,
-                "post": None if self._post is None else [v.tolist() for v in self._post[:3]],
+                "post": None if self._post is None else [
+                    *(v.tolist() for v in self._post[:3]), self._post[4]],
                 "holdoff": self._holdoff, "changes": self.changes}
 
     @classmethod
@@ -422,6 +496,7 @@ class PhysicsInformedEnsemble:
         model._reg.set_state(state["regression"])
         model._info = np.array(state["info"], dtype=float).reshape(10, 10)
         model._eta = np.array(state["eta"], dtype=float).reshape(10)
+        model._m = int(state["m"])
         model._n = int(state["n"])
         model._sum_phi = np.array(state["sum_phi"], dtype=float).reshape(10)
         model._sum_c = np.array(state["sum_c"], dtype=float).reshape(10, 10)
@@ -430,9 +505,9 @@ class PhysicsInformedEnsemble:
         model._detector.set_state(state["detector"])
         model._changed = bool(state["changed"])
         if state["post"] is not None:
-            mean, cov, precision = (np.array(v, dtype=float) for v in state["post"])
+            mean, cov, precision = (np.array(v, dtype=float) for v in state["post"][:3])
             model._post = [mean.reshape(10), cov.reshape(10, 10), precision.reshape(10, 10),
-                           None]
+                           None, float(state["post"][3])]
         model._holdoff = int(state["holdoff"])
         model.changes = int(state["changes"])
         return model

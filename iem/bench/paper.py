@@ -27,7 +27,8 @@ it tracks the payload with its physics but, like the IEM, does not train its lea
   ``coverage_2sigma``: the share of (sample, parameter) pairs of the raw estimate within two
   reported standard deviations of the truth (``coverage_2sigma_groups`` per group,
   ``mean_std_groups`` the mean reported standard deviation), else None; and for every model
-  ``mae_groups_raw``, the MAE before the smoothing.
+  ``mae_groups_raw``, the MAE before the smoothing, and ``consistent_share``, the share of its
+  raw estimates that are physically consistent (:mod:`iem.consistency`).
 - ``payload_change``: the new task path again (same noise), but at mid-path the payload on the
   plant switches from the test payload to ``test-4w`` (the controller is not told). Each model
   starts from its state after the excitation path (as for ``new_path``); ``detect_s`` is the
@@ -53,6 +54,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.bem import BatchEnsemble
+from iem.consistency import min_eigenvalue
 from iem.ensemble import IncrementalEnsemble
 from iem.least_squares import RecursiveLeastSquares
 from iem.metrics import convergence_s, groups_of, mae
@@ -202,6 +204,10 @@ class Bench:
         if convergence:
             out["convergence_s"] = convergence_s(run.t, run.smoothed, phi)
             out["mae_groups_raw"] = groups_of(mae(run.raw, phi))
+            finite = np.all(np.isfinite(run.raw), axis=1)
+            lam = np.full(len(run.raw), -np.inf)
+            lam[finite] = min_eigenvalue(run.raw[finite])
+            out["consistent_share"] = float(np.mean(lam > 0.0))
             cov = coverage_of(run.raw, run.std, phi)
             out["coverage_2sigma"] = None if cov is None else cov["all"]
             out["coverage_2sigma_groups"] = (None if cov is None else

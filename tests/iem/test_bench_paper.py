@@ -61,6 +61,7 @@ def test_schema_beyond_the_paper(results):
     new = r["scenarios"]["new_path"]
     for model in r["models"]:
         assert set(new[model]["mae_groups_raw"]) == GROUPS
+        assert 0.0 <= new[model]["consistent_share"] <= 1.0
         reports_std = model in ("LS", "IEM+phys")
         assert (new[model]["coverage_2sigma"] is not None) == reports_std
         if reports_std:
@@ -84,6 +85,7 @@ def test_iem_phys_meets_its_bar_even_in_the_quick_run(results):
     new = s["new_path"]["IEM+phys"]
     assert all(v is not None and v <= 0.5 for v in new["convergence_s"].values())
     assert new["coverage_2sigma"] >= 0.9
+    assert new["consistent_share"] == 1.0  # every one of its 6000 estimates
     for g in GROUPS:  # better than the paper's IEM everywhere, far better than our IEM
         assert new["mae_groups"][g] < s["new_path"]["IEM"]["mae_groups"][g] * 1.2
     assert new["mae_groups_raw"]["mass"] < 0.1 * s["new_path"]["IEM"]["mae_groups_raw"]["mass"]

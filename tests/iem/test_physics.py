@@ -15,7 +15,7 @@ from iem.errors import InvalidInputError
 from iem.filters import LowPass2
 from iem.least_squares import DEFAULT_PRIOR_STD, RecursiveLeastSquares
 from iem.online import OnlineIdentifier
-from iem.physics import PRIOR_FLOOR, PhysicsInformedEnsemble
+from iem.physics import PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
 from iem.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
 from iem.types import JointState, PayloadEstimate
 from sim.family import test_payloads
@@ -80,7 +80,7 @@ def test_information_form_equals_batch_weighted_least_squares():
             np.testing.assert_allclose(cov, batch_cov, rtol=1e-6, atol=1e-15)
             np.testing.assert_allclose(kalman.phi, batch, rtol=1e-5, atol=1e-8)
             checked += 1
-    assert checked >= 10 and model.changes == 0
+    assert checked >= 10 and model.changes == 0 and model.prior_inflation == 1.0
     # and the equations were enough to find the payload
     mean, cov = model.posterior()
     assert np.all(np.abs(mean - PHI) < 4 * np.sqrt(np.diag(cov)))
@@ -154,10 +154,10 @@ def new_rollout_noiseless():
 
 
 # -- the prior -----------------------------------------------------------------------------
-def _trained(**kw):
+def _trained(dynamics=FAKE, **kw):
     model = PhysicsInformedEnsemble(
         ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2},
-        dynamics=FAKE, **kw)
+        dynamics=dynamics, **kw)
     idx = np.asarray(DATA.fit_points)
     model.fit(DATA.X[idx, :7], DATA.F[idx], lambda i: DATA.samples_at(int(idx[i])))
     return model
@@ -186,6 +186,53 @@ def test_bag_covariance_is_the_learners_error_on_its_samples():
     errs = np.vstack([ens.learner(bag).predict_many(DATA.samples_at(p)[0])
                       - DATA.samples_at(p)[1] for p in pts])
     np.testing.assert_allclose(model._bag_cov(bag), errs.T @ errs / len(errs), rtol=1e-9)
+
+
+def test_prior_inflation_is_the_maximum_likelihood_scale():
+    """1 while the data agree with the prior; the likelihood's maximiser (checked on a grid)
+    when they show the prior's mean far off."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(30, 10))
+    info = A.T @ A * 1e4  # sharp data in every direction
+    c_p = np.diag(rng.uniform(0.5, 2.0, 10)) * 1e-2
+    truth = rng.normal(size=10)
+    eta = info @ truth + np.linalg.cholesky(info) @ rng.normal(size=10)
+    agree = truth + np.linalg.cholesky(c_p) @ rng.normal(size=10) * 0.5
+    assert prior_inflation(agree, c_p, info, eta) == 1.0
+    far = truth + np.linalg.cholesky(c_p) @ rng.normal(size=10) * 20.0
+    s2 = prior_inflation(far, c_p, info, eta)
+    v = eta - info @ far
+
+    def loglik(s2):
+        cov = info + s2 * info @ c_p @ info
+        return -0.5 * (np.linalg.slogdet(cov)[1] + v @ np.linalg.solve(cov, v))
+
+    grid = np.exp(np.linspace(0.0, np.log(1e5), 2001))
+    best = grid[np.argmax([loglik(g) for g in grid])]
+    assert 100 < s2 < 1e4 and s2 == pytest.approx(best, rel=0.01)
+    assert prior_inflation(far, c_p, np.zeros((10, 10)), np.zeros(10)) == 1.0  # no data
+
+
+def test_a_wrong_prior_is_inflated_until_the_data_agree():
+    """An ensemble whose estimates are 0.3 kg off (far outside its calibration): the data
+    inflate the prior, and the posterior's error stays within its reported uncertainty."""
+    X = _hand_made(3000)
+    model = _trained(update_every=10)
+    bias = np.zeros(10)
+    bias[0], bias[4:] = 0.3, 3e-3
+    ens = model.ensemble_model
+    real = ens.predict_one
+
+    def off(x, flange, t=0.0):
+        est = real(x, flange, t)
+        return PayloadEstimate(t=t, phi=PHI + bias, bag=est.bag)
+
+    ens.predict_one = off
+    for x, f in zip(X, DATA.F[np.arange(len(X)) % DATA.n], strict=True):
+        model.observe_one(x, f)
+    mean, cov = model.posterior()
+    assert model.prior_inflation > 100 and model.changes == 0  # no payload change either
+    assert np.all(np.abs(mean - PHI) < 3 * np.sqrt(np.diag(cov)))
 
 
 def test_bad_parameters_are_errors():
@@ -277,3 +324,30 @@ def test_lowpass_state_round_trips_through_the_regression_state():
     x = rng.normal(size=21)
     assert isinstance(other._lp, LowPass2)
     np.testing.assert_array_equal(reg._lp(x), other._lp(x))
+
+
+def test_every_output_is_physically_consistent():
+    """Thousands of estimates from junk (the check suite's synthetic path, whose torques are
+    no Panda's, and random inputs): the raw posterior is often impossible, the output never."""
+    from iem.consistency import min_eigenvalue
+
+    from .test_consistency import _payload_ok
+
+    model = _trained(dynamics="sim.robot:panda_dynamics")
+    rng = np.random.default_rng(8)
+    junk = DATA.X[rng.integers(0, DATA.n, 3000)] + rng.normal(0.0, 1.0, (3000, 21))
+    flanges = DATA.F[rng.integers(0, DATA.n, 3000)]
+    impossible = 0
+    outputs = []
+    for i, (x, f) in enumerate(zip(junk, flanges, strict=True)):
+        if i % 2:
+            model.learn_one(x, f, DATA.samples_at(i % DATA.n))
+        else:
+            model.observe_one(x, f)
+        mean, _ = model.posterior(x, f)
+        impossible += min_eigenvalue(mean) <= 0.0
+        outputs.append(model.predict_one(x, f).phi)
+    outputs = np.array(outputs)
+    assert impossible > 300  # the projection had work to do
+    assert all(is_consistent(phi) for phi in outputs)
+    assert all(_payload_ok(phi) for phi in outputs[::10])
