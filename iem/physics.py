@@ -101,22 +101,24 @@ def prior_inflation(mu_p, c_p, info, eta) -> float:
     gamma = np.maximum(gamma, 0.0)
     a2 = np.square(V.T @ v)
 
-    def slope(s2: float) -> float:  # 2 d(log-likelihood)/d(s²)
-        k = 1.0 + s2 * gamma
-        return float(np.sum(gamma * (a2 / (k * k) - 1.0 / k)))
+    def slope(log_s2: np.ndarray) -> np.ndarray:  # 2 d(log-likelihood)/d(s²) on a grid
+        k = 1.0 + np.exp(log_s2)[:, None] * gamma[None, :]
+        return np.sum(gamma * (a2 / (k * k) - 1.0 / k), axis=1)
 
-    if slope(1.0) <= 0.0:
+    grid = np.linspace(0.0, math.log(MAX_INFLATION), 49)
+    g = slope(grid)
+    if g[0] <= 0.0:
         return 1.0
-    lo, hi = 0.0, math.log(MAX_INFLATION)
-    if slope(MAX_INFLATION) >= 0.0:
-        return MAX_INFLATION
-    for _ in range(40):  # bisection on log s²
-        mid = 0.5 * (lo + hi)
-        if slope(math.exp(mid)) > 0.0:
-            lo = mid
-        else:
-            hi = mid
-    return math.exp(0.5 * (lo + hi))
+    for _refine in range(2):  # the first sign change of the slope, on finer grids
+        down = np.flatnonzero(g <= 0.0)
+        if down.size == 0:
+            return MAX_INFLATION
+        i = int(down[0])
+        grid = np.linspace(grid[i - 1], grid[i], 33)
+        g = slope(grid)
+    i = int(np.flatnonzero(g <= 0.0)[0])  # the last bracket: interpolate the slope
+    w = g[i - 1] / (g[i - 1] - g[i])
+    return float(math.exp(grid[i - 1] + w * (grid[i] - grid[i - 1])))
 
 
 def _sym_inv(A: np.ndarray) -> np.ndarray:
@@ -336,8 +338,9 @@ class PhysicsInformedEnsemble:
                 self._sum_phi += est.phi
                 self._sum_c += self._bag_cov(est.bag)
                 self._sum_outer += np.outer(est.phi, est.phi)
-                if self._n % self.update_every == 1 or self.update_every == 1:
-                    self._post = None  # the summary moves slowly: refresh it every few
+                if self._m == 0 and (self._n % self.update_every == 1 or self.update_every == 1):
+                    self._post = None  # no data yet: refresh the prior-only posterior every
+                    # few samples (with data, each equation refreshes it)
 
     def _mean_for_noise(self) -> np.ndarray | None:
         post = self._posterior()
