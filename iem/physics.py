@@ -234,7 +234,7 @@ class PhysicsInformedEnsemble:
         return self._ens
 
     def nbytes(self) -> int:
-        fixed = 3 * 800 + 4 * 80 + 21 * 8 * 4
+        fixed = 8 * 800 + 6 * 80 + 21 * 8 * 4  # info, sums, posterior; vectors; filter
         return self._ens.nbytes() + sum(c.nbytes + 8 for c in self._calib) + fixed
 
     # -- prior calibration ---------------------------------------------------------------
