@@ -44,7 +44,7 @@ class ModelConfig:
     """The model file and how a new model is made (``[model]``)."""
 
     path: str = "model.msgpack"
-    kind: str = "IEM"
+    kind: str = "IEM+phys"
     checkpoint_period_s: float = 60.0
     train_if_missing: bool = True
     family: str = "paper"

@@ -51,12 +51,30 @@ class CycleRecord:
     latency_s: float
 
 
+def link_rate(config: CellConfig) -> float:
+    """Joint states per second the configured link delivers (its wire profile's rate)."""
+    if config.link.kind in ("serial", "franka"):
+        return 1000.0
+    from firmware_bridge.protocol import profile
+
+    return float(profile(config.link.profile).joint_state.rate_hz)
+
+
 def load_or_train_model(config: CellConfig):
     """The model of the configuration: its file, or a new one trained on the excitation path."""
     mc = config.model
     path = FsPath(mc.path)
+    rate = link_rate(config)
     if path.exists():
         model = load_model(path)
+        made_for = getattr(model, "rate_hz", rate)
+        if made_for != rate:
+            from iem.errors import InvalidInputError
+
+            raise InvalidInputError(
+                f"model file {path} was made for {made_for:g} joint states per second, the "
+                f"[link] profile {config.link.profile!r} delivers {rate:g}; make one for this "
+                f"link with 'iem train --out {path} --rate {rate:g}'")
         log.info("loaded model %s: %s with %d bags", path, model.name, model.n_bags,
                  extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
         if model.name != mc.kind:
@@ -72,7 +90,8 @@ def load_or_train_model(config: CellConfig):
     from .training import train_initial_model
 
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
-                                log=lambda msg: log.info(msg, extra={"event": "trained"}))
+                                log=lambda msg: log.info(msg, extra={"event": "trained"}),
+                                rate_hz=rate)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})

@@ -12,6 +12,13 @@ An estimator sees one controller cycle at a time:
 :class:`iem.types.PayloadEstimate` and never changes the model. ``predict_many`` is the
 vectorised form of ``predict_one``. ``to_state``/``from_state`` give a plain-data snapshot
 for :mod:`iem.persistence`. ``n_bags`` and ``nbytes`` let the checks bound the memory.
+
+Optional: ``observe_one(x, flange)`` updates what an estimator tracks about the current
+payload without training its model (IEM+phys's physics; :class:`iem.online.OnlineIdentifier`
+calls it instead of ``learn_one`` when learning is off), and ``reset()`` forgets the payload
+(a new task), never what was learnt. An estimate's ``extra`` may carry ``"change": True`` (a
+payload change was detected at this sample) and ``"reset": True`` (earlier estimates are
+about another payload: the caller restarts any smoothing).
 """
 
 from __future__ import annotations

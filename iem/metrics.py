@@ -9,6 +9,8 @@
   error at an instant is the mean absolute error of its parameters), or None if it never does.
   The thresholds are twice the paper's new-path MAE (Table 4): 0.014 kg, 0.016 kg·m,
   0.0014 kg·m².
+- ``coverage``: for models that report a standard deviation per parameter, the share of
+  samples whose absolute error is within two of them (0.95 for honest Gaussian errors).
 """
 
 from __future__ import annotations
@@ -67,4 +69,19 @@ def convergence_s(t, estimates, truth, thresholds=None, window_s: float = 0.1,
             out[g] = None
         else:
             out[g] = float(t[bad[-1] + 1] - t[0])
+    return out
+
+
+def coverage(estimates, std, truth, k: float = 2.0) -> dict[str, float] | None:
+    """Share of (sample, parameter) pairs whose absolute error is within ``k`` reported
+    standard deviations: ``"all"`` over the ten parameters and one entry per group; None if
+    the estimates carry no standard deviation (``std`` None or NaN)."""
+    if std is None:
+        return None
+    std = np.asarray(std, dtype=float)
+    if std.size == 0 or not np.all(np.isfinite(std)):
+        return None
+    inside = abs_errors(estimates, truth) <= k * std
+    out = {"all": float(inside.mean())}
+    out.update({g: float(inside[:, list(idx)].mean()) for g, idx in GROUPS.items()})
     return out

@@ -6,7 +6,11 @@ state ``(q, dq, ddq)`` the tandem simulators run at (they move in tandem with th
 at its measured state); the flange position comes from forward kinematics of the measured
 ``q``; the estimator learns from the point (the tandem samples are computed only if it asks
 for them) and predicts; the estimate is smoothed with :class:`iem.smoothing.ExponentialSmoother`
-(the raw estimate stays available).
+(the raw estimate stays available). An estimate whose ``extra`` holds ``"reset": True`` (e.g. a
+detected payload change) restarts the smoothing at that estimate, so the old payload's
+estimates do not linger in the output. With ``learn=False`` an estimator that has
+``observe_one(x, flange)`` (a payload state it tracks without training, as IEM+phys's physics)
+still gets every sample through it.
 
 The kinematics and the tandem simulators are passed in as callables, so this module stays
 numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
@@ -81,17 +85,25 @@ class OnlineIdentifier:
             if combined is not None:
                 raw = combined(x, flange, samples, t=state.t)
                 self.learned_points += bool(asked)
-                self.raw = raw
-                return raw, self.smoother(raw.phi)
+                return self._finish(raw)
             t0 = time.perf_counter()
             self.estimator.learn_one(x, flange, samples)
             if self.timed:
                 self.learn_times.append(time.perf_counter() - t0)
                 self.learnt.append(bool(asked))
             self.learned_points += bool(asked)
+        elif hasattr(self.estimator, "observe_one"):
+            self.estimator.observe_one(x, flange)
         t0 = time.perf_counter()
         raw = self.estimator.predict_one(x, flange, t=state.t)
         if self.timed:
             self.predict_times.append(time.perf_counter() - t0)
+        return self._finish(raw)
+
+    def _finish(self, raw: PayloadEstimate) -> tuple[PayloadEstimate, np.ndarray]:
+        """Keep the raw estimate and smooth it (afresh if the estimator says the payload
+        changed: ``raw.extra["reset"]``)."""
         self.raw = raw
+        if raw.extra.get("reset"):
+            self.smoother.reset()
         return raw, self.smoother(raw.phi)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import msgpack
 
-from .errors import ModelFileError
+from .errors import InvalidInputError, ModelFileError
 
 SCHEMA = "iem-payload-model"
 """The ``schema`` field of every model file."""
@@ -44,9 +44,14 @@ MODELS: dict[str, str] = {
     "old_IEM": "iem.old_iem:InPlaceEnsemble",
     "BEM": "iem.bem:BatchEnsemble",
     "LS": "iem.least_squares:RecursiveLeastSquares",
+    "IEM+phys": "iem.physics:PhysicsInformedEnsemble",
 }
 """Estimator kinds that can be loaded: ``name -> "module:Class"``. Add one line per kind (or
 call :func:`register_model`); the module is imported only when a file of that kind is read."""
+
+DEFAULT_MODEL = "IEM+phys"
+"""The kind a plug-in runs unless its configuration names another (:func:`new_model`): the
+most accurate one, with uncertainty, physical consistency and payload-change detection."""
 
 _FIELDS: dict[str, type | tuple[type, ...]] = {
     "schema": str, "version": int, "kind": str, "crc32": int, "state": bytes}
@@ -59,6 +64,30 @@ def register_model(kind: str, target: str) -> None:
     if not isinstance(target, str) or target.count(":") != 1:
         raise ValueError(f"model target must be 'module:Class', got {target!r}")
     MODELS[kind] = target
+
+
+def new_model(kind: str = DEFAULT_MODEL, **params):
+    """A fresh, untrained estimator of ``kind`` (a key of :data:`MODELS`), built with
+    ``params`` (its constructor's hyper-parameters): how a configuration selects a model.
+
+    Raises:
+        InvalidInputError: the kind is unknown or cannot be imported, or a parameter is not
+            one the kind accepts.
+    """
+    if kind not in MODELS:
+        raise InvalidInputError(f"unknown model kind {kind!r}; valid kinds are "
+                                f"{', '.join(sorted(MODELS))}")
+    module_name, _, class_name = MODELS[kind].partition(":")
+    try:
+        cls = getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError) as exc:
+        raise InvalidInputError(f"model kind {kind!r} ({MODELS[kind]}) cannot be imported: "
+                                f"{exc}") from exc
+    try:
+        return cls(**params)
+    except TypeError as exc:
+        raise InvalidInputError(f"model kind {kind!r} does not take these parameters "
+                                f"{sorted(params)}: {exc}") from exc
 
 
 # -- encoding ----------------------------------------------------------------------------

@@ -279,13 +279,21 @@ class PandaPlant:
         self.cycle += 1
         return state
 
-    def follow(self, path, reset: bool = True) -> Rollout:
-        """Track a :class:`sim.paths.Path` sample by sample and record everything."""
+    def follow(self, path, reset: bool = True, mount: dict | None = None) -> Rollout:
+        """Track a :class:`sim.paths.Path` sample by sample and record everything.
+
+        ``mount`` maps sample indices to payloads (or None): each is mounted
+        (:meth:`set_payload`) just before that sample's step, e.g. ``{3000: other}`` swaps the
+        payload at 3 s. The controller keeps the load it was told about.
+        """
         n = len(path)
         if reset:
             self.reset(path.q[0], path.dq[0])
+        mount = {} if mount is None else dict(mount)
         out = Rollout.empty(n)
         for k in range(n):
+            if k in mount:
+                self.set_payload(mount[k])
             s = self.step(path.q[k], path.dq[k], path.ddq[k])
             out.t[k] = s.t
             out.q[k], out.dq[k], out.tau[k] = s.q, s.dq, s.tau_J

@@ -166,6 +166,13 @@ class PandaModel:
         mass = np.triu(mass) + np.triu(mass, 1).T
         return tau, y, mass
 
+    def payload_mass_matrix(self, q, phi) -> np.ndarray:
+        """The payload's share of the joint-space mass matrix, ``J^T I_p J`` (7x7), for the
+        payload ``phi`` (paper order) on the flange; ``J`` the flange Jacobian (LOCAL)."""
+        q = np.asarray(q, dtype=float)
+        jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
+        return jac.T @ spatial_inertia(phi) @ jac
+
     # -- checks ----------------------------------------------------------------------------
     def check_configuration(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float).reshape(-1)
@@ -182,13 +189,40 @@ class PandaModel:
         return q, dq, ddq
 
 
-def panda_dynamics():
-    """A fresh model's ``rnea_regressor_mass``: ``(q, dq, ddq) -> (tau_robot, Y, M)``.
+def spatial_inertia(phi) -> np.ndarray:
+    """The 6x6 spatial inertia at the flange origin, ``[[m E, -S(h)], [S(h), I_o]]`` in
+    Pinocchio's ``[linear; angular]`` order, from ``phi`` (paper order). Linear in ``phi``, so
+    it exists for any values (``pin.Inertia`` needs ``m > 0`` to place the CoM)."""
+    m, hx, hy, hz, ixx, ixy, ixz, iyy, iyz, izz = (float(v) for v in np.asarray(phi))
+    skew = np.array([[0.0, -hz, hy], [hz, 0.0, -hx], [-hy, hx, 0.0]])
+    out = np.zeros((6, 6))
+    out[:3, :3] = m * np.eye(3)
+    out[:3, 3:] = -skew
+    out[3:, :3] = skew
+    out[3:, 3:] = [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]
+    return out
 
-    The factory the LS baseline names (``"sim.robot:panda_dynamics"``); each call builds its
-    own model, since a model owns its scratch data.
-    """
-    return PandaModel().rnea_regressor_mass
+
+class PandaDynamics:
+    """``(q, dq, ddq) -> (tau_robot, Y, M)`` of a nominal Panda (:meth:`PandaModel.
+    rnea_regressor_mass`), plus the payload's mass matrix ``payload_mass_matrix(q, phi)``
+    (the fast path :class:`iem.regression.PayloadRegression` uses when it is there)."""
+
+    def __init__(self) -> None:
+        self.model = PandaModel()
+
+    def __call__(self, q, dq, ddq):
+        return self.model.rnea_regressor_mass(q, dq, ddq)
+
+    def payload_mass_matrix(self, q, phi) -> np.ndarray:
+        return self.model.payload_mass_matrix(q, phi)
+
+
+def panda_dynamics() -> PandaDynamics:
+    """The robot-model factory the least-squares estimators name
+    (``"sim.robot:panda_dynamics"``); each call builds its own model, since a model owns its
+    scratch data."""
+    return PandaDynamics()
 
 
 @cache

@@ -4,7 +4,8 @@ The models are trained as in ``iem bench paper`` (offline on the excitation path
 training payloads); then the plant carries the given payload along the given path (CSV,
 see :func:`sim.paths.load_path_csv`) and every model runs it learning as it goes, as in the
 ``new_path`` scenario. ``DIR/results.json`` has the paper benchmark's schema with the
-scenario ``custom``: ``{MODEL: {"mae", "mae_groups", "convergence_s"}}``.
+scenario ``custom``: ``{MODEL: {"mae", "mae_groups", "convergence_s", "mae_groups_raw",
+"coverage_2sigma", ...}}`` (as ``new_path``; IEM+phys included).
 """
 
 from __future__ import annotations
@@ -35,9 +36,10 @@ def run_custom(payload_file, path_file, out_dir, quick: bool = False, seed: int 
     phi = payload.to_phi()
     scen = {}
     for name, model in models.items():
-        if hasattr(model, "reset") and not hasattr(model, "fit"):
+        if hasattr(model, "reset"):
             model.reset()
-        scen[name] = bench.scores(bench.run(model, rollout, learn=True), phi, convergence=True)
+        scen[name] = bench.scores(bench.run(model, rollout, learn=True), phi, convergence=True,
+                                  model=model)
         g = scen[name]["mae_groups"]
         log(f"custom {name:8s} mass {g['mass']:.4g}  com {g['com']:.4g}  "
             f"inertia {g['inertia']:.4g}  converged {scen[name]['convergence_s']}")

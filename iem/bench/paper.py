@@ -20,6 +20,22 @@ Scenarios (every model's output smoothed the same causal way, :mod:`iem.smoothin
   (IEM forms new bags, old_IEM updates in place, BEM never changes, LS restarts).
 - ``forgetting`` (Fig. 5): the excitation-path MAE before and after the new task path.
 
+Beyond the paper (IEM+phys, :mod:`iem.physics`, runs in every scenario; on its training path
+it tracks the payload with its physics but, like the IEM, does not train its learners):
+
+- ``new_path`` also gives, per model that reports a standard deviation (LS, IEM+phys),
+  ``coverage_2sigma``: the share of (sample, parameter) pairs of the raw estimate within two
+  reported standard deviations of the truth (``coverage_2sigma_groups`` per group,
+  ``mean_std_groups`` the mean reported standard deviation), else None; and for every model
+  ``mae_groups_raw``, the MAE before the smoothing, and ``consistent_share``, the share of its
+  raw estimates that are physically consistent (:mod:`iem.consistency`).
+- ``payload_change``: the new task path again (same noise), but at mid-path the payload on the
+  plant switches from the test payload to ``test-4w`` (the controller is not told). Each model
+  starts from its state after the excitation path (as for ``new_path``); ``detect_s`` is the
+  time from the switch to the first detected change for models with a detector (None for
+  the others, or if it never fires), ``false_alarms`` the changes it reported before the
+  switch, and ``mae_groups`` the MAE after the switch against the new payload.
+
 Timing: bag routing (median µs per query among 1 ... 10,000 bags), IEM estimate (median µs
 per ``predict_one``) and IEM learning (median ms per ``learn_one`` of a point that trained a
 learner, tandem samples included).
@@ -29,6 +45,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import time
 from dataclasses import dataclass
 from functools import cached_property
@@ -37,15 +54,20 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.bem import BatchEnsemble
+from iem.consistency import min_eigenvalue
 from iem.ensemble import IncrementalEnsemble
 from iem.least_squares import RecursiveLeastSquares
 from iem.metrics import convergence_s, groups_of, mae
+from iem.metrics import coverage as coverage_of
 from iem.old_iem import InPlaceEnsemble
 from iem.online import OnlineIdentifier
+from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
-from iem.types import PARAMS, JointState
+from iem.types import GROUPS, PARAMS, JointState
 
-MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS")
+MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS", "IEM+phys")
+CHANGE_TO = "test-4w"
+"""The payload the ``payload_change`` scenario switches to at mid-path."""
 ROUTE_SIZES = (1, 10, 100, 1000, 10000)
 
 
@@ -60,13 +82,17 @@ class Run:
     learn_s: np.ndarray
     learnt: np.ndarray
     predict_s: np.ndarray
+    std: np.ndarray
+    """Reported standard deviations ``(N, 10)``, NaN where the model reports none."""
+    changes: np.ndarray
+    """True at the samples whose estimate reported a payload change."""
 
 
 class Bench:
     """The shared set-up of the paper benchmark and of ``iem bench custom``."""
 
     def __init__(self, quick: bool = False, seed: int = 0, log=print) -> None:
-        from sim.family import default_test_payload, training_payloads
+        from sim.family import default_test_payload, test_payloads, training_payloads
         from sim.paths import excitation_path, new_task_path
         from sim.plant import PandaPlant
         from sim.robot import PandaModel
@@ -81,6 +107,9 @@ class Bench:
         self.phi = self.payload.to_phi()
         self.excitation = excitation_path()
         self.new_path = new_task_path()
+        self.change_payload = test_payloads()[CHANGE_TO]
+        self.change_at = len(self.new_path) // 2
+        """Sample of the new task path at which ``payload_change`` switches the payload."""
         self._plant_cls = PandaPlant
 
     @cached_property
@@ -93,10 +122,17 @@ class Bench:
         """The plant along the new task path with the test payload (noise seed ``seed + 1``)."""
         return self.rollout(self.new_path, self.payload, self.seed + 1)
 
-    def rollout(self, path, payload, seed):
+    @cached_property
+    def change_rollout(self):
+        """The new task path (noise seed ``seed + 1``, as ``new_rollout``) with the payload
+        switched to ``change_payload`` at ``change_at``."""
+        return self.rollout(self.new_path, self.payload, self.seed + 1,
+                            mount={self.change_at: self.change_payload})
+
+    def rollout(self, path, payload, seed, mount=None):
         t0 = time.perf_counter()
         plant = self._plant_cls(payload=payload, seed=seed, controller_load=payload)
-        out = plant.follow(path)
+        out = plant.follow(path, mount=mount)
         self.log(f"rollout {path.name} ({path.duration:.1f} s) with {payload.name}: "
                  f"{time.perf_counter() - t0:.1f} s")
         return out
@@ -113,6 +149,7 @@ class Bench:
                                  fit_stride=40 if q else 20, n_networks=3 if q else 5,
                                  n_trees=3 if q else 5),
             "LS": RecursiveLeastSquares(),
+            "IEM+phys": PhysicsInformedEnsemble(ensemble=common),
         }
 
     def trained_models(self, extra_models: dict | None = None) -> dict:
@@ -145,6 +182,8 @@ class Bench:
         n = len(rollout)
         smoothed = np.empty((n, 10))
         raw = np.empty((n, 10))
+        std = np.full((n, 10), math.nan)
+        changes = np.zeros(n, dtype=bool)
         bags = np.empty(n, dtype=np.int64)
         for k in range(n):
             state = JointState(t=float(rollout.t[k]), q=rollout.q[k], dq=rollout.dq[k],
@@ -152,17 +191,53 @@ class Bench:
             est, smoothed[k] = online.step(state)
             raw[k] = est.phi
             bags[k] = est.bag
+            if est.std is not None:
+                std[k] = est.std
+            changes[k] = bool(est.extra.get("change"))
         if learn and hasattr(model, "close"):
             model.close()
         return Run(t=rollout.t - rollout.t[0], smoothed=smoothed, raw=raw, bags=bags,
                    learn_s=np.array(online.learn_times), learnt=np.array(online.learnt),
-                   predict_s=np.array(online.predict_times))
+                   predict_s=np.array(online.predict_times), std=std, changes=changes)
 
-    def scores(self, run: Run, phi, convergence: bool = False) -> dict:
+    def scores(self, run: Run, phi, convergence: bool = False, model=None) -> dict:
+        """MAE (per parameter and group); with ``convergence`` also the convergence times,
+        the raw MAE and the 2-sigma coverage of the reported standard deviations; for a
+        ``model`` with a change detector, ``changes``: how many it reported (false alarms,
+        the payload being fixed)."""
         per = mae(run.smoothed, phi)
         out = {"mae": per, "mae_groups": groups_of(per)}
+        if getattr(model, "detects_changes", False):
+            out["changes"] = int(run.changes.sum())
         if convergence:
             out["convergence_s"] = convergence_s(run.t, run.smoothed, phi)
+            out["mae_groups_raw"] = groups_of(mae(run.raw, phi))
+            finite = np.all(np.isfinite(run.raw), axis=1)
+            lam = np.full(len(run.raw), -np.inf)
+            lam[finite] = min_eigenvalue(run.raw[finite])
+            out["consistent_share"] = float(np.mean(lam > 0.0))
+            cov = coverage_of(run.raw, run.std, phi)
+            out["coverage_2sigma"] = None if cov is None else cov["all"]
+            out["coverage_2sigma_groups"] = (None if cov is None else
+                                             {g: cov[g] for g in GROUPS})
+            out["mean_std_groups"] = (None if cov is None else
+                                      {g: float(run.std[:, list(i)].mean())
+                                       for g, i in GROUPS.items()})
+        return out
+
+    def change_scores(self, run: Run, model) -> dict:
+        """The ``payload_change`` figures of one run (see the module docstring)."""
+        k = self.change_at
+        after = slice(k, None)
+        phi = self.change_payload.to_phi()
+        per = mae(run.smoothed[after], phi)
+        out = {"detect_s": None, "false_alarms": None, "mae": per,
+               "mae_groups": groups_of(per),
+               "mae_groups_raw": groups_of(mae(run.raw[after], phi))}
+        if getattr(model, "detects_changes", False):
+            fired = np.flatnonzero(run.changes[k:])
+            out["detect_s"] = None if fired.size == 0 else float(run.t[k + fired[0]] - run.t[k])
+            out["false_alarms"] = int(run.changes[:k].sum())
         return out
 
 
@@ -194,38 +269,52 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     models = bench.trained_models(extra_models)
     names = list(models)
 
-    scen: dict = {"excitation": {}, "new_path": {}, "forgetting": {}}
-    runs: dict = {"excitation": {}, "new_path": {}, "forgetting_after": {}}
+    scen: dict = {"excitation": {}, "new_path": {}, "forgetting": {}, "payload_change": {}}
+    runs: dict = {"excitation": {}, "new_path": {}, "forgetting_after": {},
+                  "payload_change": {}}
     bags_after_excitation = models["IEM"].n_bags
     for name, model in models.items():
         learns_on_excitation = not hasattr(model, "fit")
-        if learns_on_excitation and hasattr(model, "reset"):
-            model.reset()
+        if hasattr(model, "reset"):
+            model.reset()  # forget any payload (models with a reset keep what they learnt)
         r = bench.run(model, bench.exc_rollout, learn=learns_on_excitation)
         runs["excitation"][name] = r
-        scen["excitation"][name] = bench.scores(r, bench.phi)
+        scen["excitation"][name] = bench.scores(r, bench.phi, model=model)
         log(f"excitation {name:8s} {_fmt(scen['excitation'][name]['mae_groups'])}")
     frozen = {n: copy.deepcopy(m) for n, m in models.items()}
     for name, model in models.items():
-        if hasattr(model, "reset") and not hasattr(model, "fit"):
+        if hasattr(model, "reset"):
             model.reset()
         r = bench.run(model, bench.new_rollout, learn=True)
         runs["new_path"][name] = r
-        scen["new_path"][name] = bench.scores(r, bench.phi, convergence=True)
+        scen["new_path"][name] = bench.scores(r, bench.phi, convergence=True, model=model)
         log(f"new path   {name:8s} {_fmt(scen['new_path'][name]['mae_groups'])} "
             f"converged {scen['new_path'][name]['convergence_s']}")
     for name, model in models.items():
         if not hasattr(model, "fit"):
             continue  # forgetting concerns models that carry what they learnt
+        if hasattr(model, "reset"):
+            model.reset()
         r = bench.run(model, bench.exc_rollout, learn=False)
         runs["forgetting_after"][name] = r
         scen["forgetting"][name] = {
             "before": scen["excitation"][name]["mae_groups"],
             "after": bench.scores(r, bench.phi)["mae_groups"]}
+        if getattr(model, "detects_changes", False):
+            scen["forgetting"][name]["changes_after"] = int(r.changes.sum())
         log(f"forgetting {name:8s} after/before "
             + _fmt({g: scen['forgetting'][name]['after'][g]
                     / max(scen['forgetting'][name]['before'][g], 1e-300)
                     for g in ("mass", "com", "inertia")}, digits=2))
+    for name, model in frozen.items():  # each model as it was before the new task path
+        if hasattr(model, "reset"):
+            model.reset()
+        r = bench.run(model, bench.change_rollout, learn=True)
+        runs["payload_change"][name] = r
+        scen["payload_change"][name] = bench.change_scores(r, model)
+        c = scen["payload_change"][name]
+        log(f"change     {name:8s} after the switch {_fmt(c['mae_groups'])} "
+            f"detected after {c['detect_s']} s")
     del frozen
 
     iem_new = runs["new_path"]["IEM"]
@@ -236,6 +325,10 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
         "learn_ms_per_point_median": float(np.median(learn_ms)) if learn_ms.size else None,
         "learn_points": int(learn_ms.size),
     }
+    if "IEM+phys" in runs["new_path"]:
+        phys = runs["new_path"]["IEM+phys"]
+        timing["phys_us_per_sample_median"] = float(np.median(phys.learn_s + phys.predict_s)
+                                                    * 1e6)
     results = {
         "params": list(PARAMS),
         "models": names,
@@ -247,7 +340,9 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
                   "test_phi": bench.phi.tolist(), "training_payloads": len(bench.tandem),
                   "sensor": {"sigma_q": 1e-4, "sigma_dq": 2e-3, "sigma_tau": 0.05},
                   "smoothing_tau_s": 0.2, "excitation_s": bench.excitation.duration,
-                  "new_path_s": bench.new_path.duration},
+                  "new_path_s": bench.new_path.duration,
+                  "change": {"from": bench.payload.name, "to": bench.change_payload.name,
+                             "at_s": bench.change_at / 1000.0}},
     }
     results["setup"]["wall_s"] = time.perf_counter() - started
     (out_dir / "results.json").write_text(json.dumps(results, indent=2) + "\n")

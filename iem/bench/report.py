@@ -83,6 +83,39 @@ def _forgetting(results) -> list[str]:
     return lines
 
 
+def _uncertainty(results) -> list[str]:
+    new = results["scenarios"]["new_path"]
+    lines = ["| model | consistent | raw MAE mass | com | inertia | coverage 2σ (all) | mass | "
+             "com | inertia | mean std mass | com | inertia |", "|---|" + "---|" * 11]
+    for name in results["models"]:
+        s = new[name]
+        raw = s.get("mae_groups_raw") or {}
+        cov = s.get("coverage_2sigma_groups") or {}
+        std = s.get("mean_std_groups") or {}
+        lines.append(f"| {name} | {_g(s.get('consistent_share'))} | "
+                     + " | ".join(_g(raw.get(g)) for g in GROUPS) + " | "
+                     + _g(s.get("coverage_2sigma")) + " | "
+                     + " | ".join(_g(cov.get(g)) for g in GROUPS) + " | "
+                     + " | ".join(_g(std.get(g)) for g in GROUPS) + " |")
+    return lines
+
+
+def _change(results) -> list[str]:
+    ch = results["scenarios"].get("payload_change", {})
+    lines = ["| model | detected after (s) | false alarms before | MAE after: mass (kg) | "
+             "com (kg·m) | inertia (kg·m²) |", "|---|---|---|---|---|---|"]
+    for name in results["models"]:
+        if name not in ch:
+            continue
+        c = ch[name]
+        fa = "n/a" if c["false_alarms"] is None else str(c["false_alarms"])
+        det = ("no detector" if c["false_alarms"] is None
+               else "never" if c["detect_s"] is None else _g(c["detect_s"]))
+        lines.append(f"| {name} | {det} | {fa} | "
+                     + " | ".join(_g(c["mae_groups"][g]) for g in GROUPS) + " |")
+    return lines
+
+
 def _timing(results) -> list[str]:
     t = results["timing"]
     lines = ["| figure | ours | paper (8-core 2.3 GHz) |", "|---|---|---|"]
@@ -92,6 +125,9 @@ def _timing(results) -> list[str]:
     lm = t["learn_ms_per_point_median"]
     lines.append(f"| learning, per point of a forming bag (median, {t['learn_points']} points) "
                  f"| {_g(lm)} ms | 12 ms |")
+    if "phys_us_per_sample_median" in t:
+        lines.append(f"| IEM+phys, learn and estimate per sample on the new path (median) | "
+                     f"{t['phys_us_per_sample_median']:.0f} µs | |")
     return lines
 
 
@@ -118,6 +154,18 @@ def write_report(out_dir, results, runs, bench, models) -> None:
         "the paper's new-path MAE (0.014 kg, 0.016 kg·m, 0.0014 kg·m²) to the end.", "",
         "## Forgetting (Fig. 5): excitation-path MAE before and after the new task path", "",
         *_forgetting(results), "",
+        "## Beyond the paper: uncertainty (new task path)", "",
+        "Consistent: the share of raw estimates that are physically possible (positive "
+        "mass, positive-definite inertia, triangle inequality). Raw MAE: before the smoothing. "
+        "Coverage: the share of (sample, parameter) pairs of "
+        "the raw estimate within two reported standard deviations of the truth (0.95 for "
+        "honest Gaussian errors); n/a for models that report none.", "",
+        *_uncertainty(results), "",
+        "## Beyond the paper: payload change", "",
+        f"The new task path with the payload switched from `{setup['change']['from']}` to "
+        f"`{setup['change']['to']}` at {setup['change']['at_s']:g} s (the controller is not "
+        "told); MAE after the switch against the new payload.", "",
+        *_change(results), "",
         "## Timing", "", *_timing(results), "",
         "## Figures", "",
         *[f"![{title}]({name})" for name, title in figs], "",
@@ -184,4 +232,24 @@ def _figures(out_dir, results, runs, bench, models) -> list[tuple[str, str]]:
     fig.savefig(out_dir / "bags.png", dpi=110)
     plt.close(fig)
     done.append(("bags.png", "bags in the workspace"))
+
+    # payload change: mass error against time
+    if runs.get("payload_change"):
+        fig, ax = plt.subplots(figsize=(8, 3.6))
+        k = bench.change_at
+        truth = np.where(np.arange(len(bench.change_rollout)) < k, bench.phi[0],
+                         bench.change_payload.to_phi()[0])
+        for name, run in runs["payload_change"].items():
+            line, = ax.semilogy(run.t, np.abs(run.smoothed[:, 0] - truth) + 1e-9, lw=1,
+                                label=name)
+            for i in np.flatnonzero(run.changes):
+                ax.axvline(run.t[i], color=line.get_color(), ls=":", lw=1)
+        ax.axvline(run.t[k], color="k", lw=1, label="switch")
+        ax.set_xlabel("t (s)")
+        ax.set_title("mass: absolute error, payload switched at mid-path (dotted: detected)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(out_dir / "payload_change.png", dpi=110)
+        plt.close(fig)
+        done.append(("payload_change.png", "payload change on the new task path"))
     return done

@@ -18,6 +18,7 @@ from iem.ensemble import IncrementalEnsemble
 from iem.errors import IemError, InvalidInputError
 from iem.least_squares import RecursiveLeastSquares
 from iem.old_iem import InPlaceEnsemble
+from iem.physics import PhysicsInformedEnsemble
 
 # One line per estimator under check; each lambda returns a fresh, seeded estimator.
 ESTIMATORS = {
@@ -25,6 +26,8 @@ ESTIMATORS = {
     "old_IEM": lambda: InPlaceEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
     "BEM": lambda: BatchEnsemble(seed=0, n_networks=2, n_trees=2, fit_epochs=2, max_depth=4),
     "LS": lambda: RecursiveLeastSquares(),
+    "IEM+phys": lambda: PhysicsInformedEnsemble(
+        ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2}),
 }
 
 N_POINTS = 300

@@ -561,3 +561,19 @@ def test_loads_names_its_source():
     with pytest.raises(ModelFileError, match="model file <bytes> is empty"):
         loads(b"")
     assert _same_predictions(loads(VALID), MODEL)
+
+
+def test_new_model_selects_a_kind_by_name():
+    from iem.errors import InvalidInputError
+    from iem.least_squares import RecursiveLeastSquares
+    from iem.persistence import DEFAULT_MODEL, new_model
+    from iem.physics import PhysicsInformedEnsemble
+
+    assert DEFAULT_MODEL == "IEM+phys" and DEFAULT_MODEL in MODELS
+    assert isinstance(new_model(), PhysicsInformedEnsemble)
+    ls = new_model("LS", cutoff_hz=10.0)
+    assert isinstance(ls, RecursiveLeastSquares) and ls.cutoff_hz == 10.0
+    with pytest.raises(InvalidInputError, match=r"unknown model kind 'nope'.*IEM\+phys"):
+        new_model("nope")
+    with pytest.raises(InvalidInputError, match="does not take"):
+        new_model("LS", no_such_option=1)

@@ -137,6 +137,19 @@ def test_follow_records_consistent_rollout(path):
     assert np.abs(out.q - out.q_true).max() < 1e-3
 
 
+def test_follow_mounts_payloads_at_given_samples(path, model):
+    """``mount={k: p}``: from sample k the torque is the new payload's, the controller's load
+    unchanged."""
+    p3, p4 = default_test_payload(), test_payloads()["test-4w"]
+    short = path.slice(0.0, 0.2)
+    plant = PandaPlant(payload=p3, sensor=SensorModel.noiseless(), controller_load=p3)
+    out = plant.follow(short, mount={100: p4})
+    assert plant.payload is p4 and plant.controller_load is p3
+    for k, phi in ((99, p3.to_phi()), (100, p4.to_phi()), (200, p4.to_phi())):
+        tau = model.rnea_with_payload(out.q_true[k], out.dq_true[k], out.ddq_true[k], phi)
+        np.testing.assert_allclose(out.tau_true[k], tau, atol=1e-6)
+
+
 def test_inconsistent_payload_is_rejected():
     plant = PandaPlant()
     with pytest.raises(PayloadError, match="positive definite"):

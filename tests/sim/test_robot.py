@@ -96,3 +96,17 @@ def test_random_states_respect_limits(model):
         q, dq, ddq = model.random_state(rng)
         assert np.all(q >= model.q_min) and np.all(q <= model.q_max)
         assert np.all(np.abs(dq) <= model.dq_max) and np.all(np.abs(ddq) <= model.ddq_max)
+
+
+def test_spatial_inertia_is_pinocchios_and_linear():
+    from sim.robot import spatial_inertia
+
+    rng = np.random.default_rng(4)
+    for _ in range(10):
+        inertia = pin.Inertia.Random()
+        phi = phi_from_pin(inertia.toDynamicParameters())
+        np.testing.assert_allclose(spatial_inertia(phi), inertia.matrix(), atol=1e-12)
+    a, b = rng.normal(size=10), rng.normal(size=10)
+    a[0] = 0.0  # no mass: pin.Inertia could not place the CoM, the linear form can
+    np.testing.assert_allclose(spatial_inertia(2 * a - b),
+                               2 * spatial_inertia(a) - spatial_inertia(b), atol=1e-12)

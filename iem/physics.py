@@ -1,0 +1,516 @@
+"""IEM+phys: the incremental ensemble as a prior, Bayesian least squares on the physics.
+
+The paper's learners see one instant at a time and know no physics; least squares knows the
+physics but needs rich motion and time. This model keeps both, per estimate:
+
+- **The ensemble** (:class:`iem.ensemble.IncrementalEnsemble`, held, not copied): the same
+  bags, learners and ``learn_one``, so it never forgets. Its instantaneous estimate at every
+  sample is the evidence the robot's motion need not provide.
+- **The prior** is a summary of the ensemble's estimates since the last payload change: their
+  running mean ``mu_p``, with the covariance ``C_p`` = the mean, over those samples, of the
+  covariance of the estimating bag's learner's error, plus the mean's own noise: the scatter
+  of the estimates divided by their number (shrunk toward the sensor noise's share while
+  there are few). A bag's error covariance is measured on what the
+  model has: the tandem samples of the training payloads at the bag's points, noise-free
+  inputs, learner output minus true phi (:meth:`PhysicsInformedEnsemble.fit` for the initial
+  bags, every learnt point for new ones). A learner sees 7 torques and outputs 10 parameters,
+  so at one instant 3 directions (mostly inertia) are guessed from the family; that spread is
+  exactly what this covariance measures. ``prior_scale`` multiplies its standard deviations.
+  The calibration holds where the learners were trained; far from that an ensemble can be
+  off by more than it says, so the data judge the prior: its covariance is scaled by the
+  empirical-Bayes factor ``s² >= 1`` that makes the data most likely
+  (:func:`prior_inflation`), 1 while they agree.
+- **The data**: the regression equations ``r = Y phi + e``, ``e ~ N(0, R)`` of
+  :class:`iem.regression.PayloadRegression` (q, dq and tau through the same ``cutoff_hz``
+  low-pass, ddq the difference of the filtered dq, ``R`` the torque noise plus the ddq noise
+  through the arm's and the payload's inertia), one every ``update_every`` samples after the
+  filter has settled, kept in information form since the last change:
+  ``Lambda_d = sum Y^T (c R)^-1 Y``, ``eta_d = sum Y^T (c R)^-1 r``, with ``c`` the filtered
+  noise's correlation length over ``update_every`` (equations closer than that are not
+  independent; this counts them as the independent ones they stand for).
+- **The posterior**, each estimate: precision ``Lambda = C_p^-1 + Lambda_d``, mean
+  ``phi = Lambda^-1 (C_p^-1 mu_p + eta_d)``, ``std = sqrt(diag(Lambda^-1))``; the mean is then
+  projected onto physically consistent parameters in the metric ``Lambda``
+  (:func:`iem.consistency.project`), so the least certain parameters move the most.
+- **Payload change**: each equation's innovation, whitened by its covariance
+  ``R + Y Lambda^-1 Y^T``, feeds a CUSUM (:class:`iem.change.ChangeDetector`), from the
+  window's :data:`DETECT_AFTER`-th equation on (before, a conflict is the prior's, which the
+  inflation resolves, not a new payload's). On a change the data
+  window, the prior summary and the detector restart, the equations of the next
+  ``holdoff_s`` are skipped (the filter still holds the old payload's torque), and the
+  estimate of that sample carries ``extra = {"change": True, "reset": True}`` so the caller
+  restarts its smoothing (:class:`iem.online.OnlineIdentifier` does).
+
+``observe_one(x, flange)`` does everything but train the ensemble: the payload part of
+``learn_one`` for a frozen model (the benchmark's runs on the ensemble's own training path).
+``reset()`` forgets the payload (a new task), never the ensemble.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .base import Samples, resolve
+from .change import ChangeDetector, chi_square
+from .consistency import EPS, project
+from .ensemble import IncrementalEnsemble
+from .errors import InvalidInputError
+from .least_squares import DEFAULT_PRIOR_STD
+from .regression import PayloadRegression
+from .types import PayloadEstimate
+
+PRIOR_FLOOR = (1e-4, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
+"""Smallest prior standard deviation per parameter (kg, kg·m, kg·m²): keeps ``C_p``
+invertible where the learners happen to agree with every training payload."""
+
+
+NOISE_PSEUDO_COUNT = 10
+"""Weight, in samples, of the input-noise covariance against the sample covariance of the
+ensemble's estimates in the prior's noise term (see :meth:`PhysicsInformedEnsemble._prior`)."""
+
+
+DETECT_AFTER = 10
+"""Equations a window holds before the change detector tests new ones (0.1 s by default)."""
+MAX_INFLATION = 1e6
+"""Largest factor :func:`prior_inflation` puts on the prior covariance."""
+
+
+def prior_inflation(mu_p, c_p, info, eta) -> float:
+    """The factor ``s² >= 1`` on the prior covariance that makes the data most likely.
+
+    The data's sufficient statistics ``eta = sum Y^T R^-1 r`` and ``info = sum Y^T R^-1 Y``
+    have, under the prior ``phi ~ N(mu_p, s² C_p)``, ``eta ~ N(info mu_p, info + s² info C_p
+    info)``. Whitened by ``info`` and diagonalised (``gamma_i``: how much sharper the data
+    are than the prior along direction ``i``, ``a_i``: the whitened prior-data difference),
+    the log-likelihood is ``-1/2 sum [log(1 + s² gamma_i) + a_i² / (1 + s² gamma_i)]``; this
+    returns its maximiser over ``[1, MAX_INFLATION]`` (empirical Bayes). It stays 1 while the
+    data agree with the prior, and grows when they show the prior's mean off by more than
+    its covariance allows (e.g. an ensemble far outside its training data): then the prior's
+    claims elsewhere, e.g. on the inertia the data barely see, are not trusted either.
+    """
+    d, U = np.linalg.eigh(0.5 * (info + info.T))
+    keep = d > 1e-9 * max(float(d.max()), 1e-300)
+    if not keep.any():
+        return 1.0
+    U, root = U[:, keep], np.sqrt(d[keep])
+    v = (U.T @ (eta - info @ mu_p)) / root
+    G = root[:, None] * (U.T @ c_p @ U) * root[None, :]
+    gamma, V = np.linalg.eigh(0.5 * (G + G.T))
+    gamma = np.maximum(gamma, 0.0)
+    a2 = np.square(V.T @ v)
+
+    def slope(log_s2: np.ndarray) -> np.ndarray:  # 2 d(log-likelihood)/d(s²) on a grid
+        k = 1.0 + np.exp(log_s2)[:, None] * gamma[None, :]
+        return np.sum(gamma * (a2 / (k * k) - 1.0 / k), axis=1)
+
+    grid = np.linspace(0.0, math.log(MAX_INFLATION), 49)
+    g = slope(grid)
+    if g[0] <= 0.0:
+        return 1.0
+    for _refine in range(2):  # the first sign change of the slope, on finer grids
+        down = np.flatnonzero(g <= 0.0)
+        if down.size == 0:
+            return MAX_INFLATION
+        i = int(down[0])
+        grid = np.linspace(grid[i - 1], grid[i], 33)
+        g = slope(grid)
+    i = int(np.flatnonzero(g <= 0.0)[0])  # the last bracket: interpolate the slope
+    w = g[i - 1] / (g[i - 1] - g[i])
+    return float(math.exp(grid[i - 1] + w * (grid[i] - grid[i - 1])))
+
+
+def _sym_inv(A: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive-definite matrix (via Cholesky), symmetrised."""
+    L = np.linalg.cholesky(A)
+    Li = np.linalg.solve(L, np.eye(A.shape[0]))
+    return Li.T @ Li
+
+
+class PhysicsInformedEnsemble:
+    """The IEM's estimate as a prior, fused with Bayesian least squares on the regressor.
+
+    Args:
+        ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included).
+        dynamics: ``"module:function"`` of the robot-model factory (see
+            :mod:`iem.regression`).
+        sigma_tau: torque noise of the measurements, N·m.
+        sigma_dq: velocity noise of the measurements, rad/s.
+        cutoff_hz: low-pass cut-off of the regression, Hz (default 4: the motion of a task
+            path is below 1 Hz, and the ddq noise grows with the cut-off cubed).
+        rate_hz: sample rate, Hz.
+        update_every: one regression equation every this many samples.
+        prior_scale: factor on the calibrated prior standard deviations.
+        drift, threshold: the change detector's CUSUM (see :mod:`iem.change`).
+        holdoff_s: equations skipped after a change, s (-1: the filter's settling time).
+        eps: smallest eigenvalue of the projected pseudo-inertia (:mod:`iem.consistency`).
+    """
+
+    name = "IEM+phys"
+    detects_changes = True
+    """Its estimates report payload changes (``extra["change"]``)."""
+
+    def __init__(self, ensemble: dict | None = None,
+                 dynamics: str = "sim.robot:panda_dynamics", sigma_tau: float = 0.05,
+                 sigma_dq: float = 2e-3, cutoff_hz: float = 4.0, rate_hz: float = 1000.0,
+                 update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
+                 threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS) -> None:
+        self.ensemble = dict(ensemble or {})
+        self.dynamics = dynamics
+        self.sigma_tau = float(sigma_tau)
+        self.sigma_dq = float(sigma_dq)
+        self.cutoff_hz = float(cutoff_hz)
+        self.rate_hz = float(rate_hz)
+        self.update_every = int(update_every)
+        self.prior_scale = float(prior_scale)
+        self.drift = float(drift)
+        self.threshold = float(threshold)
+        self.holdoff_s = float(holdoff_s)
+        self.eps = float(eps)
+        if not self.prior_scale > 0.0:
+            raise InvalidInputError(f"prior_scale must be > 0, got {prior_scale}")
+        self._ens = IncrementalEnsemble(**self.ensemble)
+        self._reg = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq, self.cutoff_hz,
+                                      self.rate_hz, every=self.update_every, settle=-1,
+                                      payload_inertia=True)
+        self._weight = max(1.0, self._reg.correlation / self.update_every)
+        self._holdoff_n = (self._reg.settle if self.holdoff_s < 0
+                           else round(self.holdoff_s * self.rate_hz))
+        self._detector = ChangeDetector(7, self.drift, self.threshold)
+        self._floor = np.square(PRIOR_FLOOR)
+        self._calib: list[np.ndarray] = []  # per bag: sum of r r^T of its learner's errors
+        self._calib_n: list[int] = []
+        self._routed = None  # (x, flange, bag) of the last observed point
+        self.reset()
+
+    def params(self) -> dict:
+        """The hyper-parameters as given (``type(self)(**self.params())`` is a fresh clone)."""
+        return {"ensemble": dict(self.ensemble), "dynamics": self.dynamics,
+                "sigma_tau": self.sigma_tau, "sigma_dq": self.sigma_dq,
+                "cutoff_hz": self.cutoff_hz, "rate_hz": self.rate_hz,
+                "update_every": self.update_every, "prior_scale": self.prior_scale,
+                "drift": self.drift, "threshold": self.threshold, "holdoff_s": self.holdoff_s,
+                "eps": self.eps}
+
+    def clone(self):
+        """A fresh, untrained estimator with the same hyper-parameters."""
+        return type(self)(**self.params())
+
+    def reset(self) -> None:
+        """Forget the payload (a new task or a new payload); the ensemble is kept."""
+        self._reg.reset()
+        self._forget()
+        self._holdoff = 0
+        self.changes = 0
+
+    def _forget(self) -> None:
+        self._info = np.zeros((10, 10))
+        self._m = 0  # equations in the window
+        self._eta = np.zeros(10)
+        self._n = 0
+        self._sum_phi = np.zeros(10)
+        self._sum_c = np.zeros((10, 10))
+        self._noise0 = np.zeros((10, 10))
+        self._sum_outer = np.zeros((10, 10))
+        self._detector.reset()
+        self._changed = False
+        self._post = None
+
+    # -- views ---------------------------------------------------------------------------
+    @property
+    def n_bags(self) -> int:
+        return self._ens.n_bags
+
+    @property
+    def prior_inflation(self) -> float:
+        """The factor the data currently put on the prior covariance (1: they agree)."""
+        post = self._posterior()
+        return 1.0 if post is None else float(post[4])
+
+    @property
+    def ensemble_model(self) -> IncrementalEnsemble:
+        """The held ensemble (read it, do not train it behind this model's back)."""
+        return self._ens
+
+    def nbytes(self) -> int:
+        fixed = 8 * 800 + 6 * 80 + 21 * 8 * 4  # info, sums, posterior; vectors; filter
+        return self._ens.nbytes() + sum(c.nbytes + 8 for c in self._calib) + fixed
+
+    # -- prior calibration ---------------------------------------------------------------
+    def _grow_calib(self) -> None:
+        while len(self._calib) < self._ens.n_bags:
+            self._calib.append(np.zeros((10, 10)))
+            self._calib_n.append(0)
+
+    def _calibrate(self, bag: int, X, Y) -> None:
+        """Add a bag's learner's errors on labelled samples to the bag's covariance."""
+        self._grow_calib()
+        err = self._ens.learner(bag).predict_many(X) - np.asarray(Y, dtype=float)
+        self._calib[bag] += err.T @ err
+        self._calib_n[bag] += err.shape[0]
+
+    def _bag_cov(self, bag: int) -> np.ndarray:
+        """The bag's learner's error covariance (a weak default if never measured)."""
+        if bag < len(self._calib) and self._calib_n[bag] > 0:
+            return self._calib[bag] / self._calib_n[bag]
+        learner = self._ens.learner(bag)
+        return np.diag(np.square((learner.hi - learner.lo) / 4.0))
+
+    def _noise_cov(self, bag: int, x: np.ndarray) -> np.ndarray:
+        """Covariance of the learner's output from the sensor noise on its input ``x``."""
+        learner = self._ens.learner(bag)
+        if learner.input_noise is None:
+            return np.zeros((10, 10))
+        z = (x - learner.center) / learner.scale
+        active = (learner.a @ z + learner.b) > 0.0
+        a = learner.a * (learner.input_noise / learner.scale)
+        a = a * (active * (learner.hi - learner.lo))[:, None]
+        return a @ a.T
+
+    def fit(self, Q, F, samples_at) -> PhysicsInformedEnsemble:
+        """The ensemble's initial bags and learners, then each bag's error covariance on the
+        tandem samples of (a stride of) the points routed to it."""
+        self._ens.fit(Q, F, samples_at)
+        self._grow_calib()
+        Q = np.asarray(Q, dtype=float)
+        F = np.asarray(F, dtype=float)
+        router = self._ens.router
+        labels = router.route_many(Q, F)
+        for i in np.flatnonzero(labels < 0):
+            labels[i] = router.route(Q[i], F[i])[1]
+        stride = max(1, int(self._ens.fit_stride))
+        for bag in range(self._ens.n_bags):
+            idx = np.flatnonzero(labels == bag)[::stride]
+            for i in idx:
+                X, Y = samples_at(int(i))
+                self._calibrate(bag, X, Y)
+        self._post = None
+        return self
+
+    # -- estimator seam ------------------------------------------------------------------
+    def learn_one(self, x, flange, samples: Samples) -> None:
+        """The ensemble learns the point (Algorithms 1-2); then :meth:`observe_one`."""
+        got: list = []
+
+        def lazy():
+            if not got:
+                got.append(resolve(samples))
+            return got[0]
+
+        self._ens.learn_one(x, flange, lazy)
+        if got and self._ens.open_bag >= 0:
+            self._calibrate(self._ens.open_bag, *got[0])
+        self.observe_one(x, flange)
+
+    def observe_one(self, x, flange) -> None:
+        """Update the payload's posterior with one sample (the ensemble is not trained)."""
+        x = np.asarray(x, dtype=float)
+        self._changed = False
+        equation = self._reg(x, self._mean_for_noise)
+        if equation is not None:
+            if self._holdoff > 0:
+                pass
+            elif self._test(*equation):
+                self._forget()
+                self._changed = True
+                self.changes += 1
+                self._holdoff = self._holdoff_n
+            else:
+                Y, r, R = equation
+                Ri = _sym_inv(R * self._weight)
+                YtRi = Y.T @ Ri
+                self._info += YtRi @ Y
+                self._m += 1
+                self._eta += YtRi @ r
+                self._post = None
+        if self._holdoff > 0:
+            self._holdoff -= 1
+        self._routed = None
+        if self._ens.n_bags:
+            est = self._ens.predict_one(x, flange)
+            self._routed = (x.copy(), None if flange is None else np.array(flange, float),
+                            est.bag)
+            if est.bag >= 0 and np.all(np.isfinite(est.phi)):
+                if self._n == 0:
+                    self._noise0 = self._noise_cov(est.bag, x)
+                self._n += 1
+                self._sum_phi += est.phi
+                self._sum_c += self._bag_cov(est.bag)
+                self._sum_outer += np.outer(est.phi, est.phi)
+                if self._m == 0 and (self._n % self.update_every == 1 or self.update_every == 1):
+                    self._post = None  # no data yet: refresh the prior-only posterior every
+                    # few samples (with data, each equation refreshes it)
+
+    def _mean_for_noise(self) -> np.ndarray | None:
+        post = self._posterior()
+        return None if post is None else post[0]
+
+    def _test(self, Y, r, R) -> bool:
+        """Innovation test of one equation against the current posterior (whose prior the
+        data have already inflated if they contradict it); silent for the window's first
+        :data:`DETECT_AFTER` equations, so a wrong prior is not taken for a new payload."""
+        if self._m < DETECT_AFTER:
+            return False
+        post = self._posterior()
+        if post is None:
+            return False
+        mean, cov = post[0], post[1]
+        nu = r - Y @ mean
+        S = R + Y @ cov @ Y.T
+        try:
+            chi2 = chi_square(nu, 0.5 * (S + S.T))
+        except np.linalg.LinAlgError:
+            return False
+        return self._detector(chi2)
+
+    def _prior(self, x=None, flange=None):
+        """``(mu_p, C_p)``: the summary since the last change, or the ensemble at ``x``."""
+        if self._n > 0:
+            n = self._n
+            mean = self._sum_phi / n
+            # the estimates' scatter: the sample covariance, shrunk toward the input noise's
+            # share while there are few samples (NOISE_PSEUDO_COUNT pseudo-samples)
+            scatter = self._sum_outer - n * np.outer(mean, mean)
+            k = NOISE_PSEUDO_COUNT
+            noise = (k * self._noise0 + scatter) / (k + n - 1)
+            cov = self._sum_c / n + noise / n
+        elif x is not None and self._ens.n_bags:
+            est = self._ens.predict_one(x, flange)
+            if est.bag < 0 or not np.all(np.isfinite(est.phi)):
+                return None
+            mean = est.phi
+            cov = self._bag_cov(est.bag) + self._noise_cov(est.bag, np.asarray(x, float))
+        else:
+            mean = np.zeros(10)
+            cov = np.diag(np.square(DEFAULT_PRIOR_STD))
+        cov = cov * self.prior_scale ** 2
+        return mean, 0.5 * (cov + cov.T) + np.diag(self._floor)
+
+    def _combine(self, prior) -> list:
+        """Posterior ``[mean, cov, precision, None, s²]`` of a prior (its covariance inflated
+        by :func:`prior_inflation`) and the data since the change (the fourth slot caches the
+        projected mean)."""
+        mu_p, c_p = prior
+        inflation = 1.0
+        if np.any(self._info):
+            inflation = prior_inflation(mu_p, c_p, self._info, self._eta)
+            c_p = c_p * inflation
+        prec_p = _sym_inv(c_p)
+        precision = prec_p + self._info
+        precision = 0.5 * (precision + precision.T)
+        cov = _sym_inv(precision)
+        mean = cov @ (prec_p @ mu_p + self._eta)
+        return [mean, cov, precision, None, inflation]
+
+    def posterior(self, x=None, flange=None):
+        """``(mean, cov)`` of the payload before the projection, or None.
+
+        The posterior of the samples since the last change; before any, the ensemble's
+        estimate at ``x`` with its bag's covariance (None if there is none to go on).
+        """
+        post = self._posterior()
+        if post is None and x is not None:
+            prior = self._prior(np.asarray(x, dtype=float), flange)
+            post = None if prior is None else self._combine(prior)
+        return None if post is None else (post[0].copy(), post[1].copy())
+
+    def _posterior(self):
+        """The posterior of the state (cached: refreshed by each equation and every
+        ``update_every`` samples of the prior summary, which moves slowly)."""
+        if self._post is None:
+            if self._n == 0 and self._ens.n_bags:
+                return None  # nothing seen yet: predict_one uses the ensemble at its x
+            try:
+                self._post = self._combine(self._prior())
+            except np.linalg.LinAlgError:
+                return None
+        return self._post
+
+    def _bag_of(self, x: np.ndarray, flange) -> int:
+        """The bag of a point (the last observed point's, if it is that one)."""
+        seen = self._routed
+        if (seen is not None and np.array_equal(seen[0], x)
+                and (flange is None) == (seen[1] is None)
+                and (flange is None or np.array_equal(seen[1], flange))):
+            return seen[2]
+        inside, nearest = self._ens.router.route(x[:7], flange)
+        return inside if inside >= 0 else nearest
+
+    def _estimate(self, post, t: float, bag: int = -1, learning: bool = False):
+        mean, cov, precision, phi, _ = post
+        if phi is None:
+            phi = post[3] = project(mean, precision, eps=self.eps)
+        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        extra = {"change": True, "reset": True} if self._changed else {}
+        return PayloadEstimate(t=t, phi=phi.copy(), std=std, bag=bag, learning=learning,
+                               extra=extra)
+
+    def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (21,):
+            raise InvalidInputError(f"x must be [q, dq, tau] with 21 values, got {x.shape}")
+        bag, learning = -1, False
+        if self._ens.n_bags:
+            bag = self._bag_of(x, flange)
+            learning = bag == self._ens.open_bag
+        post = self._posterior()
+        if post is None:
+            prior = self._prior(x, flange)
+            if prior is None:
+                return PayloadEstimate(t=t, phi=np.full(10, math.nan), bag=bag)
+            post = self._combine(prior)
+        return self._estimate(post, t, bag, learning)
+
+    def predict_many(self, X, F) -> np.ndarray:
+        X = np.asarray(X, dtype=float)
+        F = np.asarray(F, dtype=float)
+        if self._posterior() is not None:
+            return np.tile(self.predict_one(X[0], F[0]).phi, (X.shape[0], 1))
+        return np.array([self.predict_one(x, f).phi for x, f in zip(X, F, strict=True)])
+
+    def close(self) -> None:
+        """Close the ensemble's open bag (end of a task)."""
+        self._ens.close()
+
+    # -- persistence ---------------------------------------------------------------------
+    def to_state(self) -> dict:
+        return {"params": self.params(), "ensemble": self._ens.to_state(),
+                "calib": [c.tolist() for c in self._calib], "calib_n": list(self._calib_n),
+                "regression": self._reg.to_state(), "info": self._info.tolist(),
+                "eta": self._eta.tolist(), "m": self._m, "n": self._n,
+                "sum_phi": self._sum_phi.tolist(),
+                "sum_c": self._sum_c.tolist(), "noise0": self._noise0.tolist(),
+                "sum_outer": self._sum_outer.tolist(),
+                "detector": self._detector.to_state(), "changed": self._changed,
+                "post": None if self._post is None else [
+                    *(v.tolist() for v in self._post[:3]), self._post[4]],
+                "holdoff": self._holdoff, "changes": self.changes}
+
+    @classmethod
+    def from_state(cls, state: dict):
+        model = cls(**state["params"])
+        model._ens = IncrementalEnsemble.from_state(state["ensemble"])
+        model._calib = [np.array(c, dtype=float).reshape(10, 10) for c in state["calib"]]
+        model._calib_n = [int(n) for n in state["calib_n"]]
+        if len(model._calib) != len(model._calib_n) or len(model._calib) > model.n_bags:
+            raise InvalidInputError(f"model state has {len(model._calib)} bag covariances "
+                                    f"for {model.n_bags} bags")
+        model._reg.set_state(state["regression"])
+        model._info = np.array(state["info"], dtype=float).reshape(10, 10)
+        model._eta = np.array(state["eta"], dtype=float).reshape(10)
+        model._m = int(state["m"])
+        model._n = int(state["n"])
+        model._sum_phi = np.array(state["sum_phi"], dtype=float).reshape(10)
+        model._sum_c = np.array(state["sum_c"], dtype=float).reshape(10, 10)
+        model._noise0 = np.array(state["noise0"], dtype=float).reshape(10, 10)
+        model._sum_outer = np.array(state["sum_outer"], dtype=float).reshape(10, 10)
+        model._detector.set_state(state["detector"])
+        model._changed = bool(state["changed"])
+        if state["post"] is not None:
+            mean, cov, precision = (np.array(v, dtype=float) for v in state["post"][:3])
+            model._post = [mean.reshape(10), cov.reshape(10, 10), precision.reshape(10, 10),
+                           None, float(state["post"][3])]
+        model._holdoff = int(state["holdoff"])
+        model.changes = int(state["changes"])
+        return model

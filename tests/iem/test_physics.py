@@ -1,0 +1,353 @@
+"""IEM+phys: the Bayesian update against batch least squares, the regression against
+Pinocchio, the prior against the ensemble it summarises, the change detector in simulation.
+
+Hand-made data use a linear "robot" (:func:`linear_dynamics`): no arm torque, no arm inertia,
+and a regressor linear in q, so the low-pass commutes with it and every equation is exact.
+"""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from iem.change import ChangeDetector, chi_square
+from iem.consistency import is_consistent, project
+from iem.errors import InvalidInputError
+from iem.filters import LowPass2
+from iem.least_squares import DEFAULT_PRIOR_STD, RecursiveLeastSquares
+from iem.online import OnlineIdentifier
+from iem.physics import PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
+from iem.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
+from iem.types import JointState, PayloadEstimate
+from sim.family import test_payloads
+from sim.robot import PandaModel
+
+from .test_checks import DATA
+
+_RNG = np.random.default_rng(11)
+_Y0 = _RNG.normal(0.0, 3.0, (7, 10))
+_YQ = _RNG.normal(0.0, 3.0, (7, 7, 10))
+FAKE = f"{__name__}:linear_dynamics"
+PHI = test_payloads()["test-3w"].to_phi()
+
+
+def linear_dynamics():
+    """``f(q, dq, ddq) -> (0, Y0 + sum_j q_j Yq_j, 0)``: exact under any linear filter."""
+    def f(q, dq, ddq):
+        return np.zeros(7), _Y0 + np.einsum("j,jrc->rc", q, _YQ), np.zeros((7, 7))
+    return f
+
+
+def _hand_made(n: int, seed: int = 0):
+    """Measured samples of the linear robot carrying PHI, torque noise 0.05 N·m."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 1000.0
+    q = 0.5 * np.sin(2 * np.pi * np.outer(t, rng.uniform(0.2, 1.0, 7)) + rng.uniform(0, 6, 7))
+    f = linear_dynamics()
+    tau = np.array([f(qk, None, None)[1] @ PHI for qk in q])
+    tau += rng.normal(0.0, 0.05, tau.shape)
+    return np.hstack((q, np.zeros_like(q), tau))
+
+
+# -- the Bayesian update ---------------------------------------------------------------
+def test_information_form_equals_batch_weighted_least_squares():
+    """Step by step, the model's posterior is the weighted least-squares solution of the
+    prior plus every equation so far (each weighted by its R times the correlation factor),
+    and the Kalman form of LS fed the same equations agrees."""
+    X = _hand_made(1500)
+    model = PhysicsInformedEnsemble(dynamics=FAKE, update_every=10)  # untrained: weak prior
+    twin = PayloadRegression(FAKE, cutoff_hz=4.0, every=10, settle=-1)
+    c = max(1.0, twin.correlation / 10)
+    prior_cov = np.diag(np.square(DEFAULT_PRIOR_STD) + np.square(PRIOR_FLOOR))
+    kalman = RecursiveLeastSquares(prior_std=np.sqrt(np.diag(prior_cov)))
+    rows, rhs = [np.linalg.cholesky(np.linalg.inv(prior_cov)).T], [np.zeros(10)]
+    checked = 0
+    for k, x in enumerate(X):
+        model.observe_one(x, None)
+        eq = twin(x)
+        if eq is None:
+            continue
+        Y, r, R = eq
+        w = np.linalg.cholesky(np.linalg.inv(c * R)).T  # w^T w = (c R)^-1
+        rows.append(w @ Y)
+        rhs.append(w @ r)
+        kalman.update(Y, r, c * R)
+        if len(rows) % 10 == 2 or k == len(X) - 1:
+            A, b = np.vstack(rows), np.concatenate(rhs)
+            batch = np.linalg.lstsq(A, b, rcond=None)[0]
+            batch_cov = np.linalg.inv(A.T @ A)
+            mean, cov = model.posterior()
+            np.testing.assert_allclose(mean, batch, rtol=1e-6, atol=1e-9)
+            np.testing.assert_allclose(cov, batch_cov, rtol=1e-6, atol=1e-15)
+            np.testing.assert_allclose(kalman.phi, batch, rtol=1e-5, atol=1e-8)
+            checked += 1
+    assert checked >= 10 and model.changes == 0 and model.prior_inflation == 1.0
+    # and the equations were enough to find the payload
+    mean, cov = model.posterior()
+    assert np.all(np.abs(mean - PHI) < 4 * np.sqrt(np.diag(cov)))
+
+
+def test_estimate_is_the_projected_posterior_with_its_std():
+    X = _hand_made(600)
+    model = PhysicsInformedEnsemble(dynamics=FAKE)
+    for x in X:
+        model.observe_one(x, None)
+    est = model.predict_one(X[-1], None, t=0.6)
+    mean, cov = model.posterior()
+    np.testing.assert_allclose(est.std, np.sqrt(np.diag(cov)))
+    np.testing.assert_allclose(est.phi, project(mean, np.linalg.inv(cov)), rtol=1e-9)
+    assert is_consistent(est.phi) and est.t == 0.6 and not est.extra
+
+
+# -- the regression ----------------------------------------------------------------------
+def test_payload_mass_matrix_is_pinocchios():
+    """``M_p``, from the regressor (generic) and from ``J^T I J`` (the Panda's fast path),
+    equals CRBA with the payload minus CRBA without."""
+    model = PandaModel()
+    fast = PayloadRegression()
+    generic = PayloadRegression()
+    f = fast.model()
+    generic._f = lambda q, dq, ddq: f(q, dq, ddq)  # no payload_mass_matrix method
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, dq, ddq = model.random_state(rng, margin=0.1)
+        _, Y, M = f(q, dq, ddq)
+        model.rnea_with_payload(q, dq, ddq, PHI)  # loads PHI into the payload model
+        M_with = pin.crba(model._pl_model, model._pl_data, q)
+        M_with = np.triu(M_with) + np.triu(M_with, 1).T
+        for reg in (fast, generic):
+            Mp = reg.payload_mass_matrix(q, dq, ddq, Y, PHI)
+            np.testing.assert_allclose(Mp, M_with - M, atol=1e-9)
+
+
+def test_settle_is_where_the_first_samples_noise_has_decayed():
+    for fc in (4.0, 20.0):
+        n = settle_samples(fc, 1000.0, tol=0.1)
+        gain, dgain = noise_gains(fc, 1000.0)
+        h = impulse_response(fc, 1000.0)
+        assert np.abs(1.0 - np.cumsum(h)[n:]).max() <= 0.1 * np.sqrt(gain)
+        assert np.abs(h[n:n + 2000]).max() * 1000.0 <= 0.1 * np.sqrt(dgain)
+        assert n > 0 and settle_samples(fc, 1000.0, tol=0.5) < n
+
+
+def test_noiseless_equations_hold_on_the_task_path(new_rollout_noiseless):
+    """Same lag on both sides: without noise the 4 Hz equations fit the true payload to a
+    small fraction of the noise they are weighted for."""
+    ro = new_rollout_noiseless
+    reg = PayloadRegression(cutoff_hz=4.0, every=10, settle=-1, payload_inertia=True)
+    worst = 0.0
+    for x in ro.features:
+        eq = reg(x, PHI)
+        if eq is not None:
+            Y, r, R = eq
+            worst = max(worst, chi_square(r - Y @ PHI, R))
+    assert worst < 0.1  # chi-square of 7 unit-variance terms would be about 7
+
+
+@pytest.fixture(scope="module")
+def new_rollout_noiseless():
+    from sim.paths import new_task_path
+    from sim.plant import PandaPlant, SensorModel
+
+    payload = test_payloads()["test-3w"]
+    plant = PandaPlant(payload=payload, sensor=SensorModel.noiseless(), controller_load=payload)
+    return plant.follow(new_task_path())
+
+
+# -- the prior -----------------------------------------------------------------------------
+def _trained(dynamics=FAKE, **kw):
+    model = PhysicsInformedEnsemble(
+        ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2},
+        dynamics=dynamics, **kw)
+    idx = np.asarray(DATA.fit_points)
+    model.fit(DATA.X[idx, :7], DATA.F[idx], lambda i: DATA.samples_at(int(idx[i])))
+    return model
+
+
+def test_prior_is_the_mean_of_the_ensembles_estimates():
+    model = _trained(update_every=1)
+    ens = model.ensemble_model
+    est = [ens.predict_one(x, f) for x, f in zip(DATA.X[:50], DATA.F[:50], strict=True)]
+    for x, f in zip(DATA.X[:50], DATA.F[:50], strict=True):
+        model._reg.count = -10**9  # keep the regression from forming equations
+        model.observe_one(x, f)
+    mean, cov = model.posterior()
+    np.testing.assert_allclose(mean, np.mean([e.phi for e in est], axis=0), rtol=1e-9)
+    bag_cov = np.mean([model._bag_cov(e.bag) for e in est], axis=0)
+    assert np.all(np.diag(cov) >= np.diag(bag_cov))  # at least the learners' error spread
+
+
+def test_bag_covariance_is_the_learners_error_on_its_samples():
+    model = _trained()
+    ens = model.ensemble_model
+    bag = 0
+    labels = ens.router.route_many(DATA.X[DATA.fit_points, :7], DATA.F[DATA.fit_points])
+    pts = [p for p, b in zip(DATA.fit_points, labels, strict=True) if b == bag]
+    pts = pts[:: ens.fit_stride]
+    errs = np.vstack([ens.learner(bag).predict_many(DATA.samples_at(p)[0])
+                      - DATA.samples_at(p)[1] for p in pts])
+    np.testing.assert_allclose(model._bag_cov(bag), errs.T @ errs / len(errs), rtol=1e-9)
+
+
+def test_prior_inflation_is_the_maximum_likelihood_scale():
+    """1 while the data agree with the prior; the likelihood's maximiser (checked on a grid)
+    when they show the prior's mean far off."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(30, 10))
+    info = A.T @ A * 1e4  # sharp data in every direction
+    c_p = np.diag(rng.uniform(0.5, 2.0, 10)) * 1e-2
+    truth = rng.normal(size=10)
+    eta = info @ truth + np.linalg.cholesky(info) @ rng.normal(size=10)
+    agree = truth + np.linalg.cholesky(c_p) @ rng.normal(size=10) * 0.5
+    assert prior_inflation(agree, c_p, info, eta) == 1.0
+    far = truth + np.linalg.cholesky(c_p) @ rng.normal(size=10) * 20.0
+    s2 = prior_inflation(far, c_p, info, eta)
+    v = eta - info @ far
+
+    def loglik(s2):
+        cov = info + s2 * info @ c_p @ info
+        return -0.5 * (np.linalg.slogdet(cov)[1] + v @ np.linalg.solve(cov, v))
+
+    grid = np.exp(np.linspace(0.0, np.log(1e5), 2001))
+    best = grid[np.argmax([loglik(g) for g in grid])]
+    assert 100 < s2 < 1e4 and s2 == pytest.approx(best, rel=0.01)
+    assert prior_inflation(far, c_p, np.zeros((10, 10)), np.zeros(10)) == 1.0  # no data
+
+
+def test_a_wrong_prior_is_inflated_until_the_data_agree():
+    """An ensemble whose estimates are 0.3 kg off (far outside its calibration): the data
+    inflate the prior, and the posterior's error stays within its reported uncertainty."""
+    X = _hand_made(3000)
+    model = _trained(update_every=10)
+    bias = np.zeros(10)
+    bias[0], bias[4:] = 0.3, 3e-3
+    ens = model.ensemble_model
+    real = ens.predict_one
+
+    def off(x, flange, t=0.0):
+        est = real(x, flange, t)
+        return PayloadEstimate(t=t, phi=PHI + bias, bag=est.bag)
+
+    ens.predict_one = off
+    for x, f in zip(X, DATA.F[np.arange(len(X)) % DATA.n], strict=True):
+        model.observe_one(x, f)
+    mean, cov = model.posterior()
+    assert model.prior_inflation > 100 and model.changes == 0  # no payload change either
+    assert np.all(np.abs(mean - PHI) < 3 * np.sqrt(np.diag(cov)))
+
+
+def test_bad_parameters_are_errors():
+    with pytest.raises(InvalidInputError, match="prior_scale"):
+        PhysicsInformedEnsemble(prior_scale=0.0)
+    with pytest.raises(InvalidInputError, match="21 values"):
+        PhysicsInformedEnsemble().predict_one(np.zeros(7), None)
+
+
+# -- the change detector -----------------------------------------------------------------
+def test_cusum_accumulates_excess_and_forgets_quiet():
+    det = ChangeDetector(dof=7, drift=21.0, threshold=100.0)
+    assert not any(det(7.0) for _ in range(1000)) and det.g == 0.0
+    assert not det(7.0 + 21.0 + 60.0) and det.g == pytest.approx(60.0)
+    assert det(7.0 + 21.0 + 50.0)  # 110 > 100
+    det.reset()
+    assert det.g == 0.0 and not det(float("nan"))
+
+
+@pytest.fixture(scope="module")
+def switch_rollouts():
+    """The new task path with test-3w, plain and with test-4w mounted at 3 s."""
+    from sim.paths import new_task_path
+    from sim.plant import PandaPlant
+
+    path = new_task_path()
+    p3, p4 = test_payloads()["test-3w"], test_payloads()["test-4w"]
+    plain = PandaPlant(payload=p3, seed=5, controller_load=p3).follow(path)
+    switched = PandaPlant(payload=p3, seed=5, controller_load=p3).follow(path,
+                                                                         mount={3000: p4})
+    return plain, switched
+
+
+def _changes(rollout) -> list[int]:
+    model = PhysicsInformedEnsemble()  # physics only: no bags, the rated-payload prior
+    out = []
+    for k, x in enumerate(rollout.features):
+        model.observe_one(x, None)
+        if model.predict_one(x, None).extra.get("change"):
+            out.append(k)
+    return out
+
+
+def test_switch_between_test_payloads_is_detected_within_0_2_s(switch_rollouts):
+    _, switched = switch_rollouts
+    changes = _changes(switched)
+    assert len(changes) == 1 and 3000 <= changes[0] <= 3200
+
+
+def test_no_false_alarm_with_a_fixed_payload(switch_rollouts):
+    plain, _ = switch_rollouts
+    assert _changes(plain) == []
+
+
+def test_online_identifier_restarts_smoothing_on_reset_and_observes_when_frozen():
+    class Toy:
+        name = "toy"
+
+        def __init__(self):
+            self.observed = 0
+            self.value = 0.0
+
+        def learn_one(self, x, flange, samples):
+            raise AssertionError("frozen: must not learn")
+
+        def observe_one(self, x, flange):
+            self.observed += 1
+
+        def predict_one(self, x, flange, t=0.0):
+            self.value = 1.0 if self.observed >= 3 else 0.0
+            extra = {"reset": True} if self.observed == 3 else {}
+            return PayloadEstimate(t=t, phi=np.full(10, self.value), extra=extra)
+
+    toy = Toy()
+    online = OnlineIdentifier(toy, lambda q: np.zeros(3), None, learn=False)
+    outs = [online.step(JointState(t=k * 1e-3, q=np.zeros(7), dq=np.zeros(7),
+                                   tau_J=np.zeros(7)))[1][0] for k in range(4)]
+    assert toy.observed == 4
+    assert outs[:2] == [0.0, 0.0] and outs[2] == 1.0 and outs[3] == 1.0  # no lag after reset
+
+
+def test_lowpass_state_round_trips_through_the_regression_state():
+    reg = PayloadRegression(cutoff_hz=4.0)
+    other = PayloadRegression(cutoff_hz=4.0)
+    rng = np.random.default_rng(0)
+    for x in rng.normal(size=(10, 21)):
+        reg._lp(x)
+    other.set_state(reg.to_state())
+    x = rng.normal(size=21)
+    assert isinstance(other._lp, LowPass2)
+    np.testing.assert_array_equal(reg._lp(x), other._lp(x))
+
+
+def test_every_output_is_physically_consistent():
+    """Thousands of estimates from junk (the check suite's synthetic path, whose torques are
+    no Panda's, and random inputs): the raw posterior is often impossible, the output never."""
+    from iem.consistency import min_eigenvalue
+
+    from .test_consistency import _payload_ok
+
+    model = _trained(dynamics="sim.robot:panda_dynamics")
+    rng = np.random.default_rng(8)
+    junk = DATA.X[rng.integers(0, DATA.n, 3000)] + rng.normal(0.0, 1.0, (3000, 21))
+    flanges = DATA.F[rng.integers(0, DATA.n, 3000)]
+    impossible = 0
+    outputs = []
+    for i, (x, f) in enumerate(zip(junk, flanges, strict=True)):
+        if i % 2:
+            model.learn_one(x, f, DATA.samples_at(i % DATA.n))
+        else:
+            model.observe_one(x, f)
+        mean, _ = model.posterior(x, f)
+        impossible += min_eigenvalue(mean) <= 0.0
+        outputs.append(model.predict_one(x, f).phi)
+    outputs = np.array(outputs)
+    assert impossible > 300  # the projection had work to do
+    assert all(is_consistent(phi) for phi in outputs)
+    assert all(_payload_ok(phi) for phi in outputs[::10])
