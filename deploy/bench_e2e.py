@@ -13,7 +13,11 @@ under half of one core. ``--json FILE`` writes ``{"cycles", "lost", "latency_us"
 "p99"}, "cpu_share", "peak_rss_mb", ...}``.
 
 The controller shares the interpreter, so the thread switch interval is lowered to 0.5 ms
-(see :mod:`deploy.demo`).
+(see :mod:`deploy.demo`), and each frame also waits for the controller thread's own work.
+``--link slcan-pty`` runs the controller in its own process instead, as a cell has it, as
+an slcan adapter on a pty that the plug-in opens with python-can's slcan interface (fd
+profile); there the latency starts when python-can parses the frame in the plug-in's
+process (the emulated adapter sends no time stamps).
 """
 
 from __future__ import annotations
@@ -21,20 +25,27 @@ from __future__ import annotations
 import json
 import os
 import resource
+import subprocess
 import sys
 import tempfile
 from pathlib import Path as FsPath
 
+REPO = FsPath(__file__).resolve().parents[1]
 
-def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=print) -> dict:
+
+def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=print,
+            link: str = "virtual") -> dict:
+    from .training import best_model_kind
+
+    kind = kind or best_model_kind()
+    if link == "slcan-pty":
+        return _measure_slcan_pty(seconds, kind, seed, log)
     from firmware_bridge.sim_controller import SimController, open_port
 
     from .config import config_from_dict
     from .service import Service
     from .status import StatusLine
-    from .training import best_model_kind
 
-    kind = kind or best_model_kind()
     channel = f"iem-bench-e2e-{os.getpid()}"
     with tempfile.TemporaryDirectory() as tmp:
         config = config_from_dict({
@@ -61,7 +72,55 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
             sys.setswitchinterval(previous)
     if controller.error is not None:
         raise controller.error
-    stats = controller.stats()
+    return _figures(summary, controller.stats(), link="virtual")
+
+
+def _measure_slcan_pty(seconds: float, kind: str, seed: int, log) -> dict:
+    """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
+    from .config import config_from_dict
+    from .service import Service
+    from .status import StatusLine
+    from .training import train_initial_model
+
+    model = train_initial_model(kind, seed=seed, log=lambda *a: None)
+    cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
+           "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30)]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        pty = proc.stdout.readline().strip()
+        if not pty.startswith("/dev/"):
+            raise RuntimeError(f"sim-controller did not announce its pty: {pty!r}")
+        with tempfile.TemporaryDirectory() as tmp:
+            config = config_from_dict({
+                "link": {"kind": "slcan", "channel": pty, "profile": "fd"},
+                "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
+                          "checkpoint_period_s": 30.0},
+                "log": {"status_line": "off"},
+            }, where="bench e2e")
+            service = Service(config, model=model, status=StatusLine(False))
+            try:
+                service.open()
+                log(f"bench e2e: {kind} with {model.n_bags} bags; {seconds:g} s at 1 kHz, "
+                    f"the controller in process {proc.pid} behind slcan on {pty}")
+                summary = service.run(duration=seconds)
+            finally:
+                service.close()
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+        _, err = proc.communicate(timeout=20)
+    stats = {}
+    for line in err.splitlines():  # "sim-controller: cycles N, overruns N, ..."
+        if line.startswith("sim-controller: cycles"):
+            for part in line.split(": ", 1)[1].split(", "):
+                key, _, value = part.partition(" ")
+                stats[key] = int(value) if value.isdigit() else value
+    return _figures(summary, {"cycles": stats.get("cycles"), "overruns": stats.get("overruns")},
+                    link="slcan-pty")
+
+
+def _figures(summary: dict, stats: dict, link: str) -> dict:
     return {
         "cycles": summary["cycles"],
         "lost": summary["frames"]["lost"],
@@ -75,6 +134,7 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
         "writes": summary["writes"],
         "bags": summary["bags"],
         "model": summary["model"],
+        "link": link,
     }
 
 
@@ -83,10 +143,13 @@ def configure(parser) -> None:
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     parser.add_argument("--model", choices=["IEM", "IEM+phys"], default=None,
                         help="model kind (default: the best available)")
+    parser.add_argument("--link", choices=["virtual", "slcan-pty"], default="virtual",
+                        help="virtual: the controller in this process (default); slcan-pty: "
+                             "the controller in its own process behind slcan on a pty")
 
 
 def run(args) -> int:
-    f = measure(args.seconds, kind=args.model)
+    f = measure(args.seconds, kind=args.model, link=args.link)
     lat = f["latency_us"]
     print(f"cycles processed {f['cycles']}, lost {f['lost']} (controller published "
           f"{f['controller_cycles']}, missed {f['controller_overruns']} deadlines)")

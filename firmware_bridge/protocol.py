@@ -295,6 +295,7 @@ class JointStateCodec:
         """The JointState of a complete cycle: ``values`` are its parts' tuples concatenated
         in part order, ``t`` the unwrapped time in s."""
         v = np.array(values, dtype=float)[self._perm] * self._scale
+        v.flags.writeable = False  # the state keeps views of it without copying
         return JointState(t=t, q=v[0:7], dq=v[7:14], tau_J=v[14:21], cycle=cycle)
 
     def raw_values(self, state: JointState) -> tuple[dict[str, int], int]:

@@ -181,7 +181,7 @@ class PhysicsInformedEnsemble:
         self._floor = np.square(PRIOR_FLOOR)
         self._calib: list[np.ndarray] = []  # per bag: sum of r r^T of its learner's errors
         self._calib_n: list[int] = []
-        self._routed = None  # (x, flange, bag) of the last observed point
+        self._routed = None  # (x as given, a copy of x, flange, bag) of the last observed point
         self.reset()
 
     def params(self) -> dict:
@@ -298,14 +298,24 @@ class PhysicsInformedEnsemble:
                 got.append(resolve(samples))
             return got[0]
 
-        self._ens.learn_one(x, flange, lazy)
+        x = np.asarray(x, dtype=float)
+        est = self._ens.learn_predict_one(x, flange, lazy)  # one routing for both
         if got and self._ens.open_bag >= 0:
             self._calibrate(self._ens.open_bag, *got[0])
-        self.observe_one(x, flange)
+        self._observe(x, flange, est)
+
+    def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
+        """:meth:`learn_one` then :meth:`predict_one` (the point is routed once)."""
+        x = np.asarray(x, dtype=float)
+        self.learn_one(x, flange, samples)
+        return self.predict_one(x, flange, t)
 
     def observe_one(self, x, flange) -> None:
         """Update the payload's posterior with one sample (the ensemble is not trained)."""
-        x = np.asarray(x, dtype=float)
+        self._observe(np.asarray(x, dtype=float), flange, None)
+
+    def _observe(self, x: np.ndarray, flange, est) -> None:
+        """:meth:`observe_one`, given the ensemble's estimate at ``x`` if already made."""
         self._changed = False
         equation = self._reg(x, self._mean_for_noise)
         if equation is not None:
@@ -328,8 +338,9 @@ class PhysicsInformedEnsemble:
             self._holdoff -= 1
         self._routed = None
         if self._ens.n_bags:
-            est = self._ens.predict_one(x, flange)
-            self._routed = (x.copy(), None if flange is None else np.array(flange, float),
+            if est is None:
+                est = self._ens.predict_one(x, flange)
+            self._routed = (x, x.copy(), None if flange is None else np.array(flange, float),
                             est.bag)
             if est.bag >= 0 and np.all(np.isfinite(est.phi)):
                 if self._n == 0:
@@ -430,21 +441,23 @@ class PhysicsInformedEnsemble:
     def _bag_of(self, x: np.ndarray, flange) -> int:
         """The bag of a point (the last observed point's, if it is that one)."""
         seen = self._routed
-        if (seen is not None and np.array_equal(seen[0], x)
-                and (flange is None) == (seen[1] is None)
-                and (flange is None or np.array_equal(seen[1], flange))):
-            return seen[2]
+        if seen is not None and seen[0] is x:
+            return seen[3]  # the very array just observed (the online loop's case)
+        if (seen is not None and np.array_equal(seen[1], x)
+                and (flange is None) == (seen[2] is None)
+                and (flange is None or np.array_equal(seen[2], flange))):
+            return seen[3]
         inside, nearest = self._ens.router.route(x[:7], flange)
         return inside if inside >= 0 else nearest
 
     def _estimate(self, post, t: float, bag: int = -1, learning: bool = False):
-        mean, cov, precision, phi, _ = post
-        if phi is None:
+        mean, cov, precision, phi = post[:4]
+        if phi is None:  # projected once per posterior, with its standard deviations
             phi = post[3] = project(mean, precision, eps=self.eps)
-        std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+            post.append(np.sqrt(np.maximum(np.diag(cov), 0.0)))
         extra = {"change": True, "reset": True} if self._changed else {}
-        return PayloadEstimate(t=t, phi=phi.copy(), std=std, bag=bag, learning=learning,
-                               extra=extra)
+        return PayloadEstimate(t=t, phi=phi.copy(), std=post[5].copy(), bag=bag,
+                               learning=learning, extra=extra)
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)

@@ -73,6 +73,8 @@ class BagRouter:
             self._mirror(i)
 
     def _mirror(self, i: int) -> None:
+        if self._n <= _SMALL and i < _SMALL:
+            return  # a small map is routed from the float64 means; mirrored when it grows
         row = self._means[i]
         self._qT[:, i] = row[:7]
         self._xT[:, i] = row[7:]
@@ -220,8 +222,12 @@ class BagRouter:
         self._means[i, :7] = q
         self._means[i, 7:] = x
         self._counts[i] = 1
-        self._mirror(i)
         self._n += 1
+        if self._n == _SMALL + 1:
+            for j in range(self._n):  # the map outgrew direct routing: mirror it all
+                self._mirror(j)
+        else:
+            self._mirror(i)
         return i
 
     @classmethod

@@ -1,10 +1,13 @@
 """The causal smoothing applied to every model's output, the same for all of them.
 
 An exponential moving average with time constant ``tau_s`` (default 0.2 s): at each sample
-``s <- s + alpha (phi - s)`` with ``alpha = 1 - exp(-dt / tau_s)``, started at the first
-estimate. It uses only samples up to now. Its noise bandwidth is ``1 / (4 tau_s)`` (1.25 Hz
-at 0.2 s), so white estimate noise shrinks by ``sqrt(dt / (2 tau_s))`` (x 0.05 at 1 kHz);
-a step in the estimate is 95 % through after ``3 tau_s`` (0.6 s).
+``s <- s + w (phi - s)`` with ``w = max(1 / n, alpha)``, ``n`` the number of estimates so far
+and ``alpha = 1 - exp(-dt / tau_s)``: the plain mean of the estimates while there are fewer
+than ``1 / alpha`` of them (200 at 1 kHz), the exponential average from then on, so the
+first (single-sample) estimate does not dominate the start. It uses only samples up to now.
+Its noise bandwidth is ``1 / (4 tau_s)`` (1.25 Hz at 0.2 s), so white estimate noise shrinks
+by ``sqrt(dt / (2 tau_s))`` (x 0.05 at 1 kHz); a step in the estimate is 95 % through after
+``3 tau_s`` (0.6 s).
 """
 
 from __future__ import annotations
@@ -29,9 +32,11 @@ class ExponentialSmoother:
         self.dt = float(dt)
         self.alpha = 1.0 if tau_s == 0.0 else 1.0 - math.exp(-dt / tau_s)
         self._s: np.ndarray | None = None
+        self._n = 0
 
     def reset(self) -> None:
         self._s = None
+        self._n = 0
 
     @property
     def value(self) -> np.ndarray | None:
@@ -42,9 +47,11 @@ class ExponentialSmoother:
         if self._s is None:
             if np.isfinite(x).all():
                 self._s = x.copy()  # start at the first finite estimate
+                self._n = 1
             return x.copy()
         if np.isfinite(x).all():
-            self._s += self.alpha * (x - self._s)
+            self._n += 1
+            self._s += max(1.0 / self._n, self.alpha) * (x - self._s)
         return self._s.copy()
 
     def run(self, X) -> np.ndarray:

@@ -49,13 +49,30 @@ def test_bad_cutoff_is_an_error():
 
 def test_exponential_smoother_is_causal_and_documented():
     s = ExponentialSmoother(tau_s=0.2, dt=1e-3)
-    assert s.alpha == pytest.approx(1 - math.exp(-0.005))
-    out = s.run(np.r_[np.zeros((1, 2)), np.ones((999, 2))])
-    # a step is 1 - exp(-t / tau) through after t
-    assert out[600, 0] == pytest.approx(1 - math.exp(-0.6 / 0.2), rel=1e-2)
-    s2 = ExponentialSmoother(tau_s=0.2)
-    first = s2.run(np.ones((10, 2)) * 3.0)
-    assert np.all(first == 3.0)  # starts at the first estimate
+    alpha = 1 - math.exp(-0.005)
+    assert s.alpha == pytest.approx(alpha)
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(1000, 2))
+    out = s.run(x)
+    # the documented rule, step by step: the plain mean of the first 1/alpha estimates,
+    # then the exponential average
+    ref = np.empty_like(x)
+    acc = x[0].copy()
+    ref[0] = acc
+    for n in range(2, len(x) + 1):
+        acc = acc + max(1.0 / n, alpha) * (x[n - 1] - acc)
+        ref[n - 1] = acc
+    np.testing.assert_allclose(out, ref, atol=1e-15)
+    np.testing.assert_allclose(out[150], x[:151].mean(axis=0), atol=1e-12)  # still the mean
+    # causal: changing a later sample never changes an earlier output
+    y = x.copy()
+    y[500:] += 10.0
+    np.testing.assert_array_equal(ExponentialSmoother().run(y)[:500], out[:500])
+    # after the start, a step is 1 - exp(-t / tau) through after t
+    steady = ExponentialSmoother(tau_s=0.2)
+    steady.run(np.zeros((1000, 1)))
+    step = steady.run(np.ones((601, 1)))
+    assert step[600, 0] == pytest.approx(1 - math.exp(-0.601 / 0.2), rel=1e-2)
 
 
 def test_smoother_skips_nan_and_restarts():
