@@ -124,6 +124,8 @@ def _figures(summary: dict, stats: dict, link: str) -> dict:
     return {
         "cycles": summary["cycles"],
         "lost": summary["frames"]["lost"],
+        "skipped": summary["frames"]["skipped"],
+        "unlearnt": summary["unlearnt"],
         "latency_us": summary["latency_us"],
         "cpu_share": summary["cpu_s"] / summary["wall_s"] if summary["wall_s"] else None,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
@@ -151,7 +153,8 @@ def configure(parser) -> None:
 def run(args) -> int:
     f = measure(args.seconds, kind=args.model, link=args.link)
     lat = f["latency_us"]
-    print(f"cycles processed {f['cycles']}, lost {f['lost']} (controller published "
+    print(f"cycles processed {f['cycles']}, lost {f['lost']}, skipped {f['skipped']}, "
+          f"estimated without learning {f['unlearnt']} (controller published "
           f"{f['controller_cycles']}, missed {f['controller_overruns']} deadlines)")
     print(f"latency frame to estimate p50 {lat['p50']:.0f} µs, p99 {lat['p99']:.0f} µs "
           "(target p99 <= 1000)")

@@ -59,6 +59,7 @@ class EstimateConfig:
     smoothing_tau_s: float = 0.2
     filter_cutoff_hz: float = 50.0
     learn: bool = True
+    max_lag_s: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,7 @@ RANGES = {
     ("model", "checkpoint_period_s"): (1.0, 86400.0),
     ("estimate", "smoothing_tau_s"): (0.0, 60.0),
     ("estimate", "filter_cutoff_hz"): (1.0, 499.0),
+    ("estimate", "max_lag_s"): (0.0, 60.0),
     ("log", "status_period_s"): (0.05, 60.0),
     ("gate", "rated_mass_kg"): (0.01, 3.0),
     ("gate", "max_com_radius_m"): (0.001, 1.0),

@@ -146,7 +146,9 @@ def _print_summary(s: dict, out, log) -> None:
         f"the gate, {w['refused_by_controller']} refused by the controller")
     f = s["frames"]
     drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
-    log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}")
+    log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}; "
+        f"{s['unlearnt']} cycles estimated without learning to stay current, "
+        f"{f['skipped']} skipped")
     if s["controller_load"]:
         cl = s["controller_load"]
         log(f"  the controller's load now: {cl['mass']:.4f} kg, CoM "

@@ -40,6 +40,10 @@ from .status import StatusLine
 
 log = logging.getLogger("iem.service")
 
+SKIP_LAG_S = 2.0
+"""A cycle older than this when read is dropped (counted in ``skipped``): even estimating
+without learning has fallen hopelessly behind."""
+
 
 @dataclass
 class CycleRecord:
@@ -143,6 +147,9 @@ class Service:
         self.refused = 0
         self.silent = False
         self.silences = 0
+        self.skipped = 0
+        self.unlearnt = 0
+        self._behind = False
         self.checkpoints = 0
         self.cpu_s = 0.0
         self.wall_s = 0.0
@@ -200,6 +207,7 @@ class Service:
         last_ack = None
         last_smoothed = None
         controller_clock = self.gate_clock == "controller"
+        max_lag = cfg.estimate.max_lag_s if self.gate_clock == "monotonic" else 0.0
         self.notifier.ready(f"identifying the payload; {self.model.n_bags} bags")
         log.info("running: link %s, model %s (%d bags), writes %s", getattr(link, "name", link),
                  self.model.name, self.model.n_bags, "on" if sink else "off",
@@ -225,6 +233,12 @@ class Service:
                     break
                 if self.silent:
                     self._controller_back()
+                if max_lag:
+                    lag = self._lag(link)
+                    if lag > SKIP_LAG_S:
+                        self.skipped += 1  # hopelessly behind: drop the cycle
+                        continue
+                    self._pace(lag, max_lag)
                 raw, smoothed = online.step(state)
                 last_smoothed = smoothed
                 t_est = time.time()
@@ -282,6 +296,32 @@ class Service:
                         extra={"event": "controller_silent"})
             self.notifier.status("controller silent: writes stopped")
         self.status.show("controller silent: writes stopped", force=True)
+
+    @staticmethod
+    def _lag(link) -> float:
+        """Age of the cycle just read (its frame's receive time to now), s."""
+        frame_t = getattr(link, "last_frame_time", 0.0)
+        return time.time() - frame_t if frame_t > 0 else 0.0
+
+    def _pace(self, lag: float, max_lag: float) -> None:
+        """Behind the controller by more than ``max_lag`` s (a slow learning step), the
+        service still estimates every cycle but skips the learning steps until it is
+        current again (below half of ``max_lag``), so estimates and writes stay fresh;
+        counted in ``unlearnt``, logged once per episode."""
+        behind = lag > (max_lag / 2.0 if self._behind else max_lag)  # hysteresis
+        if behind:
+            self.unlearnt += 1
+        if behind != self._behind:
+            self._behind = behind
+            self.online.learn = self.config.estimate.learn and not behind
+            if behind:
+                log.warning("behind the controller by %.0f ms: estimating without learning "
+                            "until current", lag * 1e3, extra={"event": "behind",
+                                                               "lag_ms": lag * 1e3})
+            else:
+                log.info("current again (%d cycles estimated without learning so far)",
+                         self.unlearnt, extra={"event": "current",
+                                               "unlearnt": self.unlearnt})
 
     def _controller_back(self) -> None:
         self.silent = False
@@ -353,7 +393,9 @@ class Service:
                            "p99": float(np.percentile(lat, 99)) if lat.size else None},
             "writes": {"sent": gate["sent"], "acked": gate["acked"],
                        "rejected": gate["rejected"], "refused_by_controller": self.refused},
-            "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost},
+            "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
+                       "skipped": self.skipped},
+            "unlearnt": self.unlearnt,
             "gate": gate["decisions"],
             "silences": self.silences,
             "checkpoints": self.checkpoints,

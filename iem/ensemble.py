@@ -56,6 +56,7 @@ class IncrementalEnsemble:
         fit_epochs, fit_lr, fit_stride: offline training of the initial bags: epochs, the
             SGD step in whitened coordinates, and every how many path points to take.
         reservoir: points of the open bag kept for its training at close (0: none).
+        close_epochs: epochs of that training (None: ``fit_epochs``).
         seed: seed of everything random (the noise of each learner).
     """
 
@@ -64,7 +65,8 @@ class IncrementalEnsemble:
     def __init__(self, delta: float = DEFAULT_DELTA, rho: float = DEFAULT_RHO, lr: float = 0.5,
                  iters: int = 5, warmup_iters: int = 100, input_noise=SENSOR_NOISE,
                  fit_epochs: int = 10, fit_lr: float = 0.1, fit_stride: int = 10,
-                 reservoir: int = 100, seed: int = 0) -> None:
+                 reservoir: int = 100, close_epochs: int | None = None,
+                 seed: int = 0) -> None:
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -75,6 +77,7 @@ class IncrementalEnsemble:
         self.fit_lr = float(fit_lr)
         self.fit_stride = int(fit_stride)
         self.reservoir = int(reservoir)
+        self.close_epochs = None if close_epochs is None else int(close_epochs)
         self.seed = int(seed)
         self._router = BagRouter(self.delta, self.rho)
         self._learners: list[WeakLearner] = []
@@ -88,7 +91,8 @@ class IncrementalEnsemble:
                 "warmup_iters": self.warmup_iters,
                 "input_noise": None if self.input_noise is None else self.input_noise.tolist(),
                 "fit_epochs": self.fit_epochs, "fit_lr": self.fit_lr,
-                "fit_stride": self.fit_stride, "reservoir": self.reservoir, "seed": self.seed}
+                "fit_stride": self.fit_stride, "reservoir": self.reservoir,
+                "close_epochs": self.close_epochs, "seed": self.seed}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -209,7 +213,9 @@ class IncrementalEnsemble:
         X, Y = kept.stacked()
         self._learners[bag] = WeakLearner.fit(
             X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
-            seed=[self.seed, bag, 3], epochs=self.fit_epochs, batch=kept.batch(),
+            seed=[self.seed, bag, 3],
+            epochs=self.fit_epochs if self.close_epochs is None else self.close_epochs,
+            batch=kept.batch(),
             fit_lr=self.fit_lr)
 
     # -- estimation ----------------------------------------------------------------------
