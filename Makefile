@@ -23,6 +23,7 @@ bench: $(STAMP)
 	$(VENV)/bin/iem bench sim
 	$(VENV)/bin/iem bench paper --out out/bench-paper
 	$(VENV)/bin/iem bench bridge
+	$(VENV)/bin/iem bench e2e
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
