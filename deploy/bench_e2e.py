@@ -12,8 +12,8 @@ plug-in together), and the controller's missed deadlines. Targets: no lost cycle
 under half of one core. ``--json FILE`` writes ``{"cycles", "lost", "latency_us": {"p50",
 "p99"}, "cpu_share", "peak_rss_mb", ...}``.
 
-The controller shares the interpreter, so the thread switch interval is lowered to 0.5 ms
-(see :mod:`deploy.demo`), and each frame also waits for the controller thread's own work.
+The controller shares the interpreter (:mod:`deploy.inprocess`), so each frame also waits for
+the controller thread's own work.
 ``--link slcan-pty`` runs the controller in its own process instead, as a cell has it, as
 an slcan adapter on a pty that the plug-in opens with python-can's slcan interface (fd
 profile); there the latency starts when python-can parses the frame in the plug-in's
@@ -40,38 +40,23 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     kind = kind or best_model_kind()
     if link == "slcan-pty":
         return _measure_slcan_pty(seconds, kind, seed, log)
-    from firmware_bridge.sim_controller import SimController, open_port
-
     from .config import config_from_dict
-    from .service import Service
-    from .status import StatusLine
+    from .inprocess import simulated_cell, virtual_channel
 
-    channel = f"iem-bench-e2e-{os.getpid()}"
     with tempfile.TemporaryDirectory() as tmp:
         config = config_from_dict({
-            "link": {"kind": "virtual", "channel": channel, "profile": "fd"},
+            "link": {"kind": "virtual", "channel": virtual_channel("bench-e2e"),
+                     "profile": "fd"},
             "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                       "seed": seed, "checkpoint_period_s": 30.0},
             "log": {"status_line": "off"},
         }, where="bench e2e")
-        previous = sys.getswitchinterval()
-        sys.setswitchinterval(0.0005)
-        port, _ = open_port("virtual", channel, "fd")
-        controller = SimController(port, seed=seed)  # the excitation path, back and forth
-        service = Service(config, status=StatusLine(False))
-        try:
-            service.open()
+        # the controller plays the excitation path back and forth
+        with simulated_cell(config, seed=seed) as (controller, service):
             log(f"bench e2e: {kind} with {service.model.n_bags} bags; {seconds:g} s at 1 kHz "
                 "on the virtual bus")
             controller.start()
             summary = service.run(duration=seconds)
-        finally:
-            controller.stop()
-            service.close()
-            port.close()
-            sys.setswitchinterval(previous)
-    if controller.error is not None:
-        raise controller.error
     return _figures(summary, controller.stats(), link="virtual")
 
 

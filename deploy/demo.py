@@ -9,15 +9,13 @@ gate, which the controller acknowledges. Progress shows on the status line; at t
 summary is printed and a report folder is written (``summary.json``, ``error.png``: error
 against time as in the paper's Fig. 6, ``bags.png``: bag centres in the workspace).
 
-The controller runs in a thread of this process (the virtual bus does not cross processes),
-so the interpreter's thread switch interval is lowered to 0.5 ms: the controller's 1 kHz loop
-is not held up by the plug-in's longer steps.
+The controller runs in a thread of this process (the virtual bus does not cross processes;
+see :mod:`deploy.inprocess`).
 """
 
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from pathlib import Path as FsPath
@@ -44,13 +42,11 @@ def demo_path():
 
 def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
              status: bool = True, log=print) -> dict:
-    from firmware_bridge.sim_controller import SimController, open_port
     from iem.metrics import mae_groups
     from sim.family import default_test_payload
 
-    from . import service as _svc
     from .config import config_from_dict
-    Service = _svc.Service
+    from .inprocess import simulated_cell, virtual_channel
     from .status import StatusLine
     from .training import best_model_kind
 
@@ -62,25 +58,19 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     path, phases = demo_path()
     model_file = out / "model.msgpack"
     model_file.unlink(missing_ok=True)  # the demo always starts from the excitation path
-    channel = f"iem-demo-{os.getpid()}"
     config = config_from_dict({
-        "link": {"kind": "virtual", "channel": channel, "profile": "fd"},
+        "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
         "model": {"path": str(model_file), "kind": kind, "seed": seed,
                   "checkpoint_period_s": 10.0},
         "log": {"status_line": "on" if status else "off"},
     }, where="demo")
     log(f"iem demo: payload {payload.name} ({payload.mass:.3f} kg), path {path.duration:.0f} s "
         f"(excitation, transfer, new task), model {kind}")
-    previous_interval = sys.getswitchinterval()
-    sys.setswitchinterval(0.0005)
-    port, _ = open_port("virtual", channel, "fd")
-    controller = SimController(port, path=path, payload=payload, once=True, seed=seed)
-    service = Service(config, status=StatusLine(status, sys.stderr, 0.25))
     rows: list[tuple] = []
-    service.on_cycle.append(lambda r: rows.append(
-        (r.state.t, r.raw.bag, r.smoothed.copy(), r.state.q)))
-    try:
-        service.open()
+    with simulated_cell(config, path=path, payload=payload, once=True, seed=seed,
+                        status=StatusLine(status, sys.stderr, 0.25)) as (controller, service):
+        service.on_cycle.append(lambda r: rows.append(
+            (r.state.t, r.raw.bag, r.smoothed.copy(), r.state.q)))
         announced = set()
 
         def until() -> bool:
@@ -96,13 +86,6 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
         started = time.monotonic()
         summary = service.run(until=until)
         wall = time.monotonic() - started
-    finally:
-        controller.stop()
-        service.close()
-        port.close()
-        sys.setswitchinterval(previous_interval)
-    if controller.error is not None:
-        raise controller.error
 
     t = np.array([r[0] for r in rows])
     est = np.array([r[2] for r in rows])

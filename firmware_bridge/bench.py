@@ -67,6 +67,20 @@ def _percentiles(lat: list[float]) -> dict:
     return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99))}
 
 
+def _paced(send, cycles, period: float, sent: dict) -> None:
+    """Send each cycle's frames at ``period``; ``sent[cycle]`` = when its last frame went."""
+    perf = time.perf_counter
+    t0 = perf() + 0.02
+    for i, (cycle, msgs) in enumerate(cycles):
+        due = t0 + i * period
+        while (left := due - perf()) > 0:
+            time.sleep(left * 0.5 if left > 3e-4 else 0)
+        for m in msgs[:-1]:
+            send(m)
+        sent[cycle] = perf()
+        send(msgs[-1])
+
+
 def _latency(send, link, cycles: list[tuple[int, list[can.Message]]], period: float,
              finish=None) -> dict:
     """Sender thread at ``period``; reader here. Latency from the last frame's send.
@@ -75,15 +89,7 @@ def _latency(send, link, cycles: list[tuple[int, list[can.Message]]], period: fl
     perf = time.perf_counter
 
     def sender():
-        t0 = perf() + 0.02
-        for i, (cycle, msgs) in enumerate(cycles):
-            due = t0 + i * period
-            while (left := due - perf()) > 0:
-                time.sleep(left * 0.5 if left > 3e-4 else 0)
-            for m in msgs[:-1]:
-                send(m)
-            sent[cycle] = perf()
-            send(msgs[-1])
+        _paced(send, cycles, period, sent)
         if finish is not None:
             finish()
 
@@ -165,17 +171,7 @@ def _slcan_feeder(adapter, profile: str, n_rate: int, n_latency: int, conn) -> N
     drain()
     conn.recv()  # the reader is ready for the latency run
     sent: dict[int, float] = {}
-    period = get_period(profile)
-    perf = time.perf_counter
-    t0 = perf() + 0.02
-    for i, (cycle, msgs) in enumerate(_frames(profile, n_latency)):
-        due = t0 + i * period
-        while (left := due - perf()) > 0:
-            time.sleep(left * 0.5 if left > 3e-4 else 0)
-        for m in msgs[:-1]:
-            send(m)
-        sent[cycle] = perf()
-        send(msgs[-1])
+    _paced(send, _frames(profile, n_latency), get_period(profile), sent)
     drain()
     conn.send(sent)
     conn.recv()

@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 import signal
-import sys
 
 import numpy as np
 import pytest
@@ -45,33 +43,18 @@ def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None
     The service works on ``model_file`` and saves it at the end; give each run its own copy.
     Returns the service summary, the controller, and the smoothed estimates per cycle.
     """
-    from firmware_bridge.can_link import CanControllerPort, open_bus
-    from firmware_bridge.sim_controller import SimController
+    from deploy.inprocess import simulated_cell, virtual_channel
     from sim.paths import new_task_path
 
-    channel = f"test-e2e-{os.getpid()}-{id(object())}"
-    doc = cell_config(model_file, {"kind": "virtual", "channel": channel, "profile": "fd"},
-                      gate=gate or {})
-    config = config_from_dict(doc, where="test")
-    previous = sys.getswitchinterval()
-    sys.setswitchinterval(0.0005)
-    port = CanControllerPort(open_bus("virtual", channel, "fd"), "fd", faults,
-                             record_faults=True)
-    controller = SimController(port, path=path or new_task_path(), payload=TRUTH, once=True,
-                               seed=seed)
-    service = Service(config, status=StatusLine(False))
+    doc = cell_config(model_file, {"kind": "virtual", "channel": virtual_channel("test"),
+                                   "profile": "fd"}, gate=gate or {})
     rows = []
-    service.on_cycle.append(lambda r: rows.append((r.state.t, r.smoothed.copy())))
-    try:
-        service.open()
+    with simulated_cell(config_from_dict(doc, where="test"), path=path or new_task_path(),
+                        payload=TRUTH, once=True, seed=seed, faults=faults) as (controller,
+                                                                                service):
+        service.on_cycle.append(lambda r: rows.append((r.state.t, r.smoothed.copy())))
         controller.start()
         summary = service.run(until=lambda: controller.cycles >= seconds * 1000)
-    finally:
-        controller.stop()
-        service.close()
-        port.close()
-        sys.setswitchinterval(previous)
-    assert controller.error is None
     t = np.array([r[0] for r in rows])
     est = np.array([r[1] for r in rows])
     return summary, controller, t, est
