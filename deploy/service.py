@@ -396,6 +396,7 @@ class Service:
             "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
                        "skipped": self.skipped},
             "unlearnt": self.unlearnt,
+            "learnt": self.online.learned_points,
             "gate": gate["decisions"],
             "silences": self.silences,
             "checkpoints": self.checkpoints,

@@ -129,13 +129,6 @@ class WeakLearner:
         """``dL/da``, ``dL/db`` and ``L`` of the MSE for scaled inputs ``x`` and targets ``t``."""
         return _gradient(self.a, self.b, x, t)
 
-    def step(self, x: np.ndarray, t: np.ndarray, alpha: float) -> float:
-        """One gradient step on scaled inputs and targets; returns the loss before it."""
-        ga, gb, loss = self.gradient(x, t)
-        self.a -= alpha * ga
-        self.b -= alpha * gb
-        return loss
-
     def learn(self, X, Y, iters: int = 1) -> float:
         """``iters`` normalised SGD steps on one mini-batch ``(N, 21) -> (N, 10)``.
 
