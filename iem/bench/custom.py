@@ -36,8 +36,6 @@ def run_custom(payload_file, path_file, out_dir, quick: bool = False, seed: int 
     phi = payload.to_phi()
     scen = {}
     for name, model in models.items():
-        if hasattr(model, "reset"):
-            model.reset()
         scen[name] = bench.scores(bench.run(model, rollout, learn=True), phi, convergence=True,
                                   model=model)
         g = scen[name]["mae_groups"]

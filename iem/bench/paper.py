@@ -47,7 +47,7 @@ import copy
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import cached_property
 from pathlib import Path as FsPath
 
@@ -177,6 +177,10 @@ class Bench:
 
     # -- runs ----------------------------------------------------------------------------
     def run(self, model, rollout, learn: bool) -> Run:
+        """One model along one rollout: a new task, so a model with ``reset`` first forgets
+        the payload it was estimating (it keeps what it learnt)."""
+        if hasattr(model, "reset"):
+            model.reset()
         online = OnlineIdentifier(model, self.kin.flange_position, self.tandem.samples,
                                   learn=learn, timed=True)
         n = len(rollout)
@@ -262,6 +266,8 @@ def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> 
 def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
               extra_models: dict | None = None) -> dict:
     """All scenarios; writes ``results.json``, ``report.md`` and figures to ``out_dir``."""
+    from sim.plant import SensorModel
+
     started = time.perf_counter()
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -275,16 +281,12 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     bags_after_excitation = models["IEM"].n_bags
     for name, model in models.items():
         learns_on_excitation = not hasattr(model, "fit")
-        if hasattr(model, "reset"):
-            model.reset()  # forget any payload (models with a reset keep what they learnt)
         r = bench.run(model, bench.exc_rollout, learn=learns_on_excitation)
         runs["excitation"][name] = r
         scen["excitation"][name] = bench.scores(r, bench.phi, model=model)
         log(f"excitation {name:8s} {_fmt(scen['excitation'][name]['mae_groups'])}")
     frozen = {n: copy.deepcopy(m) for n, m in models.items()}
     for name, model in models.items():
-        if hasattr(model, "reset"):
-            model.reset()
         r = bench.run(model, bench.new_rollout, learn=True)
         runs["new_path"][name] = r
         scen["new_path"][name] = bench.scores(r, bench.phi, convergence=True, model=model)
@@ -293,8 +295,6 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     for name, model in models.items():
         if not hasattr(model, "fit"):
             continue  # forgetting concerns models that carry what they learnt
-        if hasattr(model, "reset"):
-            model.reset()
         r = bench.run(model, bench.exc_rollout, learn=False)
         runs["forgetting_after"][name] = r
         scen["forgetting"][name] = {
@@ -307,8 +307,6 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
                     / max(scen['forgetting'][name]['before'][g], 1e-300)
                     for g in ("mass", "com", "inertia")}, digits=2))
     for name, model in frozen.items():  # each model as it was before the new task path
-        if hasattr(model, "reset"):
-            model.reset()
         r = bench.run(model, bench.change_rollout, learn=True)
         runs["payload_change"][name] = r
         scen["payload_change"][name] = bench.change_scores(r, model)
@@ -338,7 +336,7 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
                  "after_new_path": models["IEM"].n_bags},
         "setup": {"quick": quick, "seed": seed, "test_payload": bench.payload.name,
                   "test_phi": bench.phi.tolist(), "training_payloads": len(bench.tandem),
-                  "sensor": {"sigma_q": 1e-4, "sigma_dq": 2e-3, "sigma_tau": 0.05},
+                  "sensor": asdict(SensorModel()),
                   "smoothing_tau_s": 0.2, "excitation_s": bench.excitation.duration,
                   "new_path_s": bench.new_path.duration,
                   "change": {"from": bench.payload.name, "to": bench.change_payload.name,
