@@ -32,8 +32,7 @@ def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed:
     On the way out: the controller is stopped (its error, if any, re-raised), the service
     closed (final checkpoint), the bus closed and the switch interval restored.
     """
-    from firmware_bridge.can_link import CanControllerPort, open_bus
-    from firmware_bridge.sim_controller import SimController
+    from firmware_bridge.sim_controller import SimController, open_port
 
     from .service import Service
     from .status import StatusLine
@@ -43,8 +42,8 @@ def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed:
         raise ValueError(f"a simulated cell runs on the virtual bus, not {link.kind!r}")
     previous = sys.getswitchinterval()
     sys.setswitchinterval(0.0005)
-    port = CanControllerPort(open_bus("virtual", link.channel, link.profile), link.profile,
-                             faults, record_faults=faults is not None)
+    port, _ = open_port("virtual", link.channel, link.profile, faults,
+                        record_faults=faults is not None)
     controller = SimController(port, path=path, payload=payload, once=once, seed=seed)
     service = Service(config, model=model,
                       status=StatusLine(False) if status is None else status)

@@ -102,14 +102,6 @@ def load_or_train_model(config: CellConfig):
     return model
 
 
-def sample_rate(link) -> float:
-    """Joint states per second the link delivers: its wire profile's rate (the classic CAN
-    profile publishes every other controller cycle), else the controller's 1 kHz."""
-    profile = getattr(link, "profile", None)
-    joint_state = getattr(profile, "joint_state", None)
-    return float(getattr(joint_state, "rate_hz", 1000.0))
-
-
 class Service:
     """The running plug-in.
 
@@ -169,7 +161,7 @@ class Service:
             self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
                                   silence_timeout=lc.silence_timeout_s)
         est = self.config.estimate
-        self.rate_hz = sample_rate(self.link)
+        self.rate_hz = link_rate(self.config)
         self.kinematics = PandaModel()
         self.tandem = tandem_for(self.config.model.family)
         self.online = OnlineIdentifier(
@@ -233,17 +225,16 @@ class Service:
                     break
                 if self.silent:
                     self._controller_back()
+                frame_t = getattr(link, "last_frame_time", 0.0)  # its receive time (epoch s)
                 if max_lag:
-                    lag = self._lag(link)
+                    lag = time.time() - frame_t if frame_t > 0 else 0.0
                     if lag > SKIP_LAG_S:
                         self.skipped += 1  # hopelessly behind: drop the cycle
                         continue
                     self._pace(lag, max_lag)
                 raw, smoothed = online.step(state)
                 last_smoothed = smoothed
-                t_est = time.time()
-                frame_t = getattr(link, "last_frame_time", 0.0)
-                latency = t_est - frame_t if frame_t > 0 else math.nan
+                latency = time.time() - frame_t if frame_t > 0 else math.nan
                 self.latencies.append(latency)
                 self.cycles += 1
                 if self.on_cycle:
@@ -296,12 +287,6 @@ class Service:
                         extra={"event": "controller_silent"})
             self.notifier.status("controller silent: writes stopped")
         self.status.show("controller silent: writes stopped", force=True)
-
-    @staticmethod
-    def _lag(link) -> float:
-        """Age of the cycle just read (its frame's receive time to now), s."""
-        frame_t = getattr(link, "last_frame_time", 0.0)
-        return time.time() - frame_t if frame_t > 0 else 0.0
 
     def _pace(self, lag: float, max_lag: float) -> None:
         """Behind the controller by more than ``max_lag`` s (a slow learning step), the

@@ -257,18 +257,22 @@ def fault_spec(args):
                      silence_for=silence_for, seed=args.fault_seed)
 
 
-def open_port(interface: str, channel: str, profile: str, faults=None):
-    """``(port, announce)``: the controller port, and the pty path to print (or None)."""
+def open_port(interface: str, channel: str, profile: str, faults=None,
+              record_faults: bool = False):
+    """``(port, announce)``: the controller port, and the pty path to print (or None).
+    ``record_faults`` keeps a log of every fault drawn (CAN ports; for tests)."""
     if interface in ("virtual", "socketcan", "slcan"):
         from .can_link import CanControllerPort, open_bus
 
-        return CanControllerPort(open_bus(interface, channel, profile), profile, faults), None
+        return CanControllerPort(open_bus(interface, channel, profile), profile, faults,
+                                 record_faults=record_faults), None
     if interface == "slcan-pty":
         from .can_link import CanControllerPort
         from .slcan_adapter import SlcanPtyAdapter
 
         adapter = SlcanPtyAdapter()
-        return CanControllerPort(adapter, profile, faults), adapter.slave_path
+        return CanControllerPort(adapter, profile, faults,
+                                 record_faults=record_faults), adapter.slave_path
     if interface in ("serial", "serial-pty"):
         from .serial_link import SerialControllerPort, open_serial
 
