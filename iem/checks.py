@@ -168,6 +168,19 @@ def _predictions_one(est, data: CheckData) -> np.ndarray:
 
 
 # -- the checks --------------------------------------------------------------------------
+def _learn_together(a, b, data: CheckData, points):
+    """``a`` and ``b`` learn each point in turn and estimate at it; the first point where the
+    estimates differ, as ``(i, phi_a, phi_b)``, or None."""
+    for i in points:
+        _learn(a, data, i)
+        _learn(b, data, i)
+        pa = a.predict_one(data.X[i].copy(), data.F[i].copy()).phi
+        pb = b.predict_one(data.X[i].copy(), data.F[i].copy()).phi
+        if not _identical(pa, pb):
+            return i, pa, pb
+    return None
+
+
 def check_predict_before_learn(make, data: CheckData) -> None:
     """A fresh estimator predicts without raising: phi of shape (10,) / (N, 10), NaN allowed."""
     name = "predict before learn"
@@ -276,14 +289,11 @@ def check_save_load(make, data: CheckData) -> None:
         raise _fail(name, "predict_many differs after the round trip")
     if not _identical(_predictions_one(loaded, data), _predictions_one(est, data)):
         raise _fail(name, "predict_one differs after the round trip")
-    for i in data.further_points():
-        _learn(est, data, i)
-        _learn(loaded, data, i)
-        a = est.predict_one(data.X[i].copy(), data.F[i].copy()).phi
-        b = loaded.predict_one(data.X[i].copy(), data.F[i].copy()).phi
-        if not _identical(a, b):
-            raise _fail(name, f"after learning point {i} the loaded model predicts "
-                              f"{np.asarray(b).tolist()}, the original {np.asarray(a).tolist()}")
+    differ = _learn_together(est, loaded, data, data.further_points())
+    if differ is not None:
+        i, a, b = differ
+        raise _fail(name, f"after learning point {i} the loaded model predicts "
+                          f"{np.asarray(b).tolist()}, the original {np.asarray(a).tolist()}")
     if not _identical(_predictions(loaded, data), _predictions(est, data)):
         raise _fail(name, "predictions differ after both learnt the same further points")
 
@@ -294,14 +304,11 @@ def check_seeded_determinism(make, data: CheckData) -> None:
     one, two = make(), make()
     _fit(one, data)
     _fit(two, data)
-    for i in data.train_points() + data.further_points():
-        _learn(one, data, i)
-        _learn(two, data, i)
-        a = one.predict_one(data.X[i].copy(), data.F[i].copy()).phi
-        b = two.predict_one(data.X[i].copy(), data.F[i].copy()).phi
-        if not _identical(a, b):
-            raise _fail(name, f"after point {i}: {np.asarray(a).tolist()} vs "
-                              f"{np.asarray(b).tolist()}")
+    differ = _learn_together(one, two, data, data.train_points() + data.further_points())
+    if differ is not None:
+        i, a, b = differ
+        raise _fail(name, f"after point {i}: {np.asarray(a).tolist()} vs "
+                          f"{np.asarray(b).tolist()}")
     if not _identical(_predictions(one, data), _predictions(two, data)):
         raise _fail(name, "predict_many differs between two estimators with the same seed")
 

@@ -20,8 +20,6 @@ from pathlib import Path as FsPath
 import numpy as np
 import pinocchio as pin
 
-from iem.errors import InvalidInputError
-
 FLANGE_FRAME = "panda_link8"
 TCP_FRAME = "panda_hand_tcp"
 
@@ -101,10 +99,6 @@ class PandaModel:
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
         return self.data.oMf[self.flange_id].translation.copy()
 
-    def flange_pose(self, q) -> pin.SE3:
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        return self.data.oMf[self.flange_id].copy()
-
     def tcp_position(self, q) -> np.ndarray:
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
         return self.data.oMf[self.tcp_id].translation.copy()
@@ -144,11 +138,7 @@ class PandaModel:
         Pinocchio's body regressor of the flange frame gives the wrench a body at the flange
         needs for the motion (gravity included); the flange Jacobian maps it to joint torques.
         """
-        q = np.asarray(q, dtype=float)
-        pin.rnea(self.model, self.data, q, np.asarray(dq, float), np.asarray(ddq, float))
-        body = pin.frameBodyRegressor(self.model, self.data, self.flange_id)  # 6x10, local
-        jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
-        return (jac.T @ body)[:, PAPER_TO_PIN]
+        return self.rnea_and_regressor(q, dq, ddq)[1]
 
     def rnea_and_regressor(self, q, dq, ddq) -> tuple[np.ndarray, np.ndarray]:
         """Both the payload-free torques and ``Y`` from one RNEA pass (the tandem hot path)."""
@@ -174,12 +164,6 @@ class PandaModel:
         return jac.T @ spatial_inertia(phi) @ jac
 
     # -- checks ----------------------------------------------------------------------------
-    def check_configuration(self, q) -> np.ndarray:
-        q = np.asarray(q, dtype=float).reshape(-1)
-        if q.shape != (7,):
-            raise InvalidInputError(f"q must have 7 entries, got {q.shape[0]}")
-        return q
-
     def random_state(self, rng: np.random.Generator, margin: float = 0.0):
         """A random (q, dq, ddq) inside the position, velocity and acceleration limits."""
         span = self.q_max - self.q_min
