@@ -10,10 +10,11 @@ The router also reports the nearest bag in joint space, qualifying or not: a new
 is a copy of that bag's.
 
 Routing is vectorised over the bags, not a Python loop. The bag means live in preallocated
-float64 arrays (the truth, updated as points join) mirrored in float32 arrays laid out one
-coordinate per row, with the squared norms of the means cached. A query scans the mirror
-with two small matrix-vector products (``|m - q|² = |m|² - 2 m·q + |q|²``) and a few vector
-operations, then confirms the few candidates near the thresholds in float64, so float32
+float64 arrays (the truth, updated as points join). Up to 64 bags a query computes the exact
+distances to all of them; beyond, the joint-space means are mirrored in a float32 array laid
+out one coordinate per row, with their squared norms cached, and a query scans it with one
+small matrix-vector product (``|m - q|² = |m|² - 2 m·q + |q|²``): only the few bags within δ
+in joint space can qualify, and float64 distances to those decide both spheres, so float32
 rounding never changes a decision. One query among 10,000 bags costs a few tens of µs.
 """
 
@@ -65,10 +66,8 @@ class BagRouter:
             means[:n] = self._means[:n]
             counts[:n] = self._counts[:n]
         self._means, self._counts = means, counts
-        self._qT = np.zeros((7, cap), dtype=np.float32)  # scan mirrors, one row per coordinate
-        self._xT = np.zeros((3, cap), dtype=np.float32)
+        self._qT = np.zeros((7, cap), dtype=np.float32)  # scan mirror, one row per coordinate
         self._sqq = np.zeros(cap, dtype=np.float32)
-        self._sqx = np.zeros(cap, dtype=np.float32)
         for i in range(n):
             self._mirror(i)
 
@@ -77,9 +76,7 @@ class BagRouter:
             return  # a small map is routed from the float64 means; mirrored when it grows
         row = self._means[i]
         self._qT[:, i] = row[:7]
-        self._xT[:, i] = row[7:]
         self._sqq[i] = row[:7] @ row[:7]
-        self._sqx[i] = row[7:] @ row[7:]
 
     # -- views ---------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -133,9 +130,9 @@ class BagRouter:
         eq, ex = self._exact2(nearest, q, x)
         if eq < self._delta2 and ex < self._rho2:
             return nearest, nearest  # the nearest bag qualifies, so it is the nearest that does
-        d2x = self._sqx[:n] - 2.0 * (x.astype(np.float32) @ self._xT[:, :n])
-        cand = np.flatnonzero((d2q < self._delta2 + _SCAN_MARGIN - qq)
-                              & (d2x < self._rho2 + _SCAN_MARGIN - float(x @ x)))
+        # only bags within delta in joint space can qualify: they are few, and the exact
+        # float64 check decides both spheres for them
+        cand = np.flatnonzero(d2q < self._delta2 + _SCAN_MARGIN - qq)
         if cand.size == 0:
             return -1, nearest
         eq, ex = self._exact2(cand, q, x)
@@ -191,8 +188,7 @@ class BagRouter:
 
     def nbytes(self) -> int:
         """Bytes held for the bags (the preallocated slots included)."""
-        return sum(a.nbytes for a in (self._means, self._counts, self._qT, self._xT,
-                                      self._sqq, self._sqx))
+        return sum(a.nbytes for a in (self._means, self._counts, self._qT, self._sqq))
 
     # -- Algorithm 1 ---------------------------------------------------------------------
     def add(self, q, flange) -> tuple[int, bool, int]:
