@@ -311,7 +311,7 @@ class Service:
     def _controller_back(self) -> None:
         self.silent = False
         self.gate.controller_silent(False)
-        self.online.state_filter.reset()  # the signal was interrupted
+        self.online.resume()  # the signal was interrupted; the payload estimate stays
         log.info("controller back: writes resume", extra={"event": "controller_back"})
         self.notifier.status("identifying the payload")
 

@@ -15,10 +15,13 @@ for :mod:`iem.persistence`. ``n_bags`` and ``nbytes`` let the checks bound the m
 
 Optional: ``observe_one(x, flange)`` updates what an estimator tracks about the current
 payload without training its model (IEM+phys's physics; :class:`iem.online.OnlineIdentifier`
-calls it instead of ``learn_one`` when learning is off), and ``reset()`` forgets the payload
-(a new task), never what was learnt. An estimate's ``extra`` may carry ``"change": True`` (a
-payload change was detected at this sample) and ``"reset": True`` (earlier estimates are
-about another payload: the caller restarts any smoothing).
+calls it instead of ``learn_one`` when learning is off), ``reset()`` forgets the payload
+(a new task), never what was learnt, and ``resume()`` says the signal stream restarted (a
+silence, a restart from a checkpoint, a new recording) with the payload unchanged: signal
+filters start again, what is known of the payload stays (:class:`iem.online.OnlineIdentifier`
+calls it at the first sample of a stream and after every gap). An estimate's ``extra`` may
+carry ``"change": True`` (a payload change was detected at this sample) and ``"reset": True``
+(earlier estimates are about another payload: the caller restarts any smoothing).
 """
 
 from __future__ import annotations

@@ -83,6 +83,11 @@ class RecursiveLeastSquares:
         self._regression.reset()
         self.updates = 0
 
+    def resume(self) -> None:
+        """The signal stream restarted, the payload did not: the filter starts again, the
+        estimate and its covariance stay."""
+        self._regression.reset()
+
     @property
     def n_bags(self) -> int:
         return 0

@@ -43,7 +43,8 @@ physics but needs rich motion and time. This model keeps both, per estimate:
 
 ``observe_one(x, flange)`` does everything but train the ensemble: the payload part of
 ``learn_one`` for a frozen model (the benchmark's runs on the ensemble's own training path).
-``reset()`` forgets the payload (a new task), never the ensemble.
+``reset()`` forgets the payload (a new task), never the ensemble; ``resume()`` restarts only
+the regression's filter (the signal stream was interrupted, the payload stays).
 """
 
 from __future__ import annotations
@@ -203,6 +204,12 @@ class PhysicsInformedEnsemble:
         self._forget()
         self._holdoff = 0
         self.changes = 0
+
+    def resume(self) -> None:
+        """The signal stream restarted (a silence, a restart from a checkpoint, a new
+        recording), the payload did not: the regression's filter starts again (its settling
+        samples give no equations), the window of equations and the prior summary stay."""
+        self._reg.reset()
 
     def _forget(self) -> None:
         self._info = np.zeros((10, 10))

@@ -314,6 +314,66 @@ def test_online_identifier_restarts_smoothing_on_reset_and_observes_when_frozen(
     assert outs[:2] == [0.0, 0.0] and outs[2] == 1.0 and outs[3] == 1.0  # no lag after reset
 
 
+def test_online_identifier_resumes_the_stream_at_its_start_and_after_gaps():
+    """The first sample, a silence longer than the state filter's max_gap_s and a time stamp
+    going backwards each restart the signal filters (``resume``), never the payload."""
+    class Toy:
+        name = "toy"
+
+        def __init__(self):
+            self.resumed = []
+
+        def resume(self):
+            self.resumed.append(True)
+
+        def learn_one(self, x, flange, samples):
+            pass
+
+        def predict_one(self, x, flange, t=0.0):
+            return PayloadEstimate(t=t, phi=np.ones(10))
+
+    toy = Toy()
+    online = OnlineIdentifier(toy, lambda q: np.zeros(3), None)
+    gap = online.state_filter.max_gap_s
+    times = [0.0, 0.001, 0.002, 0.002 + 0.9 * gap, 0.002 + 3 * gap, 0.003 + 3 * gap, 0.001]
+    counts = []
+    for t in times:
+        online.step(JointState(t=t, q=np.zeros(7), dq=np.zeros(7), tau_J=np.zeros(7)))
+        counts.append(len(toy.resumed))
+    assert counts == [1, 1, 1, 1, 2, 2, 3]
+    online.reset()  # a new task restarts the stream too
+    assert len(toy.resumed) == 4
+
+
+def test_resume_keeps_the_payload_and_restarts_only_the_filter():
+    """A second recording of the same payload after ``resume``: no equation straddles the
+    jump between the recordings (the filter settles again), no change is detected, the
+    window keeps its equations and the posterior only sharpens."""
+    first, second = _hand_made(1500, seed=0), _hand_made(1500, seed=1)
+    model = PhysicsInformedEnsemble(dynamics=FAKE, update_every=10)
+    for x in first:
+        model.observe_one(x, None)
+    m_before, (_, cov_before) = model._m, model.posterior()
+    model.resume()
+    settle = model._reg.settle
+    for x in second[:settle]:
+        model.observe_one(x, None)
+    assert model._m == m_before  # the settling samples give no equations
+    for x in second[settle:]:
+        model.observe_one(x, None)
+    mean, cov = model.posterior()
+    assert model.changes == 0 and model._m > m_before
+    assert np.all(np.diag(cov) <= np.diag(cov_before) * (1 + 1e-9))
+    assert np.all(np.abs(mean - PHI) < 4 * np.sqrt(np.diag(cov)))
+    ls = RecursiveLeastSquares(dynamics=FAKE)
+    for x in first:
+        ls.learn_one(x)
+    phi, updates = ls.phi.copy(), ls.updates
+    ls.resume()
+    np.testing.assert_array_equal(ls.phi, phi)
+    assert ls.updates == updates and ls._regression.count == 0
+
+
 def test_lowpass_state_round_trips_through_the_regression_state():
     reg = PayloadRegression(cutoff_hz=4.0)
     other = PayloadRegression(cutoff_hz=4.0)
