@@ -29,6 +29,13 @@ it tracks the payload with its physics but, like the IEM, does not train its lea
   ``mean_std_groups`` the mean reported standard deviation), else None; and for every model
   ``mae_groups_raw``, the MAE before the smoothing, and ``consistent_share``, the share of its
   raw estimates that are physically consistent (:mod:`iem.consistency`).
+- ``new_path_continued``: the new task path for the models that carry a payload estimate
+  between streams (``resume()``: IEM+phys, LS), continuing from their state after the
+  excitation path instead of starting afresh: the payload did not change, so, as the plug-in
+  would, they keep what the excitation path told them of it (IEM+phys: the equations since the
+  last payload change). ``new_path`` is the harder case of a payload first seen on the new
+  path; this one is the plug-in's case of a payload carried from one task to the next. Same
+  figures as ``new_path``.
 - ``payload_change``: the new task path again (same noise), but at mid-path the payload on the
   plant switches from the test payload to ``test-4w`` (the controller is not told). Each model
   starts from its state after the excitation path (as for ``new_path``); ``detect_s`` is the
@@ -176,10 +183,12 @@ class Bench:
             self.log(f"fit {name}: {model.n_bags} bags ({time.perf_counter() - t0:.1f} s)")
 
     # -- runs ----------------------------------------------------------------------------
-    def run(self, model, rollout, learn: bool) -> Run:
-        """One model along one rollout: a new task, so a model with ``reset`` first forgets
-        the payload it was estimating (it keeps what it learnt)."""
-        if hasattr(model, "reset"):
+    def run(self, model, rollout, learn: bool, fresh: bool = True) -> Run:
+        """One model along one rollout. ``fresh``: a new task with a payload the model has
+        not seen, so a model with ``reset`` first forgets the payload it was estimating (it
+        keeps what it learnt); else the payload is the one of the model's last rollout and
+        only the signal stream restarts (:meth:`iem.online.OnlineIdentifier.resume`)."""
+        if fresh and hasattr(model, "reset"):
             model.reset()
         online = OnlineIdentifier(model, self.kin.flange_position, self.tandem.samples,
                                   learn=learn, timed=True)
@@ -275,9 +284,10 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     models = bench.trained_models(extra_models)
     names = list(models)
 
-    scen: dict = {"excitation": {}, "new_path": {}, "forgetting": {}, "payload_change": {}}
-    runs: dict = {"excitation": {}, "new_path": {}, "forgetting_after": {},
+    scen: dict = {"excitation": {}, "new_path": {}, "new_path_continued": {}, "forgetting": {},
                   "payload_change": {}}
+    runs: dict = {"excitation": {}, "new_path": {}, "new_path_continued": {},
+                  "forgetting_after": {}, "payload_change": {}}
     bags_after_excitation = models["IEM"].n_bags
     for name, model in models.items():
         learns_on_excitation = not hasattr(model, "fit")
@@ -286,6 +296,14 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
         scen["excitation"][name] = bench.scores(r, bench.phi, model=model)
         log(f"excitation {name:8s} {_fmt(scen['excitation'][name]['mae_groups'])}")
     frozen = {n: copy.deepcopy(m) for n, m in models.items()}
+    for name, model in frozen.items():  # the same payload, its estimate carried over
+        if not hasattr(model, "resume"):
+            continue  # no payload state to carry: as new_path
+        r = bench.run(copy.deepcopy(model), bench.new_rollout, learn=True, fresh=False)
+        runs["new_path_continued"][name] = r
+        scen["new_path_continued"][name] = bench.scores(r, bench.phi, convergence=True,
+                                                        model=model)
+        log(f"continued  {name:8s} {_fmt(scen['new_path_continued'][name]['mae_groups'])}")
     for name, model in models.items():
         r = bench.run(model, bench.new_rollout, learn=True)
         runs["new_path"][name] = r

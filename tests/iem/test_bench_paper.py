@@ -49,7 +49,7 @@ def test_report_and_figures(results):
     out, _ = results
     text = (out / "report.md").read_text()
     for heading in ("Table 2", "Table 4", "Forgetting", "Timing", "uncertainty",
-                    "payload change"):
+                    "payload carried over", "payload change"):
         assert heading in text
     for fig in ("fig5_forgetting.png", "fig6_new_path_error.png", "bags.png",
                 "payload_change.png"):
@@ -99,3 +99,19 @@ def test_iem_phys_meets_its_bar_even_in_the_quick_run(results):
     for g in GROUPS:
         assert f["after"][g] <= 1.05 * f["before"][g]
     assert change["mae_groups"]["mass"] < 0.5 * s["payload_change"]["IEM"]["mae_groups"]["mass"]
+
+
+def test_the_payload_carried_over_to_the_new_path(results):
+    """new_path_continued: the models with a payload state keep it from the excitation path
+    (same payload, no change detected) and end up more accurate than afresh."""
+    _, r = results
+    cont, fresh = r["scenarios"]["new_path_continued"], r["scenarios"]["new_path"]
+    assert set(cont) == {"LS", "IEM+phys"}
+    for c in cont.values():
+        assert set(c["mae_groups"]) == GROUPS and set(c["convergence_s"]) == GROUPS
+        assert c["coverage_2sigma"] is not None
+    phys = cont["IEM+phys"]
+    assert phys["changes"] == 0  # the restart of the stream is not taken for a new payload
+    for g in GROUPS:
+        assert phys["mae_groups"][g] < fresh["IEM+phys"]["mae_groups"][g]
+    assert cont["LS"]["mae_groups"]["mass"] < fresh["LS"]["mae_groups"]["mass"]
