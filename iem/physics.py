@@ -236,6 +236,19 @@ class PhysicsInformedEnsemble:
         return 1.0 if post is None else float(post[4])
 
     @property
+    def data_std(self) -> np.ndarray:
+        """Standard deviation per parameter from the window's equations alone, without the
+        prior (inf along directions they do not see): what the motion since the last change
+        told about the payload."""
+        d, U = np.linalg.eigh(0.5 * (self._info + self._info.T))
+        if not d.size or d.max() <= 0.0:
+            return np.full(10, math.inf)
+        seen = d > 1e-12 * d.max()
+        var = (U[:, seen] ** 2) @ (1.0 / d[seen])
+        var[np.any(np.abs(U[:, ~seen]) > 1e-6, axis=1)] = math.inf
+        return np.sqrt(var)
+
+    @property
     def ensemble_model(self) -> IncrementalEnsemble:
         """The held ensemble (read it, do not train it behind this model's back)."""
         return self._ens

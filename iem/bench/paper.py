@@ -28,7 +28,9 @@ it tracks the payload with its physics but, like the IEM, does not train its lea
   reported standard deviations of the truth (``coverage_2sigma_groups`` per group,
   ``mean_std_groups`` the mean reported standard deviation), else None; and for every model
   ``mae_groups_raw``, the MAE before the smoothing, and ``consistent_share``, the share of its
-  raw estimates that are physically consistent (:mod:`iem.consistency`).
+  raw estimates that are physically consistent (:mod:`iem.consistency`); for IEM+phys also
+  ``data_std_end``, the standard deviation per parameter that the path's equations alone give
+  at its end (``data_std``: what the motion could tell, without the prior).
 - ``new_path_continued``: the new task path for the models that carry a payload estimate
   between streams (``resume()``: IEM+phys, LS), continuing from their state after the
   excitation path instead of starting afresh: the payload did not change, so, as the plug-in
@@ -222,6 +224,9 @@ class Bench:
         out = {"mae": per, "mae_groups": groups_of(per)}
         if getattr(model, "detects_changes", False):
             out["changes"] = int(run.changes.sum())
+        if convergence and hasattr(model, "data_std"):
+            out["data_std_end"] = {p: (v if math.isfinite(v) else None)  # None: unseen
+                                   for p, v in zip(PARAMS, model.data_std.tolist(), strict=True)}
         if convergence:
             out["convergence_s"] = convergence_s(run.t, run.smoothed, phi)
             out["mae_groups_raw"] = groups_of(mae(run.raw, phi))
@@ -299,10 +304,11 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     for name, model in frozen.items():  # the same payload, its estimate carried over
         if not hasattr(model, "resume"):
             continue  # no payload state to carry: as new_path
-        r = bench.run(copy.deepcopy(model), bench.new_rollout, learn=True, fresh=False)
+        carried = copy.deepcopy(model)
+        r = bench.run(carried, bench.new_rollout, learn=True, fresh=False)
         runs["new_path_continued"][name] = r
         scen["new_path_continued"][name] = bench.scores(r, bench.phi, convergence=True,
-                                                        model=model)
+                                                        model=carried)
         log(f"continued  {name:8s} {_fmt(scen['new_path_continued'][name]['mae_groups'])}")
     for name, model in models.items():
         r = bench.run(model, bench.new_rollout, learn=True)

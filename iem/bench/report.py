@@ -84,6 +84,17 @@ def _continued(results) -> list[str]:
     return lines
 
 
+def _data_std(results) -> list[str]:
+    sc = results["scenarios"]
+    lines = ["| scenario | " + " | ".join(PARAMS) + " |", "|---|" + "---|" * len(PARAMS)]
+    for key in ("new_path", "new_path_continued"):
+        d = sc.get(key, {}).get("IEM+phys", {}).get("data_std_end")
+        if d:
+            lines.append(f"| {key} | " + " | ".join(_g(d[p]) if d[p] is not None else "unseen"
+                                                    for p in PARAMS) + " |")
+    return lines
+
+
 def _forgetting(results) -> list[str]:
     f = results["scenarios"]["forgetting"]
     lines = ["| model | group | before | after | after/before | paper after |",
@@ -182,6 +193,9 @@ def write_report(out_dir, results, runs, bench, models) -> None:
         "(as the plug-in, which restarts only its signal filters between streams); "
         "\"afresh\" repeats Table 4, where the payload is first seen on the new path.", "",
         *_continued(results), "",
+        "What the equations alone tell IEM+phys at the end of the path (standard deviation "
+        "per parameter, kg, kg·m, kg·m², without the prior); the test payload's products of "
+        "inertia are of the order of 0.0001-0.0006 kg·m².", "", *_data_std(results), "",
         "## Beyond the paper: payload change", "",
         f"The new task path with the payload switched from `{setup['change']['from']}` to "
         f"`{setup['change']['to']}` at {setup['change']['at_s']:g} s (the controller is not "

@@ -111,6 +111,10 @@ def test_the_payload_carried_over_to_the_new_path(results):
         assert set(c["mae_groups"]) == GROUPS and set(c["convergence_s"]) == GROUPS
         assert c["coverage_2sigma"] is not None
     phys = cont["IEM+phys"]
+    for c in (phys, fresh["IEM+phys"]):  # what the data alone told, per parameter
+        assert set(c["data_std_end"]) == set(r["params"])
+    # the excitation path's equations carried over see the payload far better
+    assert phys["data_std_end"]["Ixz"] < fresh["IEM+phys"]["data_std_end"]["Ixz"]
     assert phys["changes"] == 0  # the restart of the stream is not taken for a new payload
     for g in GROUPS:
         assert phys["mae_groups"][g] < fresh["IEM+phys"]["mae_groups"][g]

@@ -363,6 +363,10 @@ def test_resume_keeps_the_payload_and_restarts_only_the_filter():
         model.observe_one(x, None)
     mean, cov = model.posterior()
     assert model.changes == 0 and model._m > m_before
+    # the data alone: the information form's own inverse, no prior
+    np.testing.assert_allclose(model.data_std, np.sqrt(np.diag(np.linalg.inv(model._info))),
+                               rtol=1e-6)
+    assert np.all(np.isinf(PhysicsInformedEnsemble(dynamics=FAKE).data_std))
     assert np.all(np.diag(cov) <= np.diag(cov_before) * (1 + 1e-9))
     assert np.all(np.abs(mean - PHI) < 4 * np.sqrt(np.diag(cov)))
     ls = RecursiveLeastSquares(dynamics=FAKE)
