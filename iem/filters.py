@@ -85,6 +85,8 @@ class StateFilter:
         self._lp = LowPass2(cutoff_hz, rate_hz, channels=7)
         self._prev: np.ndarray | None = None
         self._t: float | None = None
+        self.restarted = False
+        """True if the last sample started the filter afresh (the first, or after a gap)."""
 
     def reset(self) -> None:
         self._lp.reset()
@@ -101,6 +103,7 @@ class StateFilter:
                 else:
                     dt = gap
             self._t = t
+        self.restarted = self._prev is None
         dq_f = self._lp(dq)
         ddq = np.zeros(7) if self._prev is None else (dq_f - self._prev) / dt
         self._prev = dq_f

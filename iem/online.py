@@ -8,12 +8,12 @@ at its measured state); the flange position comes from forward kinematics of the
 for them) and predicts; the estimate is smoothed with :class:`iem.smoothing.ExponentialSmoother`
 (the raw estimate stays available). An estimate whose ``extra`` holds ``"reset": True`` (e.g. a
 detected payload change) restarts the smoothing at that estimate, so the old payload's
-estimates do not linger in the output. The first sample of a stream, and the first after a
-gap longer than the state filter's ``max_gap_s`` (or a time stamp that goes backwards),
-restart the signal filters: the state filter's and, through ``resume()``, the estimator's
-(its payload estimate stays: a silence is not a new payload). With ``learn=False`` an
-estimator that has ``observe_one(x, flange)`` (a payload state it tracks without training, as
-IEM+phys's physics) still gets every sample through it.
+estimates do not linger in the output. When the state filter starts afresh (the first sample
+of a stream, the first after a gap longer than its ``max_gap_s`` or a time stamp that goes
+backwards, or after :meth:`OnlineIdentifier.resume`), the estimator's own signal filters
+restart too, through its ``resume()`` (its payload estimate stays: a silence is not a new
+payload). With ``learn=False`` an estimator that has ``observe_one(x, flange)`` (a payload
+state it tracks without training, as IEM+phys's physics) still gets every sample through it.
 
 The kinematics and the tandem simulators are passed in as callables, so this module stays
 numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
@@ -64,34 +64,27 @@ class OnlineIdentifier:
         self.learn_times: list[float] = []
         self.predict_times: list[float] = []
         self.learnt: list[bool] = []
-        self._last_t: float | None = None
 
     def reset(self) -> None:
         """Start a new task: filters and smoother restart (the model is kept)."""
         self.resume()
         self.smoother.reset()
         self.raw = None
-        self._last_t = None
 
     def resume(self) -> None:
-        """The signal stream restarted: the state filter and the estimator's own signal
-        filters (``resume()``, if it has one) start again; the estimate is kept."""
+        """The signal stream restarted: from the next sample the state filter and the
+        estimator's own signal filters (``resume()``, if it has one) start again; the
+        estimate is kept."""
         self.state_filter.reset()
-        resume = getattr(self.estimator, "resume", None)
-        if resume is not None:
-            resume()
-
-    def _stream_restarts(self, t: float) -> bool:
-        """True at the first sample of a stream and after a gap (or time going back)."""
-        last, self._last_t = self._last_t, t
-        return last is None or not 0.0 < t - last <= self.state_filter.max_gap_s
 
     def step(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
         """Learn from and estimate at one cycle; returns the raw estimate and the smoothed phi."""
-        if self._stream_restarts(state.t):
-            self.resume()
         x = state.features()
         q, dq, ddq = self.state_filter(state.q, state.dq, state.t)
+        if self.state_filter.restarted:  # its gap rule decides for the estimator too
+            resume = getattr(self.estimator, "resume", None)
+            if resume is not None:
+                resume()
         flange = self.flange_position(state.q)
         if self.learn:
             tandem = self.tandem

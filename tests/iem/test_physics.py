@@ -341,7 +341,8 @@ def test_online_identifier_resumes_the_stream_at_its_start_and_after_gaps():
         online.step(JointState(t=t, q=np.zeros(7), dq=np.zeros(7), tau_J=np.zeros(7)))
         counts.append(len(toy.resumed))
     assert counts == [1, 1, 1, 1, 2, 2, 3]
-    online.reset()  # a new task restarts the stream too
+    online.reset()  # a new task restarts the stream too, from its next sample
+    online.step(JointState(t=0.002, q=np.zeros(7), dq=np.zeros(7), tau_J=np.zeros(7)))
     assert len(toy.resumed) == 4
 
 
