@@ -74,6 +74,8 @@ ensemble's estimates in the prior's noise term (see :meth:`PhysicsInformedEnsemb
 
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
+NIS_WINDOW = 50
+"""Equations over which :attr:`PhysicsInformedEnsemble.nis` is averaged (0.5 s by default)."""
 MAX_INFLATION = 1e6
 """Largest factor :func:`prior_inflation` puts on the prior covariance."""
 
@@ -204,12 +206,19 @@ class PhysicsInformedEnsemble:
         self._forget()
         self._holdoff = 0
         self.changes = 0
+        self._steps = 1
 
     def resume(self) -> None:
         """The signal stream restarted (a silence, a restart from a checkpoint, a new
         recording), the payload did not: the regression's filter starts again (its settling
         samples give no equations), the window of equations and the prior summary stay."""
         self._reg.reset()
+
+    def gap(self, steps: int) -> None:
+        """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
+        were lost, :mod:`iem.gaps`): the regression's filter bridges them, so no equation
+        straddles the gap as if it were one cycle."""
+        self._steps = int(steps)
 
     def _forget(self) -> None:
         self._info = np.zeros((10, 10))
@@ -223,6 +232,8 @@ class PhysicsInformedEnsemble:
         self._detector.reset()
         self._changed = False
         self._post = None
+        self._nis = np.zeros(NIS_WINDOW)
+        self._nis_n = 0
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -337,7 +348,8 @@ class PhysicsInformedEnsemble:
     def _observe(self, x: np.ndarray, flange, est) -> None:
         """:meth:`observe_one`, given the ensemble's estimate at ``x`` if already made."""
         self._changed = False
-        equation = self._reg(x, self._mean_for_noise)
+        steps, self._steps = self._steps, 1
+        equation = self._reg(x, self._mean_for_noise, steps)
         if equation is not None:
             if self._holdoff > 0:
                 pass
@@ -355,7 +367,7 @@ class PhysicsInformedEnsemble:
                 self._eta += YtRi @ r
                 self._post = None
         if self._holdoff > 0:
-            self._holdoff -= 1
+            self._holdoff = max(0, self._holdoff - steps)
         self._routed = None
         if self._ens.n_bags:
             if est is None:
@@ -379,10 +391,9 @@ class PhysicsInformedEnsemble:
 
     def _test(self, Y, r, R) -> bool:
         """Innovation test of one equation against the current posterior (whose prior the
-        data have already inflated if they contradict it); silent for the window's first
-        :data:`DETECT_AFTER` equations, so a wrong prior is not taken for a new payload."""
-        if self._m < DETECT_AFTER:
-            return False
+        data have already inflated if they contradict it): its whitened innovation goes into
+        :attr:`nis`, and, from the window's :data:`DETECT_AFTER`-th equation on, into the
+        change detector (before, a conflict is the prior's, not a new payload's)."""
         post = self._posterior()
         if post is None:
             return False
@@ -393,7 +404,19 @@ class PhysicsInformedEnsemble:
             chi2 = chi_square(nu, 0.5 * (S + S.T))
         except np.linalg.LinAlgError:
             return False
+        self._nis[self._nis_n % NIS_WINDOW] = chi2 / 7.0
+        self._nis_n += 1
+        if self._m < DETECT_AFTER:
+            return False
         return self._detector(chi2)
+
+    @property
+    def nis(self) -> float:
+        """The mean normalised innovation squared per degree of freedom of the last
+        :data:`NIS_WINDOW` equations (about 1 while the data agree with the model; NaN
+        before the first): the gate's check that the data fit the physics."""
+        n = min(self._nis_n, NIS_WINDOW)
+        return float(self._nis[:n].mean()) if n else math.nan
 
     def _prior(self, x=None, flange=None):
         """``(mu_p, C_p)``: the summary since the last change, or the ensemble at ``x``."""
@@ -476,6 +499,8 @@ class PhysicsInformedEnsemble:
             phi = post[3] = project(mean, precision, eps=self.eps)
             post.append(np.sqrt(np.maximum(np.diag(cov), 0.0)))
         extra = {"change": True, "reset": True} if self._changed else {}
+        if self._nis_n:
+            extra["nis"] = self.nis
         return PayloadEstimate(t=t, phi=phi.copy(), std=post[5].copy(), bag=bag,
                                learning=learning, extra=extra)
 
