@@ -22,6 +22,8 @@ BENCHES: Table = {
     "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
     "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
     "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
+    "faults": ("deploy.bench_faults",
+               "the plug-in on a lossy, late, corrupt stream with a silence, against a clean run"),
 }
 
 COMMANDS: Table = {

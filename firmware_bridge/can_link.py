@@ -418,9 +418,11 @@ class CanControllerPort:
 
     def _send(self, codec, data: bytes) -> None:
         if self._silent:
-            self.faults.silenced += 1
+            self.faults.silence(codec, self._cycle)
             return
-        if self.faults is None:
+        if self.faults is None or not getattr(self.bus, "is_open", True):
+            # no faults on frames that go nowhere (an slcan adapter whose channel is closed
+            # drops them anyway), so the injected counts are what a reader can see
             self._send_now(codec, data)
             return
         for out in self.faults.apply(codec, data, self._cycle):

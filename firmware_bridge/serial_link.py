@@ -436,7 +436,7 @@ class SerialControllerPort:
 
     def _send(self, body: bytes, key: str) -> None:
         if self._silent:
-            self.faults.silenced += 1
+            self.faults.silence(key, self._cycle)
             return
         raw = body + zlib.crc32(body).to_bytes(4, "little")
         if self.faults is None:
