@@ -1,19 +1,20 @@
 """Offline commissioning identification: a payload from a loaded and a bare recording.
 
 ``identify(loaded, bare)`` (or ``identify(loaded, arm=ARM)``) takes recorded joint states (the
-arrays ``t, q, dq, tau``, 1 kHz or any rate, as :func:`as_recording` accepts them) and
-returns an :class:`Identification`: the payload's ten parameters, physically consistent, with
-one standard deviation each, and which of them the data determine and which the prior does.
+arrays ``t, q, dq, tau`` at 1 kHz or any rate, in any form :func:`iem.recording.as_recording`
+accepts) and returns an :class:`Identification`: the payload's ten parameters, physically
+consistent, with their covariance, and which of them the data determine and which the prior.
 
 Method (offline, so the filters may be non-causal):
 
-1. **Signals.** Each recording is put on a uniform time grid at its own median rate (linear
-   interpolation over the time stamps it has, so lost cycles do not shift anything), ``q``,
-   ``dq`` and ``tau`` go through a zero-phase Butterworth low-pass (``scipy.signal.sosfiltfilt``,
-   order 4, ``cutoff_hz`` = 10 Hz by default: no lag, so every signal lines up with every
-   other), ``ddq`` is the central difference of the filtered ``dq``, and the result is taken
-   every ``1/rate_hz`` s (100 Hz; the low-pass is the anti-alias filter), ``edge_s`` trimmed
-   at both ends.
+1. **Signals** (:func:`iem.recording.filtered`). Each recording goes on a uniform time grid at
+   its own median rate (interpolating over the time stamps it has, so lost cycles shift
+   nothing); spikes (single corrupt samples, more than 6 robust standard deviations from a
+   local quadratic fit) are replaced by that fit; ``q``, ``dq`` and ``tau`` go through a
+   zero-phase Butterworth low-pass (order 4, ``cutoff_hz`` = 10 Hz: no lag, so every signal
+   lines up with every other); ``ddq`` is the central difference of the filtered ``dq``; the
+   result is taken every ``1/rate_hz`` s (100 Hz; the low-pass is the anti-alias filter),
+   ``edge_s`` trimmed at both ends.
 2. **Alignment.** The bare recording is moved in time onto the loaded one by the peak of the
    cross-correlation of their filtered joint velocities (sub-sample, parabolic), and sampled
    at the loaded recording's instants. The two must be the same motion: on the overlap (at
@@ -25,11 +26,16 @@ Method (offline, so the filters may be non-causal):
    cancels; the small difference between the two actual motions (the loaded arm tracks a few
    mrad differently) is accounted for by the model instead of being read as payload. With an
    arm file instead of a bare recording, ``r = tau_L - tau_arm(x_L)`` for any motion.
-4. **Robust weighted least squares.** ``r = Y(x_L) phi + e`` with ``Y`` the flange body
-   regressor of :class:`sim.robot.PandaModel`. Rows are weighted by the inverse variance of
-   their joint's residual (a robust scale, 1.4826 MAD) times Huber weights (``huber`` = 1.345
-   scale units, iteratively reweighted), so that outliers (a torque spike, a corrupt cycle)
-   pull with bounded force.
+4. **Robust weighted least squares.** ``r = Y(x_L) phi + c lead + e`` with ``Y`` the flange
+   body regressor of :class:`sim.robot.PandaModel`, and ``c`` the time derivative of the
+   torques that enter ``r``: a torque sample may belong to a slightly later instant than the
+   joint state it comes with (the project's plant reports the torque applied over the
+   following 1 ms cycle, half a cycle ahead; a real sensor has its own delay), so that lead is
+   estimated with the payload (prior 0 ± 2 ms) and marginalised out; it is reported as
+   ``tau_lead_s``. Rows are weighted by the inverse variance of their joint's residual (a
+   robust scale, 1.4826 MAD) times Huber weights (``huber`` = 1.345 scale units, iteratively
+   reweighted), so that a disturbance longer than a spike (a touch, a cable pulling) pulls
+   with bounded force.
 5. **Prior.** A stated weak Gaussian prior: zero mean, standard deviations of the Panda's rated
    payload (:data:`iem.least_squares.DEFAULT_PRIOR_STD`: 3 kg, 0.3 kg·m, 0.01 kg·m²). On an
    exciting motion the data determine every parameter thousands of times better and the prior
@@ -39,7 +45,8 @@ Method (offline, so the filters may be non-causal):
    the pseudo-inertia LMI ``J(phi) >= eps E`` is exactly the weighted projection
    :func:`iem.consistency.project` (a log-barrier Newton method, checked against SLSQP in its
    tests): no separate convex-programming dependency.
-7. **Uncertainty.** ``std = sqrt(diag(H^-1))``, with the residual variance measured on the
+7. **Uncertainty.** ``cov = H^-1`` (the lead marginalised out), ``std`` its diagonal's root,
+   with the residual variance measured on the
    data and inflated by the residuals' own autocorrelation (filtered noise and model error are
    not white at 100 Hz: ``1 + 2 sum rho_k``). A parameter is *determined by the data* if its
    posterior std is below ``DATA_SHARE`` (a quarter) of its prior std, else *by the prior*.
@@ -87,7 +94,11 @@ import numpy as np
 from .consistency import is_consistent, project, pseudo_inertia
 from .errors import InvalidInputError
 from .least_squares import DEFAULT_PRIOR_STD
+from .recording import Recording, Signals, as_recording, filtered, lag, sample
 from .types import GROUPS, N_JOINTS, PARAMS
+
+__all__ = ["BareLoadError", "ExcitationError", "Identification", "IdentifyError",
+           "MismatchedLogsError", "Recording", "as_recording", "identify"]
 
 CUTOFF_HZ = 10.0
 """Default zero-phase low-pass cutoff, Hz."""
@@ -115,10 +126,6 @@ BARE_MASS = 1.0
 """A bare recording fitting a flange body of this mass (kg) or more is refused ..."""
 BARE_EXPLAINED = 0.95
 """... if that body explains at least this share of its residual power."""
-SPIKE_WINDOW = 11
-"""Window of the local quadratic fit that spikes are measured against, samples."""
-SPIKE_SIGMAS = 6.0
-"""Deviation from the local fit, in robust standard deviations, that marks a spike."""
 LEAD_PRIOR_S = 0.002
 """Prior std of the torque's lead over the joint state it comes with, s (zero mean)."""
 IRLS_STEPS = 8
@@ -139,73 +146,6 @@ class ExcitationError(IdentifyError):
 
 class BareLoadError(IdentifyError):
     """The "bare" recording carries a load."""
-
-
-# -- inputs ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Recording:
-    """Recorded joint states as arrays.
-
-    Attributes:
-        t: controller time stamps, s (N), increasing.
-        q: joint positions, rad (N, 7).
-        dq: joint velocities, rad/s (N, 7).
-        tau: measured link-side joint torques, N·m (N, 7).
-    """
-
-    t: np.ndarray
-    q: np.ndarray
-    dq: np.ndarray
-    tau: np.ndarray
-
-    def __post_init__(self) -> None:
-        t = np.asarray(self.t, dtype=float).reshape(-1)
-        arrays = {}
-        for name in ("q", "dq", "tau"):
-            a = np.asarray(getattr(self, name), dtype=float)
-            if a.ndim != 2 or a.shape != (t.shape[0], N_JOINTS):
-                raise InvalidInputError(f"recording: {name} must have shape ({t.shape[0]}, "
-                                        f"{N_JOINTS}) to match t, got {a.shape}")
-            arrays[name] = a
-        if t.shape[0] < 2:
-            raise InvalidInputError(f"recording: needs at least 2 samples, got {t.shape[0]}")
-        if not (np.all(np.isfinite(t)) and all(np.all(np.isfinite(a)) for a in arrays.values())):
-            raise InvalidInputError("recording: t, q, dq and tau must be finite")
-        if np.any(np.diff(t) <= 0.0):
-            k = int(np.flatnonzero(np.diff(t) <= 0.0)[0])
-            raise InvalidInputError(f"recording: t must increase strictly; sample {k + 1} "
-                                    f"({t[k + 1]!r} s) does not follow {t[k]!r} s")
-        object.__setattr__(self, "t", t)
-        for name, a in arrays.items():
-            object.__setattr__(self, name, a)
-
-    def __len__(self) -> int:
-        return self.t.shape[0]
-
-    @property
-    def duration(self) -> float:
-        return float(self.t[-1] - self.t[0])
-
-    @classmethod
-    def from_states(cls, states) -> Recording:
-        """From :class:`iem.types.JointState` values (e.g. a replay source's)."""
-        states = list(states)
-        if not states:
-            raise InvalidInputError("recording: no joint states")
-        return cls(t=np.array([s.t for s in states]), q=np.array([s.q for s in states]),
-                   dq=np.array([s.dq for s in states]), tau=np.array([s.tau_J for s in states]))
-
-
-def as_recording(x) -> Recording:
-    """A :class:`Recording` from one, from anything with ``t, q, dq, tau`` attributes (a
-    :class:`sim.plant.Rollout`), from a tuple ``(t, q, dq, tau)`` or from joint states."""
-    if isinstance(x, Recording):
-        return x
-    if all(hasattr(x, a) for a in ("t", "q", "dq", "tau")):
-        return Recording(x.t, x.q, x.dq, x.tau)
-    if isinstance(x, tuple) and len(x) == 4:
-        return Recording(*x)
-    return Recording.from_states(x)
 
 
 # -- result ------------------------------------------------------------------------------------
@@ -264,137 +204,30 @@ class Identification:
         }
 
 
+
+
 # -- the method --------------------------------------------------------------------------------
-@dataclass
-class _Signals:
-    """A recording filtered and sampled: t (n), q, dq, ddq, tau (n, 7)."""
-
-    t: np.ndarray
-    q: np.ndarray
-    dq: np.ndarray
-    ddq: np.ndarray
-    tau: np.ndarray
-    dtau: np.ndarray
-    rate: float  # the uniform grid's rate before decimation, Hz
-    fine_t: np.ndarray  # the uniform grid and its filtered signals (for alignment)
-    fine: dict
-    spikes: int  # samples replaced as spikes
-
-
-def _despike(x: np.ndarray) -> tuple[np.ndarray, int]:
-    """Spikes out: samples further than ``SPIKE_SIGMAS`` robust standard deviations (1.4826
-    MAD, per column) from a local quadratic fit (Savitzky-Golay, ``SPIKE_WINDOW`` samples) are
-    replaced by that fit. Two passes: the first fit is pulled toward a spike, so its neighbours
-    are only candidates; the second fit, over the candidates interpolated out, decides."""
-    from scipy.signal import savgol_filter
-
-    def deviation(y):
-        fit = savgol_filter(y, SPIKE_WINDOW, 2, axis=0, mode="interp")
-        return y - fit, fit
-
-    dev, _ = deviation(x)
-    scale = np.maximum(1.4826 * np.median(np.abs(dev), axis=0), 1e-12)
-    candidate = np.abs(dev) > SPIKE_SIGMAS * scale
-    if not candidate.any():
-        return x, 0
-    idx = np.arange(x.shape[0])
-    clean = x.copy()
-    for j in np.flatnonzero(candidate.any(axis=0)):
-        good = ~candidate[:, j]
-        clean[:, j] = np.interp(idx, idx[good], x[good, j])
-    _, fit = deviation(clean)
-    bad = np.abs(x - fit) > SPIKE_SIGMAS * scale
-    return np.where(bad, fit, x), int(bad.sum())
-
-
-def _filtered(rec: Recording, cutoff_hz: float, rate_hz: float, edge_s: float,
-              what: str) -> _Signals:
-    from scipy.signal import butter, sosfiltfilt
-
-    dt = float(np.median(np.diff(rec.t)))
-    rate = 1.0 / dt
-    if cutoff_hz >= 0.45 * rate or rate_hz > rate:
-        raise InvalidInputError(f"{what}: recorded at {rate:.0f} Hz; the cutoff "
-                                f"({cutoff_hz:g} Hz) must be below 0.45 of it and the "
-                                f"equation rate ({rate_hz:g} Hz) at most that")
-    n = math.floor((rec.t[-1] - rec.t[0]) / dt) + 1
-    grid = rec.t[0] + dt * np.arange(n)
-    sos = butter(4, cutoff_hz / (rate / 2.0), output="sos")
-    pad = min(n - 1, int(3 * rate / cutoff_hz))
-    if n < 4 * int(rate / cutoff_hz):
-        raise InvalidInputError(f"{what}: {rec.duration:.3f} s of recording is too short to "
-                                f"filter at {cutoff_hz:g} Hz")
-    fine = {}
-    spikes = 0
-    for name in ("q", "dq", "tau"):
-        src = getattr(rec, name)
-        on_grid = np.column_stack([np.interp(grid, rec.t, src[:, j]) for j in range(N_JOINTS)])
-        on_grid, found = _despike(on_grid)
-        spikes += found
-        fine[name] = sosfiltfilt(sos, on_grid, axis=0, padlen=pad)
-    fine["ddq"] = np.gradient(fine["dq"], dt, axis=0)
-    fine["dtau"] = np.gradient(fine["tau"], dt, axis=0)
-    stride = max(1, round(rate / rate_hz))
-    edge = round(edge_s * rate)
-    pick = np.arange(edge, n - edge, stride)
-    if pick.size < 2:
-        raise InvalidInputError(f"{what}: {rec.duration:.3f} s of recording leaves no samples "
-                                f"after trimming {edge_s:g} s at both ends")
-    return _Signals(spikes=spikes, t=grid[pick], q=fine["q"][pick], dq=fine["dq"][pick],
-                    ddq=fine["ddq"][pick], tau=fine["tau"][pick], dtau=fine["dtau"][pick],
-                    rate=rate,
-                    fine_t=grid, fine=fine)
-
-
-def _lag(loaded: _Signals, bare: _Signals) -> float:
-    """Time to add to the bare recording's clock to put it on the loaded one's, s: the peak
-    of the cross-correlation of the filtered joint velocities (both on the loaded grid)."""
-    dt = 1.0 / loaded.rate
-    t_b = bare.fine_t
-    n_b = math.floor((t_b[-1] - t_b[0]) / dt) + 1
-    grid_b = t_b[0] + dt * np.arange(n_b)
-    a = loaded.fine["dq"]
-    b = np.column_stack([np.interp(grid_b, t_b, bare.fine["dq"][:, j])
-                         for j in range(N_JOINTS)])
-    size = 1 << math.ceil(math.log2(a.shape[0] + b.shape[0]))
-    fa = np.fft.rfft(a - a.mean(axis=0), size, axis=0)
-    fb = np.fft.rfft(b - b.mean(axis=0), size, axis=0)
-    xc = np.fft.irfft((fa * np.conj(fb)).sum(axis=1), size)
-    k = int(np.argmax(xc))
-    y0, y1, y2 = xc[k - 1], xc[k], xc[(k + 1) % size]
-    den = y0 - 2.0 * y1 + y2
-    frac = 0.5 * (y0 - y2) / den if den < 0.0 else 0.0
-    shift = (k if k <= size // 2 else k - size) + frac  # a[i] ~ b[i - shift]
-    return loaded.fine_t[0] + shift * dt - grid_b[0]
-
-
-def _sample(sig: _Signals, times: np.ndarray) -> dict:
-    return {name: np.column_stack([np.interp(times, sig.fine_t, sig.fine[name][:, j])
-                                   for j in range(N_JOINTS)])
-            for name in ("q", "dq", "ddq", "tau", "dtau")}
-
-
-def _align(loaded: _Signals, bare: _Signals, path_tol: float, min_overlap_s: float):
-    lag = _lag(loaded, bare)
-    t_bare = bare.fine_t + lag
+def _align(loaded: Signals, bare: Signals, path_tol: float, min_overlap_s: float):
+    shift = lag(loaded, bare)
+    t_bare = bare.fine_t + shift
     keep = (loaded.t >= t_bare[0]) & (loaded.t <= t_bare[-1])
     overlap = float(loaded.t[keep][-1] - loaded.t[keep][0]) if keep.sum() > 1 else 0.0
     if overlap < min_overlap_s:
         raise MismatchedLogsError(
             f"the loaded and bare recordings share {overlap:.2f} s of motion at their best "
-            f"alignment (bare shifted by {lag:+.3f} s); they must be recordings of the same "
+            f"alignment (bare shifted by {shift:+.3f} s); they must be recordings of the same "
             f"motion overlapping at least {min_overlap_s:g} s")
-    at = _sample(bare, loaded.t[keep] - lag)
+    at = sample(bare, loaded.t[keep] - shift)
     diff = np.abs(loaded.q[keep] - at["q"])
     worst = np.unravel_index(int(np.argmax(diff)), diff.shape)
     if diff[worst] > path_tol:
         raise MismatchedLogsError(
             f"the loaded and bare recordings are not the same motion: joint {worst[1] + 1} "
             f"differs by {diff[worst]:.4f} rad at t = {loaded.t[keep][worst[0]]:.2f} s of the "
-            f"loaded recording (bare shifted by {lag:+.3f} s, RMS difference "
+            f"loaded recording (bare shifted by {shift:+.3f} s, RMS difference "
             f"{np.sqrt(np.mean(diff**2)):.4f} rad); valid is the same path within "
             f"{path_tol:g} rad, or an arm file (--arm) for a different motion")
-    return keep, at, {"lag_s": lag, "overlap_s": overlap, "path_diff_max_rad": float(diff.max()),
+    return keep, at, {"lag_s": shift, "overlap_s": overlap, "path_diff_max_rad": float(diff.max()),
                       "path_diff_rms_rad": float(np.sqrt(np.mean(diff**2)))}
 
 
@@ -607,11 +440,11 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
         model = PandaModel()
     arm_model = None if arm is None else _load_arm(arm)
 
-    L = _filtered(as_recording(loaded), cutoff_hz, rate_hz, edge_s, "loaded recording")
+    L = filtered(as_recording(loaded), cutoff_hz, rate_hz, edge_s, "loaded recording")
     report: dict = {"cutoff_hz": cutoff_hz, "rate_hz": rate_hz,
                     "recorded_rate_hz": L.rate, "spikes_replaced": {"loaded": L.spikes}}
     if bare is not None:
-        B = _filtered(as_recording(bare), cutoff_hz, rate_hz, edge_s, "bare recording")
+        B = filtered(as_recording(bare), cutoff_hz, rate_hz, edge_s, "bare recording")
         report["spikes_replaced"]["bare"] = B.spikes
         keep, at, info = _align(L, B, path_tol, min_overlap_s)
         report.update(info)

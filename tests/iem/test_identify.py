@@ -310,3 +310,16 @@ def test_bad_arguments_are_refused_with_what_is_valid(short):
         Recording(rec.t[::-1], rec.q, rec.dq, rec.tau)
     with pytest.raises(InvalidInputError, match="too short"):
         identify(Recording(rec.t[:50], rec.q[:50], rec.dq[:50], rec.tau[:50]), rec)
+
+
+def test_importing_the_module_loads_neither_scipy_nor_pinocchio():
+    """The ``iem`` core stays numpy-only at import; the heavy parts load when identify runs."""
+    import subprocess
+    import sys
+
+    code = ("import sys, iem.identify; "
+            "print(sorted(m for m in ('scipy', 'pinocchio', 'sim', 'mujoco') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=60)
+    assert out.stdout.strip() == "[]"
