@@ -31,6 +31,7 @@ COMMANDS: Table = {
     "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
     "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
+    "identify": ("deploy.identify", "identify a payload offline from a loaded and a bare log"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
     "sim-controller": ("firmware_bridge.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),
