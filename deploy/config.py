@@ -109,6 +109,10 @@ RANGES = {
     ("gate", "ack_timeout_s"): (0.01, 60.0),
     ("gate", "ack_retry_s"): (0.1, 3600.0),
     ("gate", "decision_period_s"): (0.001, 10.0),
+    ("gate", "max_mass_2sigma_kg"): (0.0001, 3.0),
+    ("gate", "max_nis"): (1.0, 1e6),
+    ("gate", "refusal_retry_s"): (0.1, 3600.0),
+    ("gate", "refusal_retry_max_s"): (0.1, 3600.0),
 }
 
 
@@ -164,6 +168,12 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                   for k, v in table.items()}
         built[section] = cls(**{**{f.name: getattr(defaults, f.name) for f in fields(cls)},
                                 **values})
+    gate = built["gate"]
+    if gate.refusal_retry_max_s < gate.refusal_retry_s:
+        raise ConfigError(f"{where}: [gate] refusal_retry_max_s = {gate.refusal_retry_max_s!r} "
+                          f"is below refusal_retry_s = {gate.refusal_retry_s!r}; valid is "
+                          "refusal_retry_max_s >= refusal_retry_s (the longest wait between "
+                          "retries after refusals)")
     link = built["link"]
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
