@@ -114,6 +114,9 @@ RANGES = {
     ("gate", "refusal_retry_s"): (0.1, 3600.0),
     ("gate", "refusal_retry_max_s"): (0.1, 3600.0),
 }
+INT_RANGES = {
+    ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
+}
 
 
 def _check(section: str, key: str, value, default, where: str):
@@ -124,8 +127,12 @@ def _check(section: str, key: str, value, default, where: str):
             raise ConfigError(f"{name} = {value!r} must be true or false")
         return value
     if expected is int:
+        lo, hi = INT_RANGES.get((section, key), (-(2**63), 2**63 - 1))
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{name} = {value!r} must be an integer")
+            raise ConfigError(f"{name} = {value!r} must be an integer from {lo} to {hi}")
+        if not lo <= value <= hi:
+            raise ConfigError(f"{name} = {value!r} is out of range; valid is an integer "
+                              f"from {lo} to {hi}")
         return value
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, int | float) \
@@ -189,6 +196,11 @@ def load_config(path) -> CellConfig:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration: "
                           f"{exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        line = exc.object.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} on "
+                          f"line {line}, offset {exc.start}); a cell.toml must be UTF-8, as "
+                          "TOML requires") from exc
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
