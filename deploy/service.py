@@ -31,7 +31,7 @@ import numpy as np
 
 from iem.filters import StateFilter
 from iem.online import OnlineIdentifier
-from iem.persistence import load_model, save_model
+from iem.persistence import load_model, remove_stale_temporaries, save_model
 from iem.smoothing import ExponentialSmoother
 
 from .config import CellConfig
@@ -81,6 +81,9 @@ def load_or_train_model(config: CellConfig):
     """The model of the configuration: its file, or a new one trained on the excitation path."""
     mc = config.model
     path = FsPath(mc.path)
+    for stale in remove_stale_temporaries(path):  # left by a save that was killed
+        log.info("removed %s, the temporary file of an interrupted save", stale,
+                 extra={"event": "stale_temporary_removed", "path": str(stale)})
     rate = link_rate(config)
     if path.exists():
         model = load_model(path)
