@@ -70,6 +70,7 @@ class LogConfig:
     format: str = "json"
     status_line: str = "auto"
     status_period_s: float = 0.25
+    status_plain_period_s: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,7 @@ RANGES = {
     ("estimate", "filter_cutoff_hz"): (1.0, 499.0),
     ("estimate", "max_lag_s"): (0.0, 60.0),
     ("log", "status_period_s"): (0.05, 60.0),
+    ("log", "status_plain_period_s"): (0.0, 3600.0),
     ("gate", "rated_mass_kg"): (0.01, 3.0),
     ("gate", "max_com_radius_m"): (0.001, 1.0),
     ("gate", "stable_window_s"): (0.0, 60.0),

@@ -58,7 +58,7 @@ class OneLoad:
 
 
 def run_cell(tmp_path, model, *, seconds: float, gate: dict | None = None, prepare=None,
-             until=None):
+             until=None, status=None):
     """The simulated controller (default test payload, new task path) and the service with
     ``model`` on one virtual bus; ``prepare(service)`` runs once the service is open. Stops
     after ``seconds`` of controller time or when ``until(controller, service)`` is true."""
@@ -69,7 +69,8 @@ def run_cell(tmp_path, model, *, seconds: float, gate: dict | None = None, prepa
                       {"kind": "virtual", "channel": virtual_channel("writes"), "profile": "fd"},
                       gate=gate or {})
     with simulated_cell(config_from_dict(doc, where="test"), path=new_task_path(),
-                        payload=TRUTH, once=True, seed=1, model=model) as (controller, service):
+                        payload=TRUTH, once=True, seed=1, model=model,
+                        status=status) as (controller, service):
         if prepare is not None:
             prepare(service)
         controller.start()
@@ -176,3 +177,32 @@ def test_refused_loads_are_retried_until_the_controller_accepts(tmp_path, caplog
     np.testing.assert_allclose(load.com, TRUTH.com, atol=1e-5)
     assert service.gate.last_sent is not None
     assert abs(service.gate.last_sent.mass - TRUTH.mass) < 1e-9
+
+
+def test_off_a_terminal_the_service_writes_plain_status_lines_between_whole_log_lines(
+        tmp_path):
+    """``iem run ... | tee log``: no carriage return, status lines at their period, every log
+    record on a line of its own."""
+    import io
+    import json
+
+    from deploy.logs import setup_logging
+    from deploy.status import StatusLine
+
+    out = io.StringIO()
+    root = logging.getLogger("iem")
+    saved = root.handlers[:], root.level, root.propagate
+    setup_logging("info", "json", stream=out)
+    try:
+        summary, _, _ = run_cell(tmp_path, OneLoad(TRUTH), seconds=2.5, gate=FAST,
+                                 status=StatusLine(True, out, plain_period_s=0.5))
+    finally:
+        root.handlers[:], root.level, root.propagate = saved
+    text = out.getvalue()
+    assert "\r" not in text
+    lines = text.splitlines()
+    status = [x for x in lines if x.startswith("status: ")]
+    records = [json.loads(x) for x in lines if not x.startswith("status: ")]  # all JSON
+    assert len(status) >= 2  # every 0.5 s over a run of at least 2.5 s (real time)
+    assert all(" kg " in x and "est/s" in x for x in status)
+    assert any(r.get("event") == "load_sent" for r in records) and summary["writes"]["sent"]
