@@ -5,13 +5,14 @@ A command is a module with ``configure(parser)`` (add its arguments) and ``run(a
 (:class:`iem.errors.IemError`) end the command with ``iem: error: <message>`` on stderr and
 an exit status that tells a service manager whether to try again:
 
-- :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``): bad input that a restart cannot fix,
-  every :class:`iem.errors.InvalidInputError`: a bad ``cell.toml`` (unreadable, not UTF-8,
-  not TOML, an unknown key, a value out of range), a bad payload, path or log file, an
-  unknown link kind or a link's missing extra, a model file made for another link rate;
-  ``deploy/iem.service`` has ``RestartPreventExitStatus=78``;
-- 2: any other error of the project, e.g. a link failure (an adapter unplugged, a bus
-  error) or a model file that cannot be read: systemd restarts the service.
+- :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``): a configuration error, which a
+  restart cannot fix (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8,
+  not TOML, an unknown key, a value out of range, a model file made for another link rate),
+  a bad payload or path file, an unknown link kind, profile or option, a link's missing
+  extra; ``deploy/iem.service`` has ``RestartPreventExitStatus=78``;
+- :data:`EX_ERROR` (2): any other error of the project, e.g. a link failure (an adapter
+  unplugged, a bus error), a model file or traffic log that cannot be read: systemd
+  restarts the service.
 
 Anything else is a bug and keeps its traceback.
 """
@@ -22,7 +23,7 @@ import argparse
 import importlib
 import sys
 
-from iem.errors import IemError, InvalidInputError
+from iem.errors import IemError
 
 EX_CONFIG = 78
 """Exit status of a configuration error (sysexits.h): the service manager does not retry."""
@@ -83,9 +84,22 @@ def dispatch(prog: str, table: Table, argv: list[str], description: str | None =
     return int(module.run(args) or 0)
 
 
+def is_config_error(exc: BaseException) -> bool:
+    """True for an error in what the operator configured: ``cell.toml``
+    (:class:`deploy.config.ConfigError`), a payload file (:class:`iem.errors.PayloadError`),
+    a path file (:class:`iem.errors.PathError`), a link kind, profile or option
+    (:class:`firmware_bridge.errors.BridgeConfigError`)."""
+    from firmware_bridge.errors import BridgeConfigError
+    from iem.errors import PathError, PayloadError
+
+    from .config import ConfigError
+
+    return isinstance(exc, ConfigError | PayloadError | PathError | BridgeConfigError)
+
+
 def exit_status(exc: IemError) -> int:
     """:data:`EX_CONFIG` for a configuration error, :data:`EX_ERROR` for any other."""
-    return EX_CONFIG if isinstance(exc, InvalidInputError) else EX_ERROR
+    return EX_CONFIG if is_config_error(exc) else EX_ERROR
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -89,9 +89,9 @@ def load_or_train_model(config: CellConfig):
         model = load_model(path)
         made_for = getattr(model, "rate_hz", rate)
         if made_for != rate:
-            from iem.errors import InvalidInputError
+            from .config import ConfigError
 
-            raise InvalidInputError(
+            raise ConfigError(
                 f"model file {path} was made for {made_for:g} joint states per second, the "
                 f"[link] profile {config.link.profile!r} delivers {rate:g}; make one for this "
                 f"link with 'iem train --out {path} --rate {rate:g}'")

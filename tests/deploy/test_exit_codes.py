@@ -105,3 +105,29 @@ def test_a_link_failure_keeps_status_2(tmp_path, capsys, model_file):
     assert status == 2
     last = err.splitlines()[-1]  # after the JSON logs of the start
     assert last.startswith("iem: error: cannot open slcan bus") and "ttyACM9" in last
+
+
+def test_a_bad_path_file_is_a_config_error(tmp_path, capsys):
+    path = tmp_path / "path.csv"
+    path.write_bytes(b"t,q1,q2,q3,q4,q5,q6,q7\n0,\xff\n")
+    status, err = run_iem(capsys, "sim-controller", "--interface", "virtual", "--path",
+                          str(path))
+    assert status == EX_CONFIG and err.startswith(f"iem: error: {path}: path file is not UTF-8")
+
+
+def test_which_errors_are_configuration_errors():
+    from deploy.cli import EX_ERROR, exit_status
+    from deploy.config import ConfigError
+    from firmware_bridge.errors import (
+        BridgeConfigError,
+        EncodeError,
+        LinkError,
+        LogFileError,
+    )
+    from iem.errors import ModelFileError, PathError, PayloadError
+
+    for exc in (ConfigError("x"), PayloadError("x"), PathError("x"), BridgeConfigError("x")):
+        assert exit_status(exc) == EX_CONFIG, exc
+    # a restart may help (the adapter is back), or it is a data file, not the configuration
+    for exc in (LinkError("x"), ModelFileError("x"), LogFileError("x"), EncodeError("x")):
+        assert exit_status(exc) == EX_ERROR == 2, exc
