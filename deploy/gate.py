@@ -32,10 +32,11 @@ controller. In order, an estimate is refused if:
 
 Otherwise the decision is ``send``. A model without a standard deviation or ``nis`` is not
 held back by 9 and 10. Checks 1-5, 9 and 10 look at one estimate alone and live in
-:mod:`deploy.gate_checks`; this module keeps what depends on time and on the controller. Every decision is counted by reason; it is logged when its outcome or
-reason differs from the previous decision's (a steady state logs once), with the estimate
-that caused it. Refusals by the controller and loads the link could not encode are counted
-(``refusals``, ``send_errors``) and logged each time.
+:mod:`deploy.gate_checks`; this module keeps what depends on time and on the controller.
+Every decision is counted by reason; it is logged when its outcome or reason differs from
+the previous decision's (a steady state logs once), with the estimate that caused it.
+Refusals by the controller and loads the link could not encode are counted (``refusals``,
+``send_errors``) and logged each time.
 """
 
 from __future__ import annotations

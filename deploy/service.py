@@ -3,15 +3,21 @@
 One loop, one thread: the link's ``read`` gives the next controller cycle;
 :class:`iem.online.OnlineIdentifier` learns from it (new bags are trained with the tandem
 simulators of the configured payload family) and estimates; the smoothed estimate goes to
-the :class:`deploy.gate.SafetyGate`, and a load it lets through goes to the link's ``send``
-(libfranka ``setLoad`` semantics). Acknowledgements come back through the link.
+the :class:`deploy.gate.SafetyGate` (with the raw estimate, for its uncertainty, and the
+link's wire range check, :func:`wire_check_of`), and a load it lets through goes to the
+link's ``send`` (libfranka ``setLoad`` semantics); a load the link still cannot encode
+(``EncodeError``) is counted and logged, never fatal. Acknowledgements come back through the
+link: an applied one to the gate's ``acknowledged``, a refusal (``applied=False``, with the
+controller's ``error`` text where the link has one) to its ``refused``, which retries later.
 
-Around the loop: the model is loaded at start (or trained if there is none and
-``train_if_missing``), saved every ``checkpoint_period_s`` and at exit (atomically: a failed
-save leaves the last good file; the periodic save runs in a background thread on a copy);
-a silent controller stops the writes until it returns; link failures end the run with the
-error (under systemd, the unit restarts it). ``Service.stop()`` (SIGTERM, SIGINT) ends the
-loop after the current cycle.
+Around the loop: temporary files of an interrupted save are removed at start
+(:func:`iem.persistence.remove_stale_temporaries`); the model is loaded (or trained if there
+is none and ``train_if_missing``), saved every ``checkpoint_period_s`` and at exit
+(atomically: a failed save leaves the last good file; the periodic save runs in a background
+thread on a copy); a silent controller stops the writes until it returns; link failures end
+the run with the error (exit status 2: under systemd, the unit restarts it; configuration
+errors exit 78 and are not restarted, see :mod:`deploy.cli`). ``Service.stop()`` (SIGTERM,
+SIGINT) ends the loop after the current cycle.
 """
 
 from __future__ import annotations
