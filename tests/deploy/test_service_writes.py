@@ -206,3 +206,23 @@ def test_off_a_terminal_the_service_writes_plain_status_lines_between_whole_log_
     assert len(status) >= 2  # every 0.5 s over a run of at least 2.5 s (real time)
     assert all(" kg " in x and "est/s" in x for x in status)
     assert any(r.get("event") == "load_sent" for r in records) and summary["writes"]["sent"]
+
+
+@pytest.mark.parametrize("profile", ["fd", "classic"])
+def test_the_wire_check_comes_from_a_can_link_and_a_serial_link_has_none(profile):
+    from deploy.inprocess import virtual_channel
+    from deploy.service import wire_check_of
+    from firmware_bridge.links import open_link
+
+    can = open_link("virtual", virtual_channel("wire"), profile=profile)
+    try:
+        check = wire_check_of(can)
+        assert check is not None and check(TRUTH) is None
+        assert "signal Ixx" in check(BAR)
+    finally:
+        can.close()
+    serial = open_link("serial", "loop://")  # msgpack floats: no ranges to check
+    try:
+        assert wire_check_of(serial) is None
+    finally:
+        serial.close()
