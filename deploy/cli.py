@@ -2,8 +2,19 @@
 
 A command is a module with ``configure(parser)`` (add its arguments) and ``run(args) -> int``
 (exit status). A group (``iem bench ...``) is a nested table. Errors of the project
-(:class:`iem.errors.IemError`) end the command with their message and exit status 2;
-anything else is a bug and keeps its traceback.
+(:class:`iem.errors.IemError`) end the command with ``iem: error: <message>`` on stderr and
+an exit status that tells a service manager whether to try again:
+
+- :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``): a configuration error, which a
+  restart cannot fix (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8,
+  not TOML, an unknown key, a value out of range, a model file made for another link rate),
+  a bad payload or path file, an unknown link kind, profile or option, a link's missing
+  extra; ``deploy/iem.service`` has ``RestartPreventExitStatus=78``;
+- :data:`EX_ERROR` (2): any other error of the project, e.g. a link failure (an adapter
+  unplugged, a bus error), a model file or traffic log that cannot be read: systemd
+  restarts the service.
+
+Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -13,6 +24,11 @@ import importlib
 import sys
 
 from iem.errors import IemError
+
+EX_CONFIG = 78
+"""Exit status of a configuration error (sysexits.h): the service manager does not retry."""
+EX_ERROR = 2
+"""Exit status of every other error of the project (and of a usage error)."""
 
 Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 
@@ -71,6 +87,24 @@ def dispatch(prog: str, table: Table, argv: list[str], description: str | None =
     return int(module.run(args) or 0)
 
 
+def is_config_error(exc: BaseException) -> bool:
+    """True for an error in what the operator configured: ``cell.toml``
+    (:class:`deploy.config.ConfigError`), a payload file (:class:`iem.errors.PayloadError`),
+    a path file (:class:`iem.errors.PathError`), a link kind, profile or option
+    (:class:`firmware_bridge.errors.BridgeConfigError`)."""
+    from firmware_bridge.errors import BridgeConfigError
+    from iem.errors import PathError, PayloadError
+
+    from .config import ConfigError
+
+    return isinstance(exc, ConfigError | PayloadError | PathError | BridgeConfigError)
+
+
+def exit_status(exc: IemError) -> int:
+    """:data:`EX_CONFIG` for a configuration error, :data:`EX_ERROR` for any other."""
+    return EX_CONFIG if is_config_error(exc) else EX_ERROR
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
@@ -78,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
                         "Online payload identification for a Franka-style cobot (IEM).")
     except IemError as exc:
         print(f"iem: error: {exc}", file=sys.stderr)
-        return 2
+        return exit_status(exc)
     except KeyboardInterrupt:
         print("iem: interrupted", file=sys.stderr)
         return 130

@@ -70,6 +70,7 @@ class LogConfig:
     format: str = "json"
     status_line: str = "auto"
     status_period_s: float = 0.25
+    status_plain_period_s: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,7 @@ RANGES = {
     ("estimate", "filter_cutoff_hz"): (1.0, 499.0),
     ("estimate", "max_lag_s"): (0.0, 60.0),
     ("log", "status_period_s"): (0.05, 60.0),
+    ("log", "status_plain_period_s"): (0.0, 3600.0),
     ("gate", "rated_mass_kg"): (0.01, 3.0),
     ("gate", "max_com_radius_m"): (0.001, 1.0),
     ("gate", "stable_window_s"): (0.0, 60.0),
@@ -109,6 +111,13 @@ RANGES = {
     ("gate", "ack_timeout_s"): (0.01, 60.0),
     ("gate", "ack_retry_s"): (0.1, 3600.0),
     ("gate", "decision_period_s"): (0.001, 10.0),
+    ("gate", "max_mass_2sigma_kg"): (0.0001, 3.0),
+    ("gate", "max_nis"): (1.0, 1e6),
+    ("gate", "refusal_retry_s"): (0.1, 3600.0),
+    ("gate", "refusal_retry_max_s"): (0.1, 3600.0),
+}
+INT_RANGES = {
+    ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
 }
 
 
@@ -120,8 +129,12 @@ def _check(section: str, key: str, value, default, where: str):
             raise ConfigError(f"{name} = {value!r} must be true or false")
         return value
     if expected is int:
+        lo, hi = INT_RANGES.get((section, key), (-(2**63), 2**63 - 1))
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{name} = {value!r} must be an integer")
+            raise ConfigError(f"{name} = {value!r} must be an integer from {lo} to {hi}")
+        if not lo <= value <= hi:
+            raise ConfigError(f"{name} = {value!r} is out of range; valid is an integer "
+                              f"from {lo} to {hi}")
         return value
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, int | float) \
@@ -164,6 +177,12 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                   for k, v in table.items()}
         built[section] = cls(**{**{f.name: getattr(defaults, f.name) for f in fields(cls)},
                                 **values})
+    gate = built["gate"]
+    if gate.refusal_retry_max_s < gate.refusal_retry_s:
+        raise ConfigError(f"{where}: [gate] refusal_retry_max_s = {gate.refusal_retry_max_s!r} "
+                          f"is below refusal_retry_s = {gate.refusal_retry_s!r}; valid is "
+                          "refusal_retry_max_s >= refusal_retry_s (the longest wait between "
+                          "retries after refusals)")
     link = built["link"]
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
@@ -179,6 +198,11 @@ def load_config(path) -> CellConfig:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration: "
                           f"{exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        line = exc.object.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} on "
+                          f"line {line}, offset {exc.start}); a cell.toml must be UTF-8, as "
+                          "TOML requires") from exc
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -229,6 +229,11 @@ def load_payload(path) -> Payload:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise PayloadError(f"{path}: cannot read payload file: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        line = exc.object.count(b"\n", 0, exc.start) + 1
+        raise PayloadError(f"{path}: payload file is not UTF-8 text (byte "
+                           f"0x{exc.object[exc.start]:02x} on line {line}, offset "
+                           f"{exc.start}); a payload file must be UTF-8 TOML") from exc
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
