@@ -5,12 +5,13 @@ A command is a module with ``configure(parser)`` (add its arguments) and ``run(a
 (:class:`iem.errors.IemError`) end the command with ``iem: error: <message>`` on stderr and
 an exit status that tells a service manager whether to try again:
 
-- :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``): a configuration error, which a
-  restart cannot fix (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8,
+- :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``), only from the service (``iem run``,
+  which systemd restarts): a configuration error, which a restart cannot fix (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8,
   not TOML, an unknown key, a value out of range, a model file made for another link rate),
   a bad payload or path file, an unknown link kind, profile or option, a link's missing
   extra; ``deploy/iem.service`` has ``RestartPreventExitStatus=78``;
-- :data:`EX_ERROR` (2): any other error of the project, e.g. a link failure (an adapter
+- :data:`EX_ERROR` (2): any error of the other commands, and any other error of the service,
+  e.g. a link failure (an adapter
   unplugged, a bus error), a model file or traffic log that cannot be read: systemd
   restarts the service.
 
@@ -100,9 +101,15 @@ def is_config_error(exc: BaseException) -> bool:
     return isinstance(exc, ConfigError | PayloadError | PathError | BridgeConfigError)
 
 
-def exit_status(exc: IemError) -> int:
-    """:data:`EX_CONFIG` for a configuration error, :data:`EX_ERROR` for any other."""
-    return EX_CONFIG if is_config_error(exc) else EX_ERROR
+SERVICE_COMMANDS = ("run",)
+"""Commands a service manager runs and restarts: only they exit :data:`EX_CONFIG`."""
+
+
+def exit_status(exc: IemError, command: str | None = "run") -> int:
+    """:data:`EX_CONFIG` for a configuration error of the service (``iem run``, which
+    systemd must not restart into the same error); :data:`EX_ERROR` for any other error,
+    and for every error of the other commands (a person at a terminal reads the message)."""
+    return EX_CONFIG if command in SERVICE_COMMANDS and is_config_error(exc) else EX_ERROR
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -112,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
                         "Online payload identification for a Franka-style cobot (IEM).")
     except IemError as exc:
         print(f"iem: error: {exc}", file=sys.stderr)
-        return exit_status(exc)
+        return exit_status(exc, argv[0] if argv else None)
     except KeyboardInterrupt:
         print("iem: interrupted", file=sys.stderr)
         return 130

@@ -57,7 +57,7 @@ def test_a_non_utf8_payload_file(tmp_path, capsys):
     payload.write_bytes(b'name = "b\xe9cher"\nmass = 1.0\n')  # Latin-1, not UTF-8
     status, err = run_iem(capsys, "replay", str(tmp_path / "traffic.blf"), "--truth",
                           str(payload))
-    assert status == EX_CONFIG
+    assert status == 2  # a command at a terminal: only the service exits EX_CONFIG
     assert err.startswith(f"iem: error: {payload}: payload file is not UTF-8 text "
                           "(byte 0xe9 on line 1, offset 9)")
     assert "must be UTF-8 TOML" in err
@@ -112,7 +112,7 @@ def test_a_bad_path_file_is_a_config_error(tmp_path, capsys):
     path.write_bytes(b"t,q1,q2,q3,q4,q5,q6,q7\n0,\xff\n")
     status, err = run_iem(capsys, "sim-controller", "--interface", "virtual", "--path",
                           str(path))
-    assert status == EX_CONFIG and err.startswith(f"iem: error: {path}: path file is not UTF-8")
+    assert status == 2 and err.startswith(f"iem: error: {path}: path file is not UTF-8")
 
 
 def test_which_errors_are_configuration_errors():
@@ -128,6 +128,7 @@ def test_which_errors_are_configuration_errors():
 
     for exc in (ConfigError("x"), PayloadError("x"), PathError("x"), BridgeConfigError("x")):
         assert exit_status(exc) == EX_CONFIG, exc
+        assert exit_status(exc, "replay") == exit_status(exc, "train") == EX_ERROR, exc
     # a restart may help (the adapter is back), or it is a data file, not the configuration
     for exc in (LinkError("x"), ModelFileError("x"), LogFileError("x"), EncodeError("x")):
         assert exit_status(exc) == EX_ERROR == 2, exc
