@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path as FsPath
 
 from iem.errors import InvalidInputError
@@ -60,6 +60,9 @@ class EstimateConfig:
     filter_cutoff_hz: float = 50.0
     learn: bool = True
     max_lag_s: float = 0.1
+    initial_payload: str = ""
+    """A payload TOML file (``iem identify``'s) to start from: the first estimate and the
+    prior of IEM+phys at every start; "" for none."""
 
 
 @dataclass(frozen=True)
@@ -213,6 +216,9 @@ def load_config(path) -> CellConfig:
         model = ModelConfig(**{**{f.name: getattr(cfg.model, f.name)
                                   for f in fields(ModelConfig)},
                                "path": str(path.parent / model_path)})
-        cfg = CellConfig(link=cfg.link, model=model, estimate=cfg.estimate, gate=cfg.gate,
-                         log=cfg.log, source=cfg.source)
+        cfg = replace(cfg, model=model)
+    initial = cfg.estimate.initial_payload
+    if initial and not FsPath(initial).is_absolute():
+        cfg = replace(cfg, estimate=replace(cfg.estimate,
+                                            initial_payload=str(path.parent / initial)))
     return cfg

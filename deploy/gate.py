@@ -24,6 +24,9 @@ controller. In order, an estimate is refused if:
 10. ``data_disagree``: the model reports ``extra["nis"]`` (its mean normalised innovation
     squared per degree of freedom over its recent equations, about 1 when the data agree
     with the model) and it exceeds ``max_nis``;
+    ``unverified``: the estimate started from a payload file (``[estimate]
+    initial_payload``) and the model has not yet tested it against enough live data
+    (``extra["unverified"]``);
 11. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
     (hysteresis: it becomes stable when the spread is below the band and unstable again only
     when the spread exceeds twice the band);
@@ -56,7 +59,7 @@ log = logging.getLogger("iem.gate")
 
 REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
            "out_of_wire_range", "controller_silent", "ack_missing", "refused", "uncertain",
-           "data_disagree", "unstable", "no_change", "rate_limited")
+           "data_disagree", "unverified", "unstable", "no_change", "rate_limited")
 REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
 """Reasons that say the estimate itself can never be written (counted in ``rejected``)."""
 _QUIET = ("unstable", "uncertain", "no_change", "rate_limited")

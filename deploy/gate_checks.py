@@ -51,10 +51,12 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
 
 
 def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
-    """``("uncertain" | "data_disagree", detail)`` if the model's own figures say its estimate
-    (an :class:`iem.types.PayloadEstimate`) is not good enough to write, else None; also None
-    for a model that reports neither a ``std`` nor ``extra["nis"]``.
+    """``("unverified" | "uncertain" | "data_disagree", detail)`` if the model's own figures
+    say its estimate (an :class:`iem.types.PayloadEstimate`) is not good enough to write,
+    else None; also None for a model that reports neither a ``std`` nor ``extra["nis"]``.
 
+    - ``unverified``: ``extra["unverified"]``: the estimate started from a payload file and
+      the model has not yet tested it against enough live data;
     - ``uncertain``: ``2 * std[0]`` (the 2-sigma band on the mass, kg) is wider than
       ``max_mass_2sigma_kg``, or not a number (no band known);
     - ``data_disagree``: ``extra["nis"]`` (the mean normalised innovation squared per degree
@@ -63,13 +65,17 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     """
     if estimate is None:
         return None
+    extra = getattr(estimate, "extra", None) or {}
+    if extra.get("unverified"):
+        return ("unverified", "the estimate starts from a payload file and has not yet been "
+                              "tested against enough live data")
     std = getattr(estimate, "std", None)
     if std is not None:
         band = 2.0 * float(np.asarray(std, dtype=float).reshape(-1)[0])
         if not band <= config.max_mass_2sigma_kg:
             return ("uncertain", f"2-sigma band on the mass {band:.4g} kg > "
                                  f"{config.max_mass_2sigma_kg:g} kg")
-    nis = (getattr(estimate, "extra", None) or {}).get("nis")
+    nis = extra.get("nis")
     if nis is not None and math.isfinite(nis) and nis > config.max_nis:
         return ("data_disagree", f"normalised innovation squared {nis:.3g} per degree of "
                                  f"freedom > {config.max_nis:g}: the data disagree with the model")

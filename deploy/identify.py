@@ -103,7 +103,7 @@ def run(args) -> int:
                         "profile": args.profile}
     summary["time_s"] = {"decode": decoded - start, "identify": done - decoded}
     payload = result.payload(name).check()
-    _write(args.out, payload_to_toml(payload))
+    _write(args.out, payload_to_toml(payload, phi_std=result.std))
     if args.json:
         _write(args.json, json.dumps(summary, indent=2) + "\n")
     print_result(result, summary)

@@ -124,6 +124,30 @@ def load_or_train_model(config: CellConfig):
     return model
 
 
+INITIAL_STD = (0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002)
+"""The prior's standard deviations of an initial payload file without ``phi_std`` (kg, kg·m,
+kg·m²): what an offline identification on a short motion reaches at least."""
+
+
+def start_from_file(model, path: str) -> None:
+    """Make ``model`` start from the payload file at ``path`` (``[estimate]
+    initial_payload``): its first estimate and prior."""
+    from sim.payload import load_payload_prior
+
+    from .config import ConfigError
+
+    start = getattr(model, "start_from", None)
+    if start is None:
+        raise ConfigError(f"[estimate] initial_payload = {path!r}: the {model.name} model "
+                          "cannot start from a payload (it keeps no payload state); valid "
+                          "with [model] kind = 'IEM+phys'")
+    payload, std = load_payload_prior(path)
+    start(payload.to_phi(), INITIAL_STD if std is None else std)
+    log.info("starting from the payload file %s: %.4f kg at [%.4f, %.4f, %.4f] m; writes wait "
+             "until the live data have tested it", path, payload.mass, *payload.com,
+             extra={"event": "initial_payload", "path": path})
+
+
 class Service:
     """The running plug-in.
 
@@ -175,6 +199,8 @@ class Service:
 
         if self.model is None:
             self.model = load_or_train_model(self.config)
+        if self.config.estimate.initial_payload:
+            start_from_file(self.model, self.config.estimate.initial_payload)
         if self.link is None:
             from firmware_bridge.links import open_link
 

@@ -214,6 +214,20 @@ class PhysicsInformedEnsemble:
         samples give no equations), the window of equations and the prior summary stay."""
         self._reg.reset()
 
+    def start_from(self, phi, std) -> None:
+        """Start from a known payload (e.g. ``iem identify``'s): ``phi`` with standard
+        deviations ``std`` is the prior (instead of the ensemble's summary) until the data
+        show a payload change; its estimates say ``extra["unverified"]`` until the window
+        holds :data:`DETECT_AFTER` equations, so a gate can wait for the live data to judge
+        it (a wrong file then inflates the prior, or is detected as a change)."""
+        phi = np.asarray(phi, dtype=float).reshape(10)
+        std = np.asarray(std, dtype=float).reshape(10)
+        if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(std)) and np.all(std > 0)):
+            raise InvalidInputError(f"start_from needs a finite phi and std > 0 (10 values "
+                                    f"each), got {phi}, {std}")
+        self._forget()
+        self._initial = (phi.copy(), np.diag(np.square(std)))
+
     def gap(self, steps: int) -> None:
         """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
         were lost, :mod:`iem.gaps`): the regression's filter bridges them, so no equation
@@ -234,6 +248,7 @@ class PhysicsInformedEnsemble:
         self._post = None
         self._nis = np.zeros(NIS_WINDOW)
         self._nis_n = 0
+        self._initial = None  # (phi, cov) of a payload to start from (start_from)
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -419,8 +434,11 @@ class PhysicsInformedEnsemble:
         return float(self._nis[:n].mean()) if n else math.nan
 
     def _prior(self, x=None, flange=None):
-        """``(mu_p, C_p)``: the summary since the last change, or the ensemble at ``x``."""
-        if self._n > 0:
+        """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary
+        since the last change, or the ensemble at ``x``."""
+        if self._initial is not None:
+            mean, cov = self._initial
+        elif self._n > 0:
             n = self._n
             mean = self._sum_phi / n
             # the estimates' scatter: the sample covariance, shrunk toward the input noise's
@@ -473,7 +491,7 @@ class PhysicsInformedEnsemble:
         """The posterior of the state (cached: refreshed by each equation and every
         ``update_every`` samples of the prior summary, which moves slowly)."""
         if self._post is None:
-            if self._n == 0 and self._ens.n_bags:
+            if self._n == 0 and self._ens.n_bags and self._initial is None:
                 return None  # nothing seen yet: predict_one uses the ensemble at its x
             try:
                 self._post = self._combine(self._prior())
@@ -501,6 +519,8 @@ class PhysicsInformedEnsemble:
         extra = {"change": True, "reset": True} if self._changed else {}
         if self._nis_n:
             extra["nis"] = self.nis
+        if self._initial is not None and self._m < DETECT_AFTER:
+            extra["unverified"] = True
         return PayloadEstimate(t=t, phi=phi.copy(), std=post[5].copy(), bag=bag,
                                learning=learning, extra=extra)
 
@@ -543,7 +563,9 @@ class PhysicsInformedEnsemble:
                 "detector": self._detector.to_state(), "changed": self._changed,
                 "post": None if self._post is None else [
                     *(v.tolist() for v in self._post[:3]), self._post[4]],
-                "holdoff": self._holdoff, "changes": self.changes}
+                "holdoff": self._holdoff, "changes": self.changes,
+                "initial": None if self._initial is None else [
+                    self._initial[0].tolist(), self._initial[1].tolist()]}
 
     @classmethod
     def from_state(cls, state: dict):
@@ -571,4 +593,8 @@ class PhysicsInformedEnsemble:
                            None, float(state["post"][3])]
         model._holdoff = int(state["holdoff"])
         model.changes = int(state["changes"])
+        initial = state.get("initial")  # files from before start_from have none
+        if initial is not None:
+            model._initial = (np.array(initial[0], dtype=float).reshape(10),
+                              np.array(initial[1], dtype=float).reshape(10, 10))
         return model

@@ -91,6 +91,11 @@ def test_identify_writes_the_payload_file_and_the_summary(short_logs, tmp_path, 
     truth = default_test_payload()
     payload = load_payload(out)  # the project's reader: keys, ranges, consistency
     s = json.loads(summary.read_text())
+    # the file carries its uncertainty, for the service to start from ([estimate])
+    from sim.payload import load_payload_prior
+
+    _, phi_std = load_payload_prior(out)
+    assert phi_std is not None and list(phi_std) == list(s["phi_std"].values())
     assert s["payload"]["mass"] == payload.mass
     assert s["payload"]["com"] == list(payload.com)
     assert s["payload"]["inertia"] == list(payload.inertia)
