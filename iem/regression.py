@@ -114,7 +114,7 @@ class PayloadRegression:
         rate_hz: sample rate, Hz.
         every: give an equation every this many filter samples (>= 1).
         settle: withhold the equations of the first this many filter samples after a start
-            (-1: :func:`settle_samples`).
+            (-1: :func:`settle_samples` of the unaveraged samples, in blocks).
         payload_inertia: add the payload's share of the mass matrix (for the ``phi`` passed
             to :meth:`__call__`) to the errors-in-variables term.
         decimate: average this many samples into one before the low-pass, which then runs
@@ -140,7 +140,9 @@ class PayloadRegression:
         self.decimate = int(decimate)
         self.filter_rate_hz = self.rate_hz / self.decimate
         """The rate the low-pass runs at, Hz."""
-        self.settle = (settle_samples(cutoff_hz, self.filter_rate_hz) if settle < 0
+        # settling: the time the unaveraged filter needs (its single first sample's noise),
+        # so that averaging blocks does not move the first equation earlier
+        self.settle = (-(-settle_samples(cutoff_hz, rate_hz) // self.decimate) if settle < 0
                        else int(settle))
         self.payload_inertia = bool(payload_inertia)
         gain, dgain = noise_gains(cutoff_hz, self.filter_rate_hz)
@@ -244,8 +246,12 @@ class PayloadRegression:
         if (not form or prev is None or self.count // self.every == before // self.every
                 or self.count <= self.settle):
             return None
-        q, dq, tau = f[:7], f[7:14], f[14:]
-        ddq = (dq - prev[7:14]) * self.filter_rate_hz
+        # ddq is the difference over the last filter sample: it belongs to the instant half
+        # a sample back, so q, dq and tau are taken there too (at 100 Hz a 5 ms mismatch
+        # otherwise reads the arm's jerk as payload inertia)
+        mid = 0.5 * (f + prev)
+        q, dq, tau = mid[:7], mid[7:14], mid[14:]
+        ddq = (f[7:14] - prev[7:14]) * self.filter_rate_hz
         tau_robot, Y, M = self.model()(q, dq, ddq)
         if self.payload_inertia and callable(phi):
             phi = phi()

@@ -27,11 +27,12 @@ def test_block_means_through_the_slow_filter_give_the_equations():
     assert len(eqs) == n // m - 1  # one per block after the first
     for k, (Y, r, _) in eqs:
         b = (k + 1) // m - 1  # the block this sample completed
-        q, dq = filtered[b, :7], filtered[b, 7:14]
-        ddq = (dq - filtered[b - 1, 7:14]) * 100.0
+        mid = 0.5 * (filtered[b] + filtered[b - 1])  # the instant ddq belongs to
+        q, dq = mid[:7], mid[7:14]
+        ddq = (filtered[b, 7:14] - filtered[b - 1, 7:14]) * 100.0
         np.testing.assert_allclose(Y[:, 0], ddq, atol=1e-9)
         np.testing.assert_allclose(Y[:, 2], q, atol=1e-12)
-        np.testing.assert_allclose(r, filtered[b, 14:] - (2 * ddq + dq), atol=1e-9)
+        np.testing.assert_allclose(r, mid[14:] - (2 * ddq + dq), atol=1e-9)
 
 
 def test_noise_model_at_the_block_rate_matches_a_simulation():
