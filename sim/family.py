@@ -248,8 +248,16 @@ def training_phi() -> np.ndarray:
     return phi
 
 
-FAMILIES: dict[str, Callable[[], list[Payload]]] = {"paper": training_payloads}
-"""Named families of training payloads."""
+def _generic() -> list[Payload]:
+    from sim.generic import generic_payloads
+
+    return generic_payloads()
+
+
+FAMILIES: dict[str, Callable[[], list[Payload]]] = {"paper": training_payloads,
+                                                    "generic": _generic}
+"""Named families of training payloads: ``paper`` (the container with weights, this
+module) and ``generic`` (random tools of 0.02 to 3 kg, :mod:`sim.generic`)."""
 
 
 def family(name: str) -> list[Payload]:
