@@ -89,16 +89,21 @@ class LoadAck:
 
     Attributes:
         seq: the command's sequence number.
-        applied: True if the load was set; False if refused (not physically consistent).
+        applied: True if the load was set; False if refused (not physically consistent,
+            or the controller does not take load commands now, e.g. while the arm moves).
         load: the load now in force (after the command, or the previous one if refused);
             None if no load is set.
         t: ``time.perf_counter()`` when it was received, s.
+        error: why it was refused, in the controller's words (libfranka's exception text,
+            e.g. "command not possible in the current mode"); empty when applied, and on
+            the CAN wire, which carries only the status.
     """
 
     seq: int
     applied: bool
     load: Payload | None
     t: float = 0.0
+    error: str = ""
 
 
 @dataclass(frozen=True)

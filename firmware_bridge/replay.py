@@ -47,6 +47,9 @@ class ReplaySource:
         self.decoder = CanDecoder(profile, window=window)
         self.profile = self.decoder.profile  # the wire profile (its sample rate, for one)
         self.counters = self.decoder.counters
+        self.name = f"replay of {self.path}"
+        self.rate_hz = float(self.profile.joint_state.rate_hz)
+        self.last_frame_time = 0.0  # a log has no receive time on this PC
         self.frames = 0
 
     @property
@@ -86,7 +89,9 @@ class ReplaySource:
         self.close()
 
 
-def open_replay(kind: str, channel: str, profile: str = "fd", pace: str = "recorded",
-                **options) -> ReplaySource:
-    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the log file."""
-    return ReplaySource(channel, profile, pace, **options)
+def open_replay(kind: str, channel: str, *, profile: str = "fd", silence_timeout: float = 0.1,
+                pace: str = "recorded", skip: float = 60.0, window: int = 16) -> ReplaySource:
+    """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the log file
+    (``silence_timeout`` is not used: a replay has the recorded timing and ends with
+    ``EndOfStream``)."""
+    return ReplaySource(channel, profile, pace, skip=skip, window=window)

@@ -203,19 +203,12 @@ class SimController:
 
 
 # -- command line --------------------------------------------------------------------------
-INTERFACES = {
-    "virtual": "python-can virtual bus (in-process only: a smoke run)",
-    "socketcan": "SocketCAN interface, e.g. vcan0 or can0",
-    "slcan": "an slcan adapter on a serial device or pyserial URL",
-    "slcan-pty": "act as an slcan adapter on a new pty; prints the pty path on stdout",
-    "serial": "msgpack serial link on a device or pyserial URL",
-    "serial-pty": "msgpack serial link on a new pty; prints the pty path on stdout",
-}
-
-
 def configure(parser) -> None:
-    parser.add_argument("--interface", required=True, choices=list(INTERFACES),
-                        help="; ".join(f"{k}: {v}" for k, v in INTERFACES.items()))
+    from .links import controller_interfaces
+
+    kinds = controller_interfaces()
+    parser.add_argument("--interface", required=True, choices=list(kinds),
+                        help="; ".join(f"{k}: {v}" for k, v in kinds.items()))
     parser.add_argument("--channel", default="",
                         help="bus channel, device or URL (not used by the *-pty interfaces)")
     parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
@@ -260,31 +253,38 @@ def fault_spec(args):
 def open_port(interface: str, channel: str, profile: str, faults=None,
               record_faults: bool = False):
     """``(port, announce)``: the controller port, and the pty path to print (or None).
-    ``record_faults`` keeps a log of every fault drawn (CAN ports; for tests)."""
-    if interface in ("virtual", "socketcan", "slcan"):
+    ``interface`` is a link kind the controller serves, or ``<kind>-pty`` (see
+    :func:`firmware_bridge.links.controller_interfaces`). ``record_faults`` keeps a log of
+    every fault drawn (for tests)."""
+    from .errors import BridgeConfigError
+    from .links import LINKS, controller_interfaces
+
+    valid = controller_interfaces()
+    if interface not in valid:
+        raise BridgeConfigError(f"unknown interface {interface!r}; valid are {', '.join(valid)}")
+    kind, pty = interface.removesuffix("-pty"), interface.endswith("-pty")
+    spec = LINKS[kind]
+    if spec.bus is not None:
         from .can_link import CanControllerPort, open_bus
 
-        return CanControllerPort(open_bus(interface, channel, profile), profile, faults,
+        if pty:
+            from .slcan_adapter import SlcanPtyAdapter
+
+            adapter = SlcanPtyAdapter()
+            return CanControllerPort(adapter, profile, faults,
+                                     record_faults=record_faults), adapter.slave_path
+        return CanControllerPort(open_bus(kind, channel, profile), profile, faults,
                                  record_faults=record_faults), None
-    if interface == "slcan-pty":
-        from .can_link import CanControllerPort
-        from .slcan_adapter import SlcanPtyAdapter
+    from .serial_link import SerialControllerPort, open_serial
 
-        adapter = SlcanPtyAdapter()
-        return CanControllerPort(adapter, profile, faults,
-                                 record_faults=record_faults), adapter.slave_path
-    if interface in ("serial", "serial-pty"):
-        from .serial_link import SerialControllerPort, open_serial
+    if not pty:
+        return SerialControllerPort(open_serial(channel), faults=faults,
+                                    record_faults=record_faults), None
+    from .pty_pair import PtyPair
 
-        if interface == "serial":
-            return SerialControllerPort(open_serial(channel), faults=faults), None
-        from .pty_pair import PtyPair
-
-        pty = PtyPair()
-        return SerialControllerPort(pty, faults=faults), pty.slave_path
-    from .errors import BridgeConfigError
-
-    raise BridgeConfigError(f"unknown interface {interface!r}; valid are {', '.join(INTERFACES)}")
+    pty_port = PtyPair()
+    return SerialControllerPort(pty_port, faults=faults,
+                                record_faults=record_faults), pty_port.slave_path
 
 
 def run(args) -> int:
