@@ -56,6 +56,8 @@ from .reassembly import CycleAssembler
 
 SEND_TIMEOUT = 0.1
 """Seconds a send may block before it counts as a bus error."""
+HEARTBEAT_FRESH_S = 2.0
+"""A heartbeat younger than this (by frame time stamps) vouches for a jumping cycle counter."""
 
 
 # -- bus kinds -----------------------------------------------------------------------------
@@ -135,6 +137,7 @@ class CanDecoder:
         self._ack_id = prof.ack.frame.frame_id
         self._hb_id = prof.heartbeat.frame.frame_id
         self.last_heartbeat: Heartbeat | None = None
+        self._hb_stamp = 0.0  # its frame's time stamp (recorded time in a replay)
         self.last_ack: LoadAck | None = None
         self.acks: dict[int, LoadAck] = {}
         self.last_error: DecodeError | None = None
@@ -157,7 +160,11 @@ class CanDecoder:
                 part, codec, unpack = entry
                 data = bytes(msg.data)
                 counter = codec.check(data, msg.is_fd, msg.is_remote_frame)
-                done = self._assembler.push(part, counter, data, unpack)
+                hb = self.last_heartbeat
+                age = msg.timestamp - self._hb_stamp
+                done = self._assembler.push(part, counter, data, unpack,
+                                            (hb.cycle, age) if hb and age < HEARTBEAT_FRESH_S
+                                            else None)
                 if done is None:
                     return None
                 return self._js.state(*done)
@@ -183,6 +190,7 @@ class CanDecoder:
         data = bytes(msg.data)
         codec.frame.check(data, msg.is_fd, msg.is_remote_frame)
         self.last_heartbeat = codec.decode(data, t=time.perf_counter())
+        self._hb_stamp = msg.timestamp
         self.counters.heartbeats += 1
 
     def _load_ack(self, msg: can.Message) -> None:

@@ -101,7 +101,7 @@ class FrankaLink:
         self.last_ack: LoadAck | None = None
         self.acks: dict[int, LoadAck] = {}
         self.last_heartbeat = None
-        self._order = Sequencer(self.counters)
+        self._order = Sequencer(self.counters, jump_limit=CYCLE_MOD)  # the robot's own clock
         self._states: queue.Queue = queue.Queue(maxsize=BUFFERED_CYCLES)
         self._ready: deque[tuple[JointState, float]] = deque()
         self._jobs: queue.Queue = queue.Queue()

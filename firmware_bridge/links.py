@@ -31,7 +31,8 @@ from iem.types import JointState
 
 from .errors import BridgeConfigError
 
-DROP_KINDS = ("crc", "malformed", "duplicate", "out_of_order", "stale", "orphaned")
+DROP_KINDS = ("crc", "malformed", "duplicate", "out_of_order", "stale", "implausible",
+              "orphaned")
 """The kinds of dropped frames, in the order they are reported."""
 
 
@@ -56,6 +57,10 @@ class LinkCounters:
             again with different content, or older than ``window`` cycles), or a frame that
             repeats the last delivered E2E alive counter with new content (a sender whose
             counter is stuck).
+        implausible: a valid cycle whose cycle counter jumps ahead further than the link
+            believes without confirmation (``reassembly.JUMP_LIMIT`` published cycles) and
+            that neither the last heartbeat nor the next cycle confirms: one well-formed frame
+            with a wrong counter; the stream goes on from the last good cycle.
         orphaned: valid frames discarded because their cycle never completed (a sibling
             frame was lost, corrupt or late); the cycle itself counts in ``lost``.
         lost: cycles that never completed: gaps in the delivered cycle counter, in
@@ -69,6 +74,9 @@ class LinkCounters:
         acks: load acknowledgements received (complete).
         overflow: cycles dropped because the caller did not read them while it waited for
             an acknowledgement (more than ``BUFFERED_CYCLES`` buffered).
+        timing: delivered cycles whose controller ``Time`` breaks the protocol's timing
+            requirement against the cycle counter (see ``reassembly.TimeUnwrapper``; the
+            README states it); delivered with the wire's time, counted and reported.
     """
 
     received: int = 0
@@ -87,6 +95,8 @@ class LinkCounters:
     heartbeats: int = 0
     acks: int = 0
     overflow: int = 0
+    implausible: int = 0
+    timing: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -98,8 +108,9 @@ class LinkCounters:
     def summary(self) -> str:
         """One line: received, delivered, drops by kind and lost cycles."""
         drops = ", ".join(f"{k} {v}" for k, v in self.dropped().items()) or "none"
+        timing = f"; {self.timing} cycles break the timing requirement" if self.timing else ""
         return (f"{self.received} frames received, {self.delivered} cycles delivered, "
-                f"{self.lost} lost; dropped frames: {drops}")
+                f"{self.lost} lost; dropped frames: {drops}{timing}")
 
 
 BUFFERED_CYCLES = 4096

@@ -271,7 +271,9 @@ class SerialDecoder:
                 c.duplicate += 1
                 return None
             cycle = f[0]
-            verdict = self.seq.judge(cycle)
+            hb = self.last_heartbeat
+            verdict = self.seq.judge(cycle, None if hb is None else
+                                     (hb.cycle, time.perf_counter() - hb.t))
             if verdict != "deliver":
                 setattr(c, verdict, getattr(c, verdict) + 1)
                 return None
