@@ -43,6 +43,7 @@ from .faults import FaultSpec
 from .framed import FramedControllerPort, FramedLink
 from .links import LinkCounters, bus_kinds, link_kind
 from .protocol import (
+    ACK_ERRORS,
     Heartbeat,
     LoadAck,
     LoadAssembler,
@@ -203,7 +204,8 @@ class CanDecoder:
         if raw is None:
             return
         seq, status, load = codec.values(raw)
-        ack = LoadAck(seq=seq, applied=status == 0, load=load, t=time.perf_counter())
+        ack = LoadAck(seq=seq, applied=status == 0, load=load, t=time.perf_counter(),
+                      error=ACK_ERRORS.get(status, ""))
         self.last_ack = ack
         self.acks[seq] = ack
         self.counters.acks += 1
@@ -350,8 +352,9 @@ class CanControllerPort(FramedControllerPort):
 
     def send_ack(self, ack: LoadAck) -> None:
         codec = self.profile.ack
+        status = 0 if ack.applied else (2 if ack.error == ACK_ERRORS[2] else 1)
         frames, self._ack_counter = codec.encode(ack.seq, ack.load, self._ack_counter,
-                                                 status=0 if ack.applied else 1)
+                                                 status=status)
         for data in frames:
             self._send(codec.frame, data)
 

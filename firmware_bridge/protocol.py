@@ -65,7 +65,10 @@ _MESSAGES = {
                 "command": "LoadCommand", "ack": "LoadAck", "heartbeat": "Heartbeat"},
 }
 
-ACK_STATUS = {0: "applied", 1: "rejected_inconsistent"}
+ACK_STATUS = {0: "applied", 1: "rejected_inconsistent", 2: "refused_moving"}
+ACK_ERRORS = {1: "the load is not physically consistent",
+              2: "command not possible in the current mode (the arm is moving)"}
+"""The error text of a refusal status (the wire carries only the status)."""
 
 
 # -- value types ---------------------------------------------------------------------------

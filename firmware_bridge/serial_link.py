@@ -16,7 +16,7 @@ Messages (msgpack arrays; numbers as msgpack floats/ints):
 - ``["L", seq, mass, [x, y, z], [9 values]]``: payload command, exactly libfranka's
   ``setLoad(load_mass, F_x_Cload, load_inertia)`` (inertia column-major); mass 0 clears;
 - ``["A", seq, applied, mass, [x, y, z], [9 values]]``: acknowledgement with the load in
-  force (mass 0: none).
+  force (mass 0: none); a refusal may add a seventh field, the error text (a string).
 
 Drops are counted as on CAN (see :class:`~firmware_bridge.links.LinkCounters`): ``crc``
 (CRC32 mismatch), ``malformed`` (bad COBS, too short, not msgpack, wrong schema),
@@ -193,10 +193,15 @@ def decode_message(body: bytes):
     if tag == "L":
         _shape(msg, tag, 5)
         return tag, (_int(msg[1], "seq", 0, 255), _load(msg[2], msg[3], msg[4]))
-    _shape(msg, tag, 6)
+    if len(msg) != 7:
+        _shape(msg, tag, 6)
     if not isinstance(msg[2], bool):
         raise DecodeError(f"serial message 'A': applied must be true or false, got {msg[2]!r}")
-    return tag, (_int(msg[1], "seq", 0, 255), msg[2], _load(msg[3], msg[4], msg[5]))
+    error = msg[6] if len(msg) == 7 else ""
+    if not isinstance(error, str):
+        raise DecodeError(f"serial message 'A': the error text must be a string, got "
+                          f"{type(error).__name__}")
+    return tag, (_int(msg[1], "seq", 0, 255), msg[2], _load(msg[3], msg[4], msg[5]), error)
 
 
 def _load(mass, com, inertia) -> Payload | None:
@@ -286,8 +291,9 @@ class SerialDecoder:
             self.last_heartbeat = Heartbeat(*f, t=now)
             c.heartbeats += 1
         elif tag == "A":
-            seq, applied, load = f
-            self.last_ack = self.acks[seq] = LoadAck(seq=seq, applied=applied, load=load, t=now)
+            seq, applied, load, error = f
+            self.last_ack = self.acks[seq] = LoadAck(seq=seq, applied=applied, load=load, t=now,
+                                                     error=error)
             c.acks += 1
         else:
             c.foreign += 1  # a command: the other direction
@@ -401,7 +407,9 @@ class SerialControllerPort(FramedControllerPort):
                    "H")
 
     def send_ack(self, ack: LoadAck) -> None:
-        self._send(msgpack.packb(["A", ack.seq, bool(ack.applied), *_load_args(ack.load)]), "A")
+        error = [ack.error] if ack.error else []
+        self._send(msgpack.packb(["A", ack.seq, bool(ack.applied), *_load_args(ack.load),
+                                  *error]), "A")
 
     def poll_commands(self) -> list[LoadCommand]:
         out = []
