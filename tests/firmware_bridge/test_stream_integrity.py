@@ -133,10 +133,15 @@ def drain(link):
             return got
 
 
-def test_one_bogus_frame_with_a_valid_crc_is_dropped_not_believed(channel):
-    spec = FaultSpec(drop=0.05, seed=3)
-    port = CanControllerPort(open_bus("virtual", channel, "fd"), "fd", spec, record_faults=True)
-    link = CanLink(open_bus("virtual", channel, "fd"), "fd")
+@pytest.mark.parametrize("name", ["fd", "classic"])
+def test_one_bogus_frame_with_a_valid_crc_is_dropped_not_believed(name, channel):
+    """5 % of the frames dropped by the fault injector, and one cycle whose counter jumps
+    ahead by 100,000 (sent by the controller's own encoder: valid CRC, alive counter in
+    step): before, a false silence, the next good cycles dropped as stale and lost + 99,999."""
+    spec = FaultSpec(drop=0.05, seed={"fd": 3, "classic": 5}[name])
+    port = CanControllerPort(open_bus("virtual", channel, name), name, spec, record_faults=True)
+    link = CanLink(open_bus("virtual", channel, name), name)
+    parts = profile(name).joint_state.parts
     try:
         publish_with_a_bogus_frame(port)
         got = drain(link)
@@ -144,15 +149,28 @@ def test_one_bogus_frame_with_a_valid_crc_is_dropped_not_believed(channel):
         link.close()
         port.close()
     c = link.counters
-    dropped = [i for i, (key, action) in enumerate(
-        e for e in port.faults.log if e[0] is profile("fd").joint_state.parts[0])
-        if action == "drop"]
+    actions = [a for key, a in port.faults.log if key in parts]  # joint frames, in order
+    published = range(0, 300, port.stride)
+    whole = {k for i, k in enumerate(published)
+             if all(a == "ok" for a in actions[i * len(parts):(i + 1) * len(parts)])}
+    assert 150 in whole  # the seed's draws: the bogus cycle goes through whole
     cycles = [s.cycle for s in got]
-    assert 150 not in dropped  # the seed's draws: the bogus frame goes through
-    assert cycles == [k for k in range(300) if k not in dropped and k != 150]
+    assert cycles == sorted(whole - {150})
     assert c.implausible == 1 and c.stale == 0 and c.out_of_order == 0
     assert c.silences == 1  # only the final one, when the stream ended
-    assert c.lost == cycles[-1] + 1 - cycles[0] - len(cycles)  # not inflated by 99,999
+    assert c.lost == (cycles[-1] - cycles[0]) // port.stride + 1 - len(cycles)  # not + 99,999
+
+
+def test_a_bogus_serial_message_is_dropped_too():
+    from firmware_bridge.serial_link import SerialDecoder, encode_joint_state, frame
+
+    states = synthetic_states(200)
+    dec = SerialDecoder()
+    got = []
+    for s in states:
+        got += dec.feed(frame(encode_joint_state(bogus(s) if s.cycle == 120 else s)))
+    assert [s.cycle for s in got] == [k for k in range(200) if k != 120]
+    assert dec.counters.implausible == 1 and dec.counters.lost == 1
 
 
 def test_a_real_jump_is_told_apart_from_a_bogus_frame():
