@@ -22,8 +22,11 @@ one wrap period.
 from __future__ import annotations
 
 import itertools
+import logging
 
 from .links import LinkCounters
+
+log = logging.getLogger("iem.bridge")
 
 CYCLE_MOD = 1 << 32
 
@@ -136,8 +139,9 @@ class TimeUnwrapper:
     0.6 % for good). A longer step (a gap) is resolved to the wrap count that agrees with the
     cycle counter at that learnt rate, so a steady drift is unwrapped exactly across any gap.
     A step that breaks the timing requirement (``TIMING_TOLERANCE``, ``TIMING_JITTER_S``), or
-    a gap whose time the wrap leaves in doubt, is counted in ``counters.timing`` and kept in
-    ``last_violation`` (the time is still the wire's).
+    a gap whose time the wrap leaves in doubt, is counted in ``counters.timing``, kept in
+    ``last_violation`` and logged (``iem.bridge``, event ``timing_violation``: the 1st, the
+    10th and every 1000th); the time is still the wire's.
     """
 
     def __init__(self, bits: int, scale: float, period_us: int,
@@ -148,6 +152,7 @@ class TimeUnwrapper:
         self.units_per_cycle = self.nominal
         self.counters = counters
         self.last_violation = ""
+        self.violations = 0
         self._short = self.mod / 4 / (1 + TIMING_TOLERANCE) / self.nominal
         self._jitter = TIMING_JITTER_S / scale
         self._wire: int | None = None
@@ -158,8 +163,12 @@ class TimeUnwrapper:
 
     def _violation(self, text: str) -> None:
         self.last_violation = text
+        self.violations += 1
         if self.counters is not None:
             self.counters.timing += 1
+        if self.violations in (1, 10) or self.violations % 1000 == 0:  # said, not flooded
+            log.warning("controller timing: %s (%d so far)", text, self.violations,
+                        extra={"event": "timing_violation", "count": self.violations})
 
     def __call__(self, wire: int, cycle: int, restart: bool = False) -> float:
         if self._wire is None or restart:

@@ -91,7 +91,7 @@ def test_a_drifting_controller_clock_is_unwrapped_across_a_long_gap():
     assert counters.timing == 0
 
 
-def test_a_timing_violation_is_detected_counted_and_reported():
+def test_a_timing_violation_is_detected_counted_and_reported(caplog):
     """Time that runs at twice the cycle counter's pace breaks the protocol's requirement."""
     cycles = []
     for i, s in enumerate(synthetic_states(40)):
@@ -103,6 +103,8 @@ def test_a_timing_violation_is_detected_counted_and_reported():
     assert dec.counters.timing == 20
     assert "Time advanced 2.000 ms over 1 cycles" in dec._assembler.clock.last_violation
     assert "20 cycles break the timing requirement" in dec.counters.summary()
+    warned = [r for r in caplog.records if getattr(r, "event", "") == "timing_violation"]
+    assert len(warned) == 2 and "the protocol allows 1.000 ms" in warned[0].getMessage()
 
 
 # -- a jumping cycle counter -------------------------------------------------------------------
