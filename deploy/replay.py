@@ -154,14 +154,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
                            f"cycle of the {profile} profile ({c.summary()}; {c.foreign} "
                            f"frames of other IDs); recorded with --profile {other}?")
     decisions = service.gate.summary()
-    truncated = bool(getattr(link, "truncated", False))
-    bad_lines = int(getattr(link, "bad_lines", 0))
-    if truncated:
-        log(f"iem replay: warning: {log_file} is truncated; replayed the "
-            f"{getattr(link, 'frames', 0)} frames it holds")
-    if bad_lines:
-        log(f"iem replay: warning: {log_file}: skipped {bad_lines} lines python-can could not "
-            f"read (counted in frames.malformed; last: {link.last_bad_line})")
+    truncated = bool(getattr(link, "truncated", False))  # the link warned (iem.bridge)
     summary["frames"]["malformed"] = link.counters.malformed
     summary["frames"]["implausible"] = link.counters.implausible
     summary["frames"]["timing"] = link.counters.timing
