@@ -2,8 +2,21 @@
 
 A command is a module with ``configure(parser)`` (add its arguments) and ``run(args) -> int``
 (exit status). A group (``iem bench ...``) is a nested table. Errors of the project
-(:class:`iem.errors.IemError`) end the command with their message and exit status 2;
-anything else is a bug and keeps its traceback.
+(:class:`iem.errors.IemError`) end the command with ``iem: error: <message>`` on stderr and
+an exit status that tells a service manager whether to try again:
+
+- :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``), only from the service (``iem run``, which
+  systemd restarts): a configuration error, which a restart cannot fix
+  (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8, not TOML, an unknown
+  key, a value out of range, a model file made for another link rate), a bad payload or path
+  file, an unknown link kind, profile or option, a link's missing extra; ``deploy/iem.service``
+  has ``RestartPreventExitStatus=78``;
+- :data:`EX_ERROR` (2): any error of the other commands, and any other error of the service,
+  e.g. a link failure (an adapter
+  unplugged, a bus error), a model file or traffic log that cannot be read: systemd
+  restarts the service.
+
+Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -14,6 +27,11 @@ import sys
 
 from iem.errors import IemError
 
+EX_CONFIG = 78
+"""Exit status of a configuration error (sysexits.h): the service manager does not retry."""
+EX_ERROR = 2
+"""Exit status of every other error of the project (and of a usage error)."""
+
 Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 
 BENCHES: Table = {
@@ -22,6 +40,8 @@ BENCHES: Table = {
     "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
     "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
     "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
+    "faults": ("deploy.bench_faults",
+               "the plug-in on a lossy, late, corrupt stream with a silence, against a clean run"),
 }
 
 COMMANDS: Table = {
@@ -29,6 +49,7 @@ COMMANDS: Table = {
     "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
     "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
+    "identify": ("deploy.identify", "identify a payload offline from a loaded and a bare log"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
     "sim-controller": ("firmware_bridge.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),
@@ -68,6 +89,30 @@ def dispatch(prog: str, table: Table, argv: list[str], description: str | None =
     return int(module.run(args) or 0)
 
 
+def is_config_error(exc: BaseException) -> bool:
+    """True for an error in what the operator configured: ``cell.toml``
+    (:class:`deploy.config.ConfigError`), a payload file (:class:`iem.errors.PayloadError`),
+    a path file (:class:`iem.errors.PathError`), a link kind, profile or option
+    (:class:`firmware_bridge.errors.BridgeConfigError`)."""
+    from firmware_bridge.errors import BridgeConfigError
+    from iem.errors import PathError, PayloadError
+
+    from .config import ConfigError
+
+    return isinstance(exc, ConfigError | PayloadError | PathError | BridgeConfigError)
+
+
+SERVICE_COMMANDS = ("run",)
+"""Commands a service manager runs and restarts: only they exit :data:`EX_CONFIG`."""
+
+
+def exit_status(exc: IemError, command: str | None = "run") -> int:
+    """:data:`EX_CONFIG` for a configuration error of the service (``iem run``, which
+    systemd must not restart into the same error); :data:`EX_ERROR` for any other error,
+    and for every error of the other commands (a person at a terminal reads the message)."""
+    return EX_CONFIG if command in SERVICE_COMMANDS and is_config_error(exc) else EX_ERROR
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
@@ -75,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
                         "Online payload identification for a Franka-style cobot (IEM).")
     except IemError as exc:
         print(f"iem: error: {exc}", file=sys.stderr)
-        return 2
+        return exit_status(exc, argv[0] if argv else None)
     except KeyboardInterrupt:
         print("iem: interrupted", file=sys.stderr)
         return 130

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path as FsPath
 
 from firmware_bridge.links import LINKS
@@ -61,6 +61,9 @@ class EstimateConfig:
     filter_cutoff_hz: float = 50.0
     learn: bool = True
     max_lag_s: float = 0.1
+    initial_payload: str = ""
+    """A payload TOML file (``iem identify``'s) to start from: the first estimate and the
+    prior of IEM+phys at every start; "" for none."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,7 @@ class LogConfig:
     format: str = "json"
     status_line: str = "auto"
     status_period_s: float = 0.25
+    status_plain_period_s: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -99,6 +103,7 @@ RANGES = {
     ("estimate", "filter_cutoff_hz"): (1.0, 499.0),
     ("estimate", "max_lag_s"): (0.0, 60.0),
     ("log", "status_period_s"): (0.05, 60.0),
+    ("log", "status_plain_period_s"): (0.0, 3600.0),
     ("gate", "rated_mass_kg"): (0.01, 3.0),
     ("gate", "max_com_radius_m"): (0.001, 1.0),
     ("gate", "stable_window_s"): (0.0, 60.0),
@@ -110,6 +115,13 @@ RANGES = {
     ("gate", "ack_timeout_s"): (0.01, 60.0),
     ("gate", "ack_retry_s"): (0.1, 3600.0),
     ("gate", "decision_period_s"): (0.001, 10.0),
+    ("gate", "max_mass_2sigma_kg"): (0.0001, 3.0),
+    ("gate", "max_nis"): (1.0, 1e6),
+    ("gate", "refusal_retry_s"): (0.1, 3600.0),
+    ("gate", "refusal_retry_max_s"): (0.1, 3600.0),
+}
+INT_RANGES = {
+    ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
 }
 
 
@@ -121,8 +133,12 @@ def _check(section: str, key: str, value, default, where: str):
             raise ConfigError(f"{name} = {value!r} must be true or false")
         return value
     if expected is int:
+        lo, hi = INT_RANGES.get((section, key), (-(2**63), 2**63 - 1))
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{name} = {value!r} must be an integer")
+            raise ConfigError(f"{name} = {value!r} must be an integer from {lo} to {hi}")
+        if not lo <= value <= hi:
+            raise ConfigError(f"{name} = {value!r} is out of range; valid is an integer "
+                              f"from {lo} to {hi}")
         return value
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, int | float) \
@@ -165,6 +181,12 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                   for k, v in table.items()}
         built[section] = cls(**{**{f.name: getattr(defaults, f.name) for f in fields(cls)},
                                 **values})
+    gate = built["gate"]
+    if gate.refusal_retry_max_s < gate.refusal_retry_s:
+        raise ConfigError(f"{where}: [gate] refusal_retry_max_s = {gate.refusal_retry_max_s!r} "
+                          f"is below refusal_retry_s = {gate.refusal_retry_s!r}; valid is "
+                          "refusal_retry_max_s >= refusal_retry_s (the longest wait between "
+                          "retries after refusals)")
     link = built["link"]
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
@@ -180,6 +202,11 @@ def load_config(path) -> CellConfig:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration: "
                           f"{exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        line = exc.object.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} on "
+                          f"line {line}, offset {exc.start}); a cell.toml must be UTF-8, as "
+                          "TOML requires") from exc
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -190,6 +217,9 @@ def load_config(path) -> CellConfig:
         model = ModelConfig(**{**{f.name: getattr(cfg.model, f.name)
                                   for f in fields(ModelConfig)},
                                "path": str(path.parent / model_path)})
-        cfg = CellConfig(link=cfg.link, model=model, estimate=cfg.estimate, gate=cfg.gate,
-                         log=cfg.log, source=cfg.source)
+        cfg = replace(cfg, model=model)
+    initial = cfg.estimate.initial_payload
+    if initial and not FsPath(initial).is_absolute():
+        cfg = replace(cfg, estimate=replace(cfg.estimate,
+                                            initial_payload=str(path.parent / initial)))
     return cfg

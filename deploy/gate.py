@@ -1,26 +1,45 @@
 """The safety gate between the estimator and the controller's ``setLoad``.
 
-Every ``decision_period_s`` (default 50 ms) the gate looks at the smoothed estimate and
-decides whether to write it to the controller. In order, an estimate is refused if:
+Every ``decision_period_s`` (default 50 ms) the gate looks at the smoothed estimate (and the
+raw estimate it came from, for its uncertainty) and decides whether to write it to the
+controller. In order, an estimate is refused if:
 
 1. ``not_finite``: any parameter is NaN or infinite;
 2. ``inconsistent``: it is not a physically possible rigid body (mass > 0, inertia about the
    CoM positive definite, triangle inequality);
 3. ``over_rated``: the mass exceeds the robot's rated payload (3 kg for the Panda);
 4. ``com_too_far``: the centre of mass lies farther than ``max_com_radius_m`` from the flange;
-5. ``controller_silent``: no joint state has arrived for the source's silence timeout;
-6. ``ack_missing``: an earlier write was not acknowledged within ``ack_timeout_s``; writes stay
+5. ``out_of_wire_range``: the link's wire format cannot carry a value (the link's range check,
+   e.g. an inertia beyond the CAN signal's range; links without one have no such check);
+6. ``controller_silent``: no joint state has arrived for the source's silence timeout;
+7. ``ack_missing``: an earlier write was not acknowledged within ``ack_timeout_s``; writes stay
    stopped until an acknowledgement arrives, the controller returns from a silence, or,
    after ``ack_retry_s``, one retry;
-7. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
-   (hysteresis: it becomes stable when the spread is below the band and unstable again only
-   when the spread exceeds twice the band);
-8. ``no_change``: it differs from the last written load by less than the minimum change;
-9. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
+8. ``refused``: the controller refused the last write (a Franka does while a controller
+   runs); the refused load is not the written one, and the gate retries after
+   ``refusal_retry_s``, doubling the wait after each further refusal up to
+   ``refusal_retry_max_s``, until the controller accepts;
+9. ``uncertain``: the model reports a standard deviation and the 2-sigma band on the mass,
+   ``2 * std[0]``, is wider than ``max_mass_2sigma_kg``;
+10. ``data_disagree``: the model reports ``extra["nis"]`` (its mean normalised innovation
+    squared per degree of freedom over its recent equations, about 1 when the data agree
+    with the model) and it exceeds ``max_nis``;
+    ``unverified``: the estimate started from a payload file (``[estimate]
+    initial_payload``) and the model has not yet tested it against enough live data
+    (``extra["unverified"]``);
+11. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
+    (hysteresis: it becomes stable when the spread is below the band and unstable again only
+    when the spread exceeds twice the band);
+12. ``no_change``: it differs from the last written load by less than the minimum change;
+13. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
 
-Otherwise the decision is ``send``. Every decision is counted by reason; it is logged when
-its outcome or reason differs from the previous decision's (a steady state logs once), with
-the estimate that caused it.
+Otherwise the decision is ``send``. A model without a standard deviation or ``nis`` is not
+held back by 9 and 10. Checks 1-5, 9 and 10 look at one estimate alone and live in
+:mod:`deploy.gate_checks`; this module keeps what depends on time and on the controller.
+Every decision is counted by reason; it is logged when its outcome or reason differs from
+the previous decision's (a steady state logs once), with the estimate that caused it.
+Refusals by the controller and loads the link could not encode are counted (``refusals``,
+``send_errors``) and logged each time.
 """
 
 from __future__ import annotations
@@ -34,11 +53,17 @@ import numpy as np
 
 from sim.payload import Payload
 
+from .gate_checks import WireCheck, check_estimate, model_doubt
+
 log = logging.getLogger("iem.gate")
 
 REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
-           "controller_silent", "ack_missing", "unstable", "no_change", "rate_limited")
-
+           "out_of_wire_range", "controller_silent", "ack_missing", "refused", "uncertain",
+           "data_disagree", "unverified", "unstable", "no_change", "rate_limited")
+REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
+"""Reasons that say the estimate itself can never be written (counted in ``rejected``)."""
+_QUIET = ("unstable", "uncertain", "no_change", "rate_limited")
+"""Reasons that are a normal part of converging: logged at DEBUG, the others at INFO."""
 
 @dataclass(frozen=True)
 class GateConfig:
@@ -56,6 +81,14 @@ class GateConfig:
         ack_timeout_s: an acknowledgement must arrive within this time after a write.
         ack_retry_s: after a missing acknowledgement, one retry is allowed after this time.
         decision_period_s: how often the gate decides.
+        max_mass_2sigma_kg: no write while the model's 2-sigma band on the mass
+            (``2 * std[0]``, kg) is wider than this.
+        max_nis: no write while the model's ``extra["nis"]`` (mean normalised innovation
+            squared per degree of freedom, dimensionless, about 1 when the data agree with
+            the model) exceeds this.
+        refusal_retry_s: after the controller refuses a write, retry after this time (s);
+            the wait doubles with each further refusal in a row ...
+        refusal_retry_max_s: ... up to this (s).
     """
 
     rated_mass_kg: float = 3.0
@@ -69,6 +102,10 @@ class GateConfig:
     ack_timeout_s: float = 0.5
     ack_retry_s: float = 5.0
     decision_period_s: float = 0.05
+    max_mass_2sigma_kg: float = 0.02
+    max_nis: float = 3.0
+    refusal_retry_s: float = 1.0
+    refusal_retry_max_s: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -86,22 +123,38 @@ class Decision:
 
 
 class SafetyGate:
-    """Decides which estimates reach the controller; counts and logs every decision."""
+    """Decides which estimates reach the controller; counts and logs every decision.
 
-    def __init__(self, config: GateConfig | None = None) -> None:
+    Args:
+        config: the settings (default :class:`GateConfig`).
+        wire_check: the link's range check of a load (``payload -> message or None``), e.g.
+            ``functools.partial(firmware_bridge.protocol.payload_wire_error, profile="fd")``;
+            None for a link whose wire has no ranges to check.
+    """
+
+    def __init__(self, config: GateConfig | None = None,
+                 wire_check: WireCheck | None = None) -> None:
         self.config = GateConfig() if config is None else config
+        self.wire_check = wire_check
         self.counts: Counter[str] = Counter()
         self._history: deque[tuple[float, np.ndarray]] = deque()
         self._stable = False
+        self._estimate = None  # the raw estimate last observed (its std and extra)
         self._last_decision_t = -math.inf
         self._last_reason = ""
         self._last_sent: Payload | None = None
         self._last_sent_t = -math.inf
+        self._before_send: tuple[Payload | None, float] = (None, -math.inf)
+        self._command: tuple[int, Payload | None, float] | None = None  # seq, load before it
         self._awaiting: tuple[int, float] | None = None  # (seq, sent at) without an ack yet
         self._ack_failed_t: float | None = None
+        self._refusal: tuple[int, float, str] | None = None  # (seq, at, error) to retry after
+        self._refusals_in_row = 0
         self._silent = False
         self.acked = 0
         self.sent = 0
+        self.refusals = 0
+        self.send_errors = 0
 
     # -- inputs from the service ---------------------------------------------------------
     def controller_silent(self, silent: bool) -> None:
@@ -115,66 +168,95 @@ class SafetyGate:
     def sent_command(self, seq: int, t: float) -> None:
         """The service wrote the load of the last ``send`` decision as command ``seq``."""
         self._awaiting = (seq, t)
+        self._command = (seq, *self._before_send)
         self.sent += 1
 
     def acknowledged(self, seq: int) -> None:
-        """The controller acknowledged command ``seq``."""
+        """The controller acknowledged (applied) command ``seq``."""
         if self._awaiting is not None and self._awaiting[0] == seq:
             self._awaiting = None
             self.acked += 1
         self._ack_failed_t = None
+        if self._command is not None and self._command[0] == seq:
+            self._command = None  # its load is the written one: no retry pending
+            self._refusal = None
+            self._refusals_in_row = 0
+
+    def refused(self, seq: int, t: float, error: str = "") -> None:
+        """The controller answered command ``seq`` but did not apply it (``error``: its
+        reason, if it gave one). Counted and logged; the load before it stays the written
+        one, and the gate retries after ``refusal_retry_s`` (doubling up to
+        ``refusal_retry_max_s`` while refusals go on)."""
+        self.refusals += 1
+        if self._awaiting is not None and self._awaiting[0] == seq:
+            self._awaiting = None
+        self._ack_failed_t = None  # the controller answers: not an ack problem
+        ours = self._command is not None and self._command[0] == seq
+        if ours:
+            _, self._last_sent, self._last_sent_t = self._command
+            self._command = None
+            self._refusals_in_row += 1
+            self._refusal = (seq, t, error)
+        log.warning("controller refused load command %d%s%s", seq,
+                    f": {error}" if error else " (no reason given)",
+                    f"; retry in {self._retry_wait():.1f} s" if ours else "",
+                    extra={"event": "load_refused", "seq": seq, "error": error,
+                           "refusals_in_row": self._refusals_in_row})
+
+    def send_failed(self, error: str) -> None:
+        """The link could not write the load of the last ``send`` decision (``error``, e.g.
+        an ``EncodeError``): counted and logged; the load before it stays the written one."""
+        self.send_errors += 1
+        self._last_sent = self._before_send[0]
+        log.error("load not written, the link cannot send it: %s", error,
+                  extra={"event": "load_send_failed", "error": error})
 
     @property
     def last_sent(self) -> Payload | None:
+        """The last load written (sent and not refused), or None."""
         return self._last_sent
 
     # -- the decision --------------------------------------------------------------------
     def due(self, t: float) -> bool:
         return t - self._last_decision_t >= self.config.decision_period_s
 
-    def observe(self, t: float, phi: np.ndarray) -> None:
-        """Add the smoothed estimate of one cycle to the stability window."""
+    def observe(self, t: float, phi: np.ndarray, estimate=None) -> None:
+        """Add the smoothed estimate ``phi`` of one cycle to the stability window;
+        ``estimate`` is the raw :class:`iem.types.PayloadEstimate` it came from (its ``std``
+        and ``extra["nis"]`` are checked by :meth:`decide`)."""
+        if estimate is not None:
+            self._estimate = estimate
         if np.all(np.isfinite(phi)):
             self._history.append((t, np.asarray(phi, dtype=float)[:4].copy()))
         while self._history and t - self._history[0][0] > self.config.stable_window_s:
             self._history.popleft()
 
-    def decide(self, t: float, phi: np.ndarray) -> Decision:
-        """Decide on the estimate ``phi`` (paper order) at time ``t``."""
-        decision = self._decide(t, np.asarray(phi, dtype=float))
+    def decide(self, t: float, phi: np.ndarray, estimate=None) -> Decision:
+        """Decide on the estimate ``phi`` (paper order) at time ``t``; ``estimate`` is the
+        raw estimate (default: the one last given to :meth:`observe`)."""
+        if estimate is None:
+            estimate = self._estimate
+        decision = self._decide(t, np.asarray(phi, dtype=float), estimate)
         self._last_decision_t = t
         self.counts[decision.reason] += 1
         if decision.reason != self._last_reason:
-            level = logging.INFO if decision.send or decision.reason in (
-                "not_finite", "inconsistent", "over_rated", "com_too_far", "controller_silent",
-                "ack_missing") else logging.DEBUG
+            level = logging.DEBUG if decision.reason in _QUIET else logging.INFO
             log.log(level, "gate %s%s", decision.reason,
                     f": {decision.detail}" if decision.detail else "",
                     extra={"event": "gate", "reason": decision.reason,
                            "detail": decision.detail})
             self._last_reason = decision.reason
         if decision.send:
+            self._before_send = (self._last_sent, self._last_sent_t)
             self._last_sent = decision.payload
             self._last_sent_t = t
         return decision
 
-    def _decide(self, t: float, phi: np.ndarray) -> Decision:
+    def _decide(self, t: float, phi: np.ndarray, estimate) -> Decision:
         c = self.config
-        if phi.shape != (10,) or not np.all(np.isfinite(phi)):
-            return Decision(t, "not_finite", detail="estimate has NaN or infinite values")
-        if not phi[0] > 0.0:
-            return Decision(t, "inconsistent", detail=f"mass {phi[0]:.4g} kg is not > 0")
-        payload = Payload.from_phi(phi, name="estimate")
-        problems = payload.consistency_violations()
-        if problems:
-            return Decision(t, "inconsistent", payload, "; ".join(problems))
-        if payload.mass > c.rated_mass_kg:
-            return Decision(t, "over_rated", payload,
-                            f"mass {payload.mass:.3f} kg > rated {c.rated_mass_kg:g} kg")
-        radius = math.sqrt(sum(v * v for v in payload.com))
-        if radius > c.max_com_radius_m:
-            return Decision(t, "com_too_far", payload,
-                            f"CoM {radius:.3f} m from the flange > {c.max_com_radius_m:g} m")
+        payload, reason, detail = check_estimate(phi, c, self.wire_check)
+        if reason:
+            return Decision(t, reason, payload, detail)
         if self._silent:
             return Decision(t, "controller_silent", payload, "no joint state from the controller")
         if self._awaiting is not None:
@@ -189,6 +271,16 @@ class SafetyGate:
             return Decision(t, "ack_missing", payload,
                             f"acknowledgements stopped; retry in "
                             f"{c.ack_retry_s - (t - self._ack_failed_t):.1f} s")
+        if self._refusal is not None:
+            seq, at, error = self._refusal
+            left = self._retry_wait() - (t - at)
+            if left > 0:
+                return Decision(t, "refused", payload,
+                                f"the controller refused command {seq}"
+                                f"{f' ({error})' if error else ''}; retry in {left:.1f} s")
+        doubt = model_doubt(estimate, c)
+        if doubt is not None:
+            return Decision(t, doubt[0], payload, doubt[1])
         if not self._is_stable():
             return Decision(t, "unstable", payload, self._spread_text())
         if self._last_sent is not None and not self._changed(payload):
@@ -200,6 +292,12 @@ class SafetyGate:
                         f"[{payload.com[0]:.4f}, {payload.com[1]:.4f}, {payload.com[2]:.4f}] m")
 
     # -- helpers -------------------------------------------------------------------------
+    def _retry_wait(self) -> float:
+        """The wait before the next write after ``_refusals_in_row`` refusals in a row."""
+        c = self.config
+        n = max(self._refusals_in_row - 1, 0)
+        return min(c.refusal_retry_s * 2.0 ** min(n, 60), c.refusal_retry_max_s)
+
     def _spread(self) -> tuple[float, float] | None:
         if not self._history:
             return None
@@ -240,7 +338,6 @@ class SafetyGate:
 
     def summary(self) -> dict:
         """Counts of every decision reason, and writes sent / acknowledged / rejected."""
-        rejected = sum(v for k, v in self.counts.items()
-                       if k in ("not_finite", "inconsistent", "over_rated", "com_too_far"))
+        rejected = sum(v for k, v in self.counts.items() if k in REJECTIONS)
         return {"decisions": dict(self.counts), "sent": self.sent, "acked": self.acked,
                 "rejected": rejected}

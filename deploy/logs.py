@@ -1,8 +1,9 @@
 """Structured logs: one JSON object per line (for journald and log shippers) or plain text.
 
 Each record has ``ts`` (UTC ISO 8601), ``level``, ``logger``, ``msg`` and any extra fields
-given with ``extra={...}`` (e.g. ``event``, ``reason``). The live status line is not a log: it
-goes to the terminal only (see :mod:`deploy.status`).
+given with ``extra={...}`` (e.g. ``event``, ``reason``). The live status line is not a log
+(see :mod:`deploy.status`); a record is never glued to it: the handler erases a status line
+drawn in place on a terminal before it writes the record.
 """
 
 from __future__ import annotations
@@ -28,9 +29,19 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(out, default=str)
 
 
+class StatusAwareHandler(logging.StreamHandler):
+    """A stream handler that first erases any status line drawn in place on a terminal."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        from .status import make_room
+
+        make_room()
+        super().emit(record)
+
+
 def setup_logging(level: str = "info", fmt: str = "json", stream=None) -> None:
     """Route the ``iem`` loggers to ``stream`` (default stderr) in the chosen format."""
-    handler = logging.StreamHandler(sys.stderr if stream is None else stream)
+    handler = StatusAwareHandler(sys.stderr if stream is None else stream)
     handler.setFormatter(JsonFormatter() if fmt == "json" else logging.Formatter(
         "%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
     root = logging.getLogger("iem")

@@ -3,20 +3,27 @@
 One loop, one thread: the link's ``read`` gives the next controller cycle;
 :class:`iem.online.OnlineIdentifier` learns from it (new bags are trained with the tandem
 simulators of the configured payload family) and estimates; the smoothed estimate goes to
-the :class:`deploy.gate.SafetyGate`, and a load it lets through goes to the link's ``send``
-(libfranka ``setLoad`` semantics). Acknowledgements come back through the link.
+the :class:`deploy.gate.SafetyGate` (with the raw estimate, for its uncertainty, and the
+link's wire range check, :func:`wire_check_of`), and a load it lets through goes to the
+link's ``send`` (libfranka ``setLoad`` semantics); a load the link still cannot encode
+(``EncodeError``) is counted and logged, never fatal. Acknowledgements come back through the
+link: an applied one to the gate's ``acknowledged``, a refusal (``applied=False``, with the
+controller's ``error`` text where the link has one) to its ``refused``, which retries later.
 
-Around the loop: the model is loaded at start (or trained if there is none and
-``train_if_missing``), saved every ``checkpoint_period_s`` and at exit (atomically: a failed
-save leaves the last good file; the periodic save runs in a background thread on a copy);
-a silent controller stops the writes until it returns; link failures end the run with the
-error (under systemd, the unit restarts it). ``Service.stop()`` (SIGTERM, SIGINT) ends the
-loop after the current cycle.
+Around the loop: temporary files of an interrupted save are removed at start
+(:func:`iem.persistence.remove_stale_temporaries`); the model is loaded (or trained if there
+is none and ``train_if_missing``), saved every ``checkpoint_period_s`` and at exit
+(atomically: a failed save leaves the last good file; the periodic save runs in a background
+thread on a copy); a silent controller stops the writes until it returns; link failures end
+the run with the error (exit status 2: under systemd, the unit restarts it; configuration
+errors exit 78 and are not restarted, see :mod:`deploy.cli`). ``Service.stop()`` (SIGTERM,
+SIGINT) ends the loop after the current cycle.
 """
 
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import math
 import sys
@@ -30,7 +37,7 @@ import numpy as np
 
 from iem.filters import StateFilter
 from iem.online import OnlineIdentifier
-from iem.persistence import load_model, save_model
+from iem.persistence import load_model, remove_stale_temporaries, save_model
 from iem.smoothing import ExponentialSmoother
 
 from .config import CellConfig
@@ -63,18 +70,33 @@ def link_rate(config: CellConfig) -> float:
     return rate_hz(config.link.kind, config.link.profile)
 
 
+def wire_check_of(link):
+    """The range check of ``link``'s load command for the gate: a link with a DBC wire
+    profile (the CAN links) has one (:func:`firmware_bridge.protocol.payload_wire_error`);
+    others (serial msgpack floats, pylibfranka) have no ranges to check: None."""
+    from firmware_bridge.protocol import WireProfile, payload_wire_error
+
+    wire = getattr(link, "profile", None)
+    if not isinstance(wire, WireProfile):
+        return None
+    return functools.partial(payload_wire_error, profile=wire.name)
+
+
 def load_or_train_model(config: CellConfig):
     """The model of the configuration: its file, or a new one trained on the excitation path."""
     mc = config.model
     path = FsPath(mc.path)
+    for stale in remove_stale_temporaries(path):  # left by a save that was killed
+        log.info("removed %s, the temporary file of an interrupted save", stale,
+                 extra={"event": "stale_temporary_removed", "path": str(stale)})
     rate = link_rate(config)
     if path.exists():
         model = load_model(path)
         made_for = getattr(model, "rate_hz", rate)
         if made_for != rate:
-            from iem.errors import InvalidInputError
+            from .config import ConfigError
 
-            raise InvalidInputError(
+            raise ConfigError(
                 f"model file {path} was made for {made_for:g} joint states per second, the "
                 f"[link] profile {config.link.profile!r} delivers {rate:g}; make one for this "
                 f"link with 'iem train --out {path} --rate {rate:g}'")
@@ -99,6 +121,30 @@ def load_or_train_model(config: CellConfig):
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})
     return model
+
+
+INITIAL_STD = (0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002)
+"""The prior's standard deviations of an initial payload file without ``phi_std`` (kg, kg·m,
+kg·m²): what an offline identification on a short motion reaches at least."""
+
+
+def start_from_file(model, path: str) -> None:
+    """Make ``model`` start from the payload file at ``path`` (``[estimate]
+    initial_payload``): its first estimate and prior."""
+    from sim.payload import load_payload_prior
+
+    from .config import ConfigError
+
+    start = getattr(model, "start_from", None)
+    if start is None:
+        raise ConfigError(f"[estimate] initial_payload = {path!r}: the {model.name} model "
+                          "cannot start from a payload (it keeps no payload state); valid "
+                          "with [model] kind = 'IEM+phys'")
+    payload, std = load_payload_prior(path)
+    start(payload.to_phi(), INITIAL_STD if std is None else std)
+    log.info("starting from the payload file %s: %.4f kg at [%.4f, %.4f, %.4f] m; writes wait "
+             "until the live data have tested it", path, payload.mass, *payload.com,
+             extra={"event": "initial_payload", "path": path})
 
 
 class Service:
@@ -135,7 +181,6 @@ class Service:
         self._saver: threading.Thread | None = None
         self.latencies: list[float] = []
         self.cycles = 0
-        self.refused = 0
         self.silent = False
         self.silences = 0
         self.skipped = 0
@@ -153,6 +198,8 @@ class Service:
 
         if self.model is None:
             self.model = load_or_train_model(self.config)
+        if self.config.estimate.initial_payload:
+            start_from_file(self.model, self.config.estimate.initial_payload)
         if self.link is None:
             from firmware_bridge.links import open_link
 
@@ -169,6 +216,7 @@ class Service:
             state_filter=StateFilter(cutoff_hz=min(est.filter_cutoff_hz, 0.45 * self.rate_hz),
                                      rate_hz=self.rate_hz),
             smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s, dt=1.0 / self.rate_hz))
+        self.gate.wire_check = wire_check_of(self.link)  # out_of_wire_range before send
         return self
 
     def stop(self) -> None:
@@ -183,7 +231,7 @@ class Service:
     def run(self, duration: float | None = None,
             until: Callable[[], bool] | None = None) -> dict:
         """Run until stopped, ``duration`` s passed, ``until()`` is true or a replay ends."""
-        from firmware_bridge.errors import ControllerSilent, EndOfStream
+        from firmware_bridge.errors import ControllerSilent, EncodeError, EndOfStream
 
         if self.link is None or self.model is None:
             self.open()
@@ -240,20 +288,24 @@ class Service:
                     record = CycleRecord(state, raw, smoothed, latency)
                     for observer in self.on_cycle:
                         observer(record)
+                now = time.monotonic()
+                t_gate = state.t if controller_clock else now
                 ack = getattr(link, "last_ack", None)
                 if ack is not None and ack is not last_ack:
                     last_ack = ack
-                    self._acknowledged(ack)
-                now = time.monotonic()
-                t_gate = state.t if controller_clock else now
-                gate.observe(t_gate, smoothed)
+                    self._acknowledged(ack, t_gate)
+                gate.observe(t_gate, smoothed, raw)
                 if gate.due(t_gate):
                     decision = gate.decide(t_gate, smoothed)
                     if decision.send and sink:
-                        seq = link.send(decision.payload)
-                        gate.sent_command(seq, t_gate)
-                        log.info("load sent (command %d): %s", seq, decision.detail,
-                                 extra={"event": "load_sent", "seq": seq})
+                        try:
+                            seq = link.send(decision.payload)
+                        except EncodeError as exc:  # the gate's wire check should have
+                            gate.send_failed(str(exc))  # caught it: counted, logged, go on
+                        else:
+                            gate.sent_command(seq, t_gate)
+                            log.info("load sent (command %d): %s", seq, decision.detail,
+                                     extra={"event": "load_sent", "seq": seq})
                 if now >= next_checkpoint:
                     self._checkpoint_async()
                     next_checkpoint = now + cfg.model.checkpoint_period_s
@@ -314,15 +366,15 @@ class Service:
         log.info("controller back: writes resume", extra={"event": "controller_back"})
         self.notifier.status("identifying the payload")
 
-    def _acknowledged(self, ack) -> None:
-        self.gate.acknowledged(ack.seq)
+    def _acknowledged(self, ack, t: float) -> None:
+        """An answer to a load command: applied, or refused (the gate counts and logs the
+        refusal with the controller's error text and retries later)."""
         if ack.applied:
+            self.gate.acknowledged(ack.seq)
             log.info("controller acknowledged load command %d", ack.seq,
                      extra={"event": "load_acked", "seq": ack.seq})
         else:
-            self.refused += 1
-            log.warning("controller refused load command %d; its load stays %s", ack.seq,
-                        ack.load, extra={"event": "load_refused", "seq": ack.seq})
+            self.gate.refused(ack.seq, t, str(getattr(ack, "error", "") or ""))
 
     # -- checkpoints ---------------------------------------------------------------------
     def checkpoint(self) -> None:
@@ -361,7 +413,9 @@ class Service:
         drops = sum(c.dropped().values())
         return (f"{elapsed:6.1f} s  m {m:6.3f} kg  c [{com[0]:+.3f} {com[1]:+.3f} "
                 f"{com[2]:+.3f}] m  bags {self.model.n_bags}  {rate:6.0f} est/s  writes "
-                f"{self.gate.sent}/{self.gate.acked}  drops {drops} lost {c.lost}"
+                f"{self.gate.sent}/{self.gate.acked}"
+                + (f" refused {self.gate.refusals}" if self.gate.refusals else "")
+                + f"  drops {drops} lost {c.lost}"
                 + ("  SILENT" if self.silent else ""))
 
     def summary(self) -> dict:
@@ -376,7 +430,8 @@ class Service:
             "latency_us": {"p50": float(np.percentile(lat, 50)) if lat.size else None,
                            "p99": float(np.percentile(lat, 99)) if lat.size else None},
             "writes": {"sent": gate["sent"], "acked": gate["acked"],
-                       "rejected": gate["rejected"], "refused_by_controller": self.refused},
+                       "rejected": gate["rejected"], "refused_by_controller": self.gate.refusals,
+                       "send_errors": self.gate.send_errors},
             "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
                        "skipped": self.skipped},
             "unlearnt": self.unlearnt,

@@ -324,6 +324,9 @@ class CanControllerPort(FramedControllerPort):
         self._cmd_id = self.profile.command.frame.frame_id
         self.saturated = 0
 
+    def _open(self) -> bool:
+        return getattr(self.bus, "is_open", True)
+
     def _emit(self, codec, data: bytes) -> None:
         try:
             self.bus.send(_message(codec, data), timeout=SEND_TIMEOUT)

@@ -21,6 +21,8 @@ from dataclasses import dataclass, fields
 from .errors import BridgeConfigError
 
 ACTIONS = ("ok", "drop", "corrupt", "duplicate", "delay")
+MAX_EVENTS = 1_000_000
+"""Fault events kept in :attr:`FaultInjector.events` (about 40 MB at most)."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,12 @@ class FaultInjector:
         self._held: list[tuple[int, object, bytes]] = []
         self.counts = dict.fromkeys(ACTIONS, 0)
         self.silenced = 0
+        self.by_message: dict[str, dict[str, int]] = {}
+        """Actions per message name (``key.name``, else ``str(key)``), silenced included."""
+        self.events: list[tuple[int, str, str]] = []
+        """``(cycle, message name, action)`` of every frame that got a fault or was kept back
+        by the silence (the first :data:`MAX_EVENTS`), so a reader can be checked against
+        the faults of the cycles it saw."""
         self.log: list[tuple[object, str]] | None = [] if record else None
         s = spec
         self._edges = (s.drop, s.drop + s.corrupt, s.drop + s.corrupt + s.duplicate,
@@ -104,9 +112,24 @@ class FaultInjector:
         else:
             action, out = "ok", [data]
         self.counts[action] += 1
+        self._count(key, action, cycle)
         if self.log is not None:
             self.log.append((key, action))
         return out
+
+    def silence(self, key, cycle: int = -1) -> None:
+        """Count a frame of ``key`` that the silence kept back at ``cycle``."""
+        self.silenced += 1
+        self._count(key, "silenced", cycle)
+
+    def _count(self, key, action: str, cycle: int) -> None:
+        name = getattr(key, "name", None) or str(key)
+        counts = self.by_message.get(name)
+        if counts is None:
+            counts = self.by_message[name] = dict.fromkeys((*ACTIONS, "silenced"), 0)
+        counts[action] += 1
+        if action != "ok" and len(self.events) < MAX_EVENTS:
+            self.events.append((int(cycle), name, action))
 
     def due(self, cycle: int) -> list[tuple[object, bytes]]:
         """Delayed frames whose time has come, in the order they were held."""

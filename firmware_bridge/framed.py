@@ -176,11 +176,17 @@ class FramedControllerPort:
             for key, data in self.faults.due(cycle):
                 self._emit(key, data)
 
+    def _open(self) -> bool:
+        """False when frames go nowhere (an slcan adapter whose channel is closed drops them
+        anyway): no faults are drawn for them, so the injected counts are what a reader can
+        see."""
+        return True
+
     def _send(self, key, data: bytes) -> None:
         if self._silent:
-            self.faults.silenced += 1
+            self.faults.silence(key, self._cycle)
             return
-        if self.faults is None:
+        if self.faults is None or not self._open():
             self._emit(key, data)
             return
         for out in self.faults.apply(key, data, self._cycle):

@@ -545,3 +545,19 @@ def profile(name: str = "fd") -> WireProfile:
         data_bitrate=int(attrs["IemDataBitrateFD"].value) if name == "fd" else None,
         period_us=period_us,
     )
+
+
+def payload_wire_error(payload, profile: str) -> str | None:
+    """Why the load command of profile ``profile`` cannot carry ``payload``, or None if it can.
+
+    The encoder's own range checks (:meth:`LoadCodec.raw_of`, the DBC's signal ranges and
+    steps), without encoding a frame: the message names the signal, the value and the valid
+    range. The safety gate asks this before it lets a load through, so a load the wire cannot
+    carry is refused there instead of failing in ``send``.
+    """
+    codecs = globals()["profile"](profile)  # the argument shadows the module's profile()
+    try:
+        codecs.command.raw_of(1, payload)
+    except EncodeError as exc:
+        return str(exc)
+    return None

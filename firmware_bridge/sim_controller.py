@@ -217,7 +217,10 @@ class SimController:
                 "refused_moving": self.refused_moving,
                 "sent": getattr(port, "sent", 0), "send_errors": getattr(port, "send_errors", 0),
                 "saturated": getattr(port, "saturated", 0),
-                "faults": dict(port.faults.counts) if getattr(port, "faults", None) else {}}
+                "faults": dict(port.faults.counts) if getattr(port, "faults", None) else {},
+                "faults_by_message": (dict(port.faults.by_message)
+                                      if getattr(port, "faults", None) else {}),
+                "fault_events": list(port.faults.events) if getattr(port, "faults", None) else []}
 
 
 # -- command line --------------------------------------------------------------------------
@@ -252,6 +255,9 @@ def configure(parser) -> None:
     parser.add_argument("--refuse-while-moving", action="store_true",
                         help="refuse load commands while the arm moves (accept them at rest), "
                         "as a real Franka refuses setLoad while a controller runs")
+    parser.add_argument("--stats-json", metavar="FILE",
+                        help="at exit, write the controller's counts (cycles, overruns, "
+                             "commands, faults injected per message) as JSON")
 
 
 def fault_spec(args):
@@ -336,6 +342,12 @@ def run(args) -> int:
     finally:
         port.close()
         stats = controller.stats()
-        print("sim-controller: " + ", ".join(f"{k} {v}" for k, v in stats.items()),
+        print("sim-controller: " + ", ".join(f"{k} {v}" for k, v in stats.items()
+                                             if k not in ("faults_by_message", "fault_events")),
               file=sys.stderr, flush=True)
+        if args.stats_json:
+            import json
+
+            with open(args.stats_json, "w", encoding="utf-8") as fh:
+                json.dump(stats, fh, indent=2)
     return 0

@@ -19,7 +19,9 @@ calls it instead of ``learn_one`` when learning is off), ``reset()`` forgets the
 (a new task), never what was learnt, and ``resume()`` says the signal stream restarted (a
 silence, a restart from a checkpoint, a new recording) with the payload unchanged: signal
 filters start again, what is known of the payload stays (:class:`iem.online.OnlineIdentifier`
-calls it at the first sample of a stream and after every gap). An estimate's ``extra`` may
+calls it at the first sample of a stream and after every long gap), and ``gap(k)`` says that
+the next sample comes ``k >= 2`` nominal cycles after the last one (``k - 1`` were lost; the
+signal filters bridge them: :mod:`iem.gaps`). An estimate's ``extra`` may
 carry ``"change": True`` (a payload change was detected at this sample) and ``"reset": True``
 (earlier estimates are about another payload: the caller restarts any smoothing).
 """

@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from .errors import InvalidInputError
+from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
 
 
 def butterworth2(cutoff_hz: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -35,7 +36,14 @@ def butterworth2(cutoff_hz: float, rate_hz: float) -> tuple[np.ndarray, np.ndarr
 
 
 class LowPass2:
-    """A 2nd-order Butterworth low-pass on ``channels`` signals, one sample at a time."""
+    """A 2nd-order Butterworth low-pass on ``channels`` signals, one sample at a time.
+
+    ``steps`` (see :mod:`iem.gaps`) says how many nominal cycles the sample comes after the
+    last one: the ``steps - 1`` missing inputs are interpolated linearly between the last
+    input and this one and filtered first, so the filter always runs at its design rate.
+    ``previous`` is the output one nominal cycle before the latest (for a backward
+    difference over exactly one cycle).
+    """
 
     def __init__(self, cutoff_hz: float, rate_hz: float = 1000.0, channels: int = 7) -> None:
         self.cutoff_hz = float(cutoff_hz)
@@ -44,67 +52,91 @@ class LowPass2:
         self.b, self.a = butterworth2(self.cutoff_hz, self.rate_hz)
         self._z1 = np.zeros(self.channels)
         self._z2 = np.zeros(self.channels)
+        self._x: np.ndarray | None = None  # the last input
+        self.previous: np.ndarray | None = None
+        """The output one nominal cycle before the latest (None right after a start)."""
+        self._y: np.ndarray | None = None
         self._started = False
 
     def reset(self) -> None:
         self._started = False
+        self._x = self._y = self.previous = None
 
-    def __call__(self, x) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
+    def _step(self, x: np.ndarray) -> np.ndarray:
         b0, b1, b2 = self.b
         _, a1, a2 = self.a
-        if not self._started:
-            # steady state for a constant input x: y = x
-            self._z2 = (b2 - a2) * x
-            self._z1 = (b1 - a1) * x + self._z2
-            self._started = True
         y = b0 * x + self._z1
         self._z1 = b1 * x - a1 * y + self._z2
         self._z2 = b2 * x - a2 * y
+        return y
+
+    def __call__(self, x, steps: int = 1) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if not self._started:
+            # steady state for a constant input x: y = x
+            _, b1, b2 = self.b
+            _, a1, a2 = self.a
+            self._z2 = (b2 - a2) * x
+            self._z1 = (b1 - a1) * x + self._z2
+            self._started = True
+            self.previous = None
+        else:
+            self.previous = self._y
+            if steps > 1 and self._x is not None:  # bridge: interpolate between the inputs
+                x0 = self._x
+                for j in range(1, steps):
+                    self.previous = self._step(x0 + (x - x0) * (j / steps))
+        y = self._step(x)
+        self._x, self._y = x, y
         return y
 
 
 class StateFilter:
     """Causal estimate of ``(q, dq, ddq)`` from measured ``q, dq`` at a nominal rate.
 
-    Given the samples' time stamps, the derivative divides by the real interval, so a lost
-    cycle does not double ``ddq``; a gap longer than ``max_gap_s`` (a silent controller)
-    restarts the filter.
+    The time stamps go through the one gap rule (:class:`iem.gaps.GapRule`), which the
+    online loop then applies to every other filter of the estimation path (``steps`` tells
+    what it decided for the last sample): lost cycles up to ``max_gap_s`` are bridged, so
+    ``ddq`` is always a difference over one cycle; a sample that is not newer than the last
+    one used is not filtered (``steps == SKIP``: the last state is returned again); a longer
+    gap, or time going back, restarts the filter (``restarted``).
 
     Args:
         cutoff_hz: low-pass cut-off for ``dq``, Hz (default 50).
         rate_hz: nominal sample rate, Hz (default 1000, the controller's cycle).
-        max_gap_s: a longer interval between two samples restarts the filter, s.
+        max_gap_s: the longest gap bridged; a longer one restarts the filter, s.
     """
 
     def __init__(self, cutoff_hz: float = 50.0, rate_hz: float = 1000.0,
-                 max_gap_s: float = 0.05) -> None:
+                 max_gap_s: float = DEFAULT_MAX_BRIDGE_S) -> None:
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)
         self.max_gap_s = float(max_gap_s)
         self._lp = LowPass2(cutoff_hz, rate_hz, channels=7)
-        self._prev: np.ndarray | None = None
-        self._t: float | None = None
-        self.restarted = False
+        self.gaps = GapRule(rate_hz, max_gap_s)
+        self.steps = RESTART
+        """The gap rule's verdict on the last sample (``RESTART``, ``SKIP`` or cycles)."""
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def restarted(self) -> bool:
         """True if the last sample started the filter afresh (the first, or after a gap)."""
+        return self.steps == RESTART
 
     def reset(self) -> None:
+        """The next sample starts the filter afresh."""
         self._lp.reset()
-        self._prev = None
-        self._t = None
+        self.gaps.reset()
+        self._last = None
 
     def __call__(self, q, dq, t: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        dt = 1.0 / self.rate_hz
-        if t is not None:
-            if self._t is not None:
-                gap = t - self._t
-                if gap > self.max_gap_s or gap <= 0.0:
-                    self.reset()  # a silence, or time went backwards: start again
-                else:
-                    dt = gap
-            self._t = t
-        self.restarted = self._prev is None
-        dq_f = self._lp(dq)
-        ddq = np.zeros(7) if self._prev is None else (dq_f - self._prev) / dt
-        self._prev = dq_f
-        return np.asarray(q, dtype=float), dq_f, ddq
+        self.steps = steps = self.gaps(t)
+        if steps == SKIP and self._last is not None:
+            return self._last
+        if steps == RESTART:
+            self._lp.reset()
+        dq_f = self._lp(dq, max(steps, 1))
+        prev = self._lp.previous
+        ddq = np.zeros(7) if prev is None else (dq_f - prev) * self.rate_hz
+        self._last = (np.asarray(q, dtype=float), dq_f, ddq)
+        return self._last

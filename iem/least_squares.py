@@ -82,11 +82,17 @@ class RecursiveLeastSquares:
         self.P = np.diag(np.square(self.prior_std))
         self._regression.reset()
         self.updates = 0
+        self._steps = 1
 
     def resume(self) -> None:
         """The signal stream restarted, the payload did not: the filter starts again, the
         estimate and its covariance stay."""
         self._regression.reset()
+
+    def gap(self, steps: int) -> None:
+        """The next sample comes ``steps`` nominal cycles after the last (see
+        :mod:`iem.gaps`): the filter bridges the lost ones."""
+        self._steps = int(steps)
 
     @property
     def n_bags(self) -> int:
@@ -98,7 +104,8 @@ class RecursiveLeastSquares:
     # -- estimator seam ------------------------------------------------------------------
     def learn_one(self, x, flange=None, samples: Samples | None = None) -> None:
         """Filter the sample; every ``decimate``-th sample, one RLS update."""
-        equation = self._regression(x)
+        equation = self._regression(x, steps=self._steps)
+        self._steps = 1
         if equation is not None:
             self.update(*equation)
 

@@ -6,14 +6,23 @@ state ``(q, dq, ddq)`` the tandem simulators run at (they move in tandem with th
 at its measured state); the flange position comes from forward kinematics of the measured
 ``q``; the estimator learns from the point (the tandem samples are computed only if it asks
 for them) and predicts; the estimate is smoothed with :class:`iem.smoothing.ExponentialSmoother`
-(the raw estimate stays available). An estimate whose ``extra`` holds ``"reset": True`` (e.g. a
-detected payload change) restarts the smoothing at that estimate, so the old payload's
-estimates do not linger in the output. When the state filter starts afresh (the first sample
-of a stream, the first after a gap longer than its ``max_gap_s`` or a time stamp that goes
-backwards, or after :meth:`OnlineIdentifier.resume`), the estimator's own signal filters
-restart too, through its ``resume()`` (its payload estimate stays: a silence is not a new
-payload). With ``learn=False`` an estimator that has ``observe_one(x, flange)`` (a payload
-state it tracks without training, as IEM+phys's physics) still gets every sample through it.
+(the raw estimate stays available).
+
+One gap rule (:mod:`iem.gaps`) decides, from the time stamps, for every filter of the path:
+the state filter applies it, and its verdict goes to the estimator and the smoothing. Lost
+cycles up to the state filter's ``max_gap_s`` are bridged (``estimator.gap(k)``, if it has
+one: its signal filters interpolate the missing inputs; the smoothing decays by their time);
+a sample that is not newer than the last one used (a duplicate, a frame overtaken by newer
+ones) is counted in ``skipped`` and changes nothing: the last estimate is returned again.
+
+An estimate whose ``extra`` holds ``"reset": True`` (e.g. a detected payload change) restarts
+the smoothing at that estimate, so the old payload's estimates do not linger in the output.
+When the state filter starts afresh (the first sample of a stream, the first after a gap longer
+than its ``max_gap_s`` or a time stamp that goes backwards, or after
+:meth:`OnlineIdentifier.resume`), the estimator's own signal filters restart too, through its
+``resume()`` (its payload estimate stays: a silence is not a new payload). With ``learn=False``
+an estimator that has ``observe_one(x, flange)`` (a payload state it tracks without training,
+as IEM+phys's physics) still gets every sample through it.
 
 The kinematics and the tandem simulators are passed in as callables, so this module stays
 numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
@@ -29,6 +38,7 @@ import numpy as np
 
 from .base import Estimator
 from .filters import StateFilter
+from .gaps import RESTART, SKIP
 from .smoothing import ExponentialSmoother
 from .types import JointState, PayloadEstimate
 
@@ -59,7 +69,11 @@ class OnlineIdentifier:
         self.state_filter = StateFilter() if state_filter is None else state_filter
         self.smoother = ExponentialSmoother() if smoother is None else smoother
         self.raw: PayloadEstimate | None = None
+        self._smoothed: np.ndarray | None = None
+        self._steps = 1
         self.learned_points = 0
+        self.skipped = 0
+        """Samples not used: not newer than the last one used."""
         self.timed = timed
         self.learn_times: list[float] = []
         self.predict_times: list[float] = []
@@ -69,7 +83,7 @@ class OnlineIdentifier:
         """Start a new task: filters and smoother restart (the model is kept)."""
         self.resume()
         self.smoother.reset()
-        self.raw = None
+        self.raw = self._smoothed = None
 
     def resume(self) -> None:
         """The signal stream restarted: from the next sample the state filter and the
@@ -81,10 +95,19 @@ class OnlineIdentifier:
         """Learn from and estimate at one cycle; returns the raw estimate and the smoothed phi."""
         x = state.features()
         q, dq, ddq = self.state_filter(state.q, state.dq, state.t)
-        if self.state_filter.restarted:  # its gap rule decides for the estimator too
+        steps = self.state_filter.steps  # its gap rule decides for the estimator too
+        if steps == SKIP and self.raw is not None:
+            self.skipped += 1
+            return self.raw, self._smoothed.copy()
+        if steps == RESTART:
             resume = getattr(self.estimator, "resume", None)
             if resume is not None:
                 resume()
+        elif steps > 1:
+            gap = getattr(self.estimator, "gap", None)
+            if gap is not None:
+                gap(steps)
+        self._steps = max(steps, 1)
         flange = self.flange_position(state.q)
         if self.learn:
             tandem = self.tandem
@@ -119,4 +142,5 @@ class OnlineIdentifier:
         self.raw = raw
         if raw.extra.get("reset"):
             self.smoother.reset()
-        return raw, self.smoother(raw.phi)
+        self._smoothed = self.smoother(raw.phi, self._steps)
+        return raw, self._smoothed

@@ -12,7 +12,10 @@ its interfaces); the class rebuilds itself with ``Class.from_state(state)``.
 
 Writing goes to a temporary file in the target's directory, which is flushed, fsynced and
 then renamed over the target (``os.replace``), and the directory is fsynced: a crash or an
-error at any point leaves either the old file or the new one, never a mix. Every problem with
+error at any point leaves either the old file or the new one, never a mix. A process killed
+while it writes (kill -9, power loss) leaves its temporary file behind, named
+``.<name>.<pid>.<8 hex digits>.tmp`` next to the target; :func:`remove_stale_temporaries`
+removes those of dead processes (the service calls it at start). Every problem with
 a file, on saving or on loading, raises :class:`iem.errors.ModelFileError` naming the file and
 what was wrong; nothing else escapes for a bad file.
 """
@@ -23,6 +26,7 @@ import contextlib
 import errno
 import importlib
 import os
+import re
 import secrets
 import zlib
 from collections.abc import Mapping
@@ -193,7 +197,7 @@ def save_model(model, path) -> None:
     except ModelFileError as exc:
         raise ModelFileError(f"cannot save model to {path}: {exc}") from exc
     directory = path.parent
-    tmp = directory / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+    tmp = directory / _temporary_name(path.name, os.getpid(), secrets.token_hex(4))
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
@@ -215,6 +219,48 @@ def save_model(model, path) -> None:
         raise ModelFileError(f"cannot save model to {path}: {exc.strerror or exc} "
                              f"(the previous file, if any, is unchanged)") from exc
     _fsync_dir(directory, path)
+
+
+def _temporary_name(name: str, pid: int, token: str) -> str:
+    """The name of :func:`save_model`'s temporary file for the target ``name``."""
+    return f".{name}.{pid}.{token}.tmp"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. EPERM: it exists, under another user
+        return True
+    return True
+
+
+def remove_stale_temporaries(path) -> list[Path]:
+    """Remove the temporary files an interrupted :func:`save_model` of ``path`` left behind.
+
+    Only files of :func:`save_model`'s own pattern for this target, in its directory
+    (``.<name>.<pid>.<8 hex digits>.tmp``), written by a process that is no longer running
+    (a save in progress in a live process, this one included, is left alone). Returns the
+    files removed; a file that cannot be removed is left and skipped.
+    """
+    path = Path(path)
+    pattern = re.compile(re.escape(f".{path.name}") + r"\.(\d+)\.[0-9a-f]{8}\.tmp")  # as
+    # _temporary_name(path.name, pid, secrets.token_hex(4)) makes them
+    removed = []
+    try:
+        entries = list(path.parent.iterdir())
+    except OSError:
+        return removed  # no directory (yet) or not readable: nothing of ours to clean
+    for entry in entries:
+        match = pattern.fullmatch(entry.name)
+        if match is None or _pid_alive(int(match.group(1))):
+            continue
+        with contextlib.suppress(OSError):
+            if entry.is_file() and not entry.is_symlink():
+                entry.unlink()
+                removed.append(entry)
+    return removed
 
 
 def _fsync_dir(directory: Path, path: Path) -> None:

@@ -74,6 +74,8 @@ ensemble's estimates in the prior's noise term (see :meth:`PhysicsInformedEnsemb
 
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
+NIS_WINDOW = 50
+"""Equations over which :attr:`PhysicsInformedEnsemble.nis` is averaged (0.5 s by default)."""
 MAX_INFLATION = 1e6
 """Largest factor :func:`prior_inflation` puts on the prior covariance."""
 
@@ -204,12 +206,33 @@ class PhysicsInformedEnsemble:
         self._forget()
         self._holdoff = 0
         self.changes = 0
+        self._steps = 1
 
     def resume(self) -> None:
         """The signal stream restarted (a silence, a restart from a checkpoint, a new
         recording), the payload did not: the regression's filter starts again (its settling
         samples give no equations), the window of equations and the prior summary stay."""
         self._reg.reset()
+
+    def start_from(self, phi, std) -> None:
+        """Start from a known payload (e.g. ``iem identify``'s): ``phi`` with standard
+        deviations ``std`` is the prior (instead of the ensemble's summary) until the data
+        show a payload change; its estimates say ``extra["unverified"]`` until the window
+        holds :data:`DETECT_AFTER` equations, so a gate can wait for the live data to judge
+        it (a wrong file then inflates the prior, or is detected as a change)."""
+        phi = np.asarray(phi, dtype=float).reshape(10)
+        std = np.asarray(std, dtype=float).reshape(10)
+        if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(std)) and np.all(std > 0)):
+            raise InvalidInputError(f"start_from needs a finite phi and std > 0 (10 values "
+                                    f"each), got {phi}, {std}")
+        self._forget()
+        self._initial = (phi.copy(), np.diag(np.square(std)))
+
+    def gap(self, steps: int) -> None:
+        """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
+        were lost, :mod:`iem.gaps`): the regression's filter bridges them, so no equation
+        straddles the gap as if it were one cycle."""
+        self._steps = int(steps)
 
     def _forget(self) -> None:
         self._info = np.zeros((10, 10))
@@ -223,6 +246,9 @@ class PhysicsInformedEnsemble:
         self._detector.reset()
         self._changed = False
         self._post = None
+        self._nis = np.zeros(NIS_WINDOW)
+        self._nis_n = 0
+        self._initial = None  # (phi, cov) of a payload to start from (start_from)
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -337,7 +363,8 @@ class PhysicsInformedEnsemble:
     def _observe(self, x: np.ndarray, flange, est) -> None:
         """:meth:`observe_one`, given the ensemble's estimate at ``x`` if already made."""
         self._changed = False
-        equation = self._reg(x, self._mean_for_noise)
+        steps, self._steps = self._steps, 1
+        equation = self._reg(x, self._mean_for_noise, steps)
         if equation is not None:
             if self._holdoff > 0:
                 pass
@@ -355,7 +382,7 @@ class PhysicsInformedEnsemble:
                 self._eta += YtRi @ r
                 self._post = None
         if self._holdoff > 0:
-            self._holdoff -= 1
+            self._holdoff = max(0, self._holdoff - steps)
         self._routed = None
         if self._ens.n_bags:
             if est is None:
@@ -379,10 +406,9 @@ class PhysicsInformedEnsemble:
 
     def _test(self, Y, r, R) -> bool:
         """Innovation test of one equation against the current posterior (whose prior the
-        data have already inflated if they contradict it); silent for the window's first
-        :data:`DETECT_AFTER` equations, so a wrong prior is not taken for a new payload."""
-        if self._m < DETECT_AFTER:
-            return False
+        data have already inflated if they contradict it): its whitened innovation goes into
+        :attr:`nis`, and, from the window's :data:`DETECT_AFTER`-th equation on, into the
+        change detector (before, a conflict is the prior's, not a new payload's)."""
         post = self._posterior()
         if post is None:
             return False
@@ -393,11 +419,26 @@ class PhysicsInformedEnsemble:
             chi2 = chi_square(nu, 0.5 * (S + S.T))
         except np.linalg.LinAlgError:
             return False
+        self._nis[self._nis_n % NIS_WINDOW] = chi2 / 7.0
+        self._nis_n += 1
+        if self._m < DETECT_AFTER:
+            return False
         return self._detector(chi2)
 
+    @property
+    def nis(self) -> float:
+        """The mean normalised innovation squared per degree of freedom of the last
+        :data:`NIS_WINDOW` equations (about 1 while the data agree with the model; NaN
+        before the first): the gate's check that the data fit the physics."""
+        n = min(self._nis_n, NIS_WINDOW)
+        return float(self._nis[:n].mean()) if n else math.nan
+
     def _prior(self, x=None, flange=None):
-        """``(mu_p, C_p)``: the summary since the last change, or the ensemble at ``x``."""
-        if self._n > 0:
+        """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary
+        since the last change, or the ensemble at ``x``."""
+        if self._initial is not None:
+            mean, cov = self._initial
+        elif self._n > 0:
             n = self._n
             mean = self._sum_phi / n
             # the estimates' scatter: the sample covariance, shrunk toward the input noise's
@@ -450,7 +491,7 @@ class PhysicsInformedEnsemble:
         """The posterior of the state (cached: refreshed by each equation and every
         ``update_every`` samples of the prior summary, which moves slowly)."""
         if self._post is None:
-            if self._n == 0 and self._ens.n_bags:
+            if self._n == 0 and self._ens.n_bags and self._initial is None:
                 return None  # nothing seen yet: predict_one uses the ensemble at its x
             try:
                 self._post = self._combine(self._prior())
@@ -476,6 +517,10 @@ class PhysicsInformedEnsemble:
             phi = post[3] = project(mean, precision, eps=self.eps)
             post.append(np.sqrt(np.maximum(np.diag(cov), 0.0)))
         extra = {"change": True, "reset": True} if self._changed else {}
+        if self._nis_n:
+            extra["nis"] = self.nis
+        if self._initial is not None and self._m < DETECT_AFTER:
+            extra["unverified"] = True
         return PayloadEstimate(t=t, phi=phi.copy(), std=post[5].copy(), bag=bag,
                                learning=learning, extra=extra)
 
@@ -518,7 +563,9 @@ class PhysicsInformedEnsemble:
                 "detector": self._detector.to_state(), "changed": self._changed,
                 "post": None if self._post is None else [
                     *(v.tolist() for v in self._post[:3]), self._post[4]],
-                "holdoff": self._holdoff, "changes": self.changes}
+                "holdoff": self._holdoff, "changes": self.changes,
+                "initial": None if self._initial is None else [
+                    self._initial[0].tolist(), self._initial[1].tolist()]}
 
     @classmethod
     def from_state(cls, state: dict):
@@ -546,4 +593,8 @@ class PhysicsInformedEnsemble:
                            None, float(state["post"][3])]
         model._holdoff = int(state["holdoff"])
         model.changes = int(state["changes"])
+        initial = state.get("initial")  # files from before start_from have none
+        if initial is not None:
+            model._initial = (np.array(initial[0], dtype=float).reshape(10),
+                              np.array(initial[1], dtype=float).reshape(10, 10))
         return model

@@ -38,6 +38,7 @@ import numpy as np
 
 from .errors import InvalidInputError
 from .filters import LowPass2, butterworth2
+from .gaps import RESTART, SKIP
 
 
 def impulse_response(cutoff_hz: float, rate_hz: float, n: int = 4000) -> np.ndarray:
@@ -130,7 +131,6 @@ class PayloadRegression:
     def reset(self) -> None:
         """Restart the filter (the next sample is a new start)."""
         self._lp = LowPass2(self.cutoff_hz, self.rate_hz, channels=21)
-        self._prev_dq: np.ndarray | None = None
         self.count = 0
 
     @property
@@ -164,20 +164,32 @@ class PayloadRegression:
             step[i] -= 1.0
         return out
 
-    def __call__(self, x, phi=None):
-        """Filter one sample; every ``every``-th settled sample, return ``(Y, r, R)``.
+    def __call__(self, x, phi=None, steps: int = 1):
+        """Filter one sample; at every ``every``-th nominal cycle after settling, return
+        ``(Y, r, R)``.
 
-        Returns None for the other samples. ``phi`` (10, or a zero-argument callable giving
-        it, called only when an equation is formed) is the payload used for its share of the
-        mass matrix if ``payload_inertia`` (ignored if it is or gives None).
+        ``steps`` is the gap rule's verdict on the sample (:mod:`iem.gaps`): the nominal
+        cycles since the last sample (lost ones are bridged by the filter, so ``ddq`` is
+        always a difference over one cycle), ``RESTART`` (the filter starts again here) or
+        ``SKIP`` (not filtered, no equation). Returns None when no equation is due. ``phi``
+        (10, or a zero-argument callable giving it, called only when an equation is formed)
+        is the payload used for its share of the mass matrix if ``payload_inertia`` (ignored
+        if it is or gives None).
         """
-        f = self._lp(np.asarray(x, dtype=float))
-        q, dq, tau = f[:7], f[7:14], f[14:]
-        prev, self._prev_dq = self._prev_dq, dq
-        self.count += 1
-        if prev is None or self.count % self.every or self.count <= self.settle:
+        if steps == SKIP:
             return None
-        ddq = (dq - prev) * self.rate_hz
+        if steps == RESTART:
+            self.reset()
+            steps = 1
+        f = self._lp(np.asarray(x, dtype=float), steps)
+        q, dq, tau = f[:7], f[7:14], f[14:]
+        before = self.count
+        self.count += steps
+        prev = self._lp.previous
+        if (prev is None or self.count // self.every == before // self.every
+                or self.count <= self.settle):
+            return None
+        ddq = (dq - prev[7:14]) * self.rate_hz
         tau_robot, Y, M = self.model()(q, dq, ddq)
         if self.payload_inertia and callable(phi):
             phi = phi()
@@ -190,14 +202,23 @@ class PayloadRegression:
     # -- persistence ---------------------------------------------------------------------
     def to_state(self) -> dict:
         lp = self._lp
+
+        def vec(v):
+            return None if v is None else v.tolist()
+
         return {"count": self.count,
-                "prev_dq": None if self._prev_dq is None else self._prev_dq.tolist(),
-                "filter": None if not lp._started else [lp._z1.tolist(), lp._z2.tolist()]}
+                "filter": None if not lp._started else [lp._z1.tolist(), lp._z2.tolist()],
+                "input": vec(lp._x), "output": vec(lp._y), "previous": vec(lp.previous)}
 
     def set_state(self, state: dict) -> None:
         self.reset()
         self.count = int(state["count"])
-        self._prev_dq = None if state["prev_dq"] is None else np.array(state["prev_dq"])
         if state["filter"] is not None:
-            self._lp._z1, self._lp._z2 = (np.array(v, dtype=float) for v in state["filter"])
-            self._lp._started = True
+            lp = self._lp
+            lp._z1, lp._z2 = (np.array(v, dtype=float) for v in state["filter"])
+            lp._started = True
+            for key, attr in (("input", "_x"), ("output", "_y"), ("previous", "previous")):
+                value = state.get(key)
+                setattr(lp, attr, None if value is None else np.array(value, dtype=float))
+            if lp.previous is None and state.get("prev_dq") is not None:
+                lp._started = False  # a file from before the gap rule: start the filter again

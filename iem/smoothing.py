@@ -42,7 +42,9 @@ class ExponentialSmoother:
     def value(self) -> np.ndarray | None:
         return None if self._s is None else self._s.copy()
 
-    def __call__(self, x) -> np.ndarray:
+    def __call__(self, x, steps: int = 1) -> np.ndarray:
+        """Add the estimate ``x`` made ``steps`` samples of ``dt`` after the last one (a
+        stream that lost ``steps - 1`` cycles decays the average by their time too)."""
         x = np.asarray(x, dtype=float)
         if self._s is None:
             if np.isfinite(x).all():
@@ -51,7 +53,8 @@ class ExponentialSmoother:
             return x.copy()
         if np.isfinite(x).all():
             self._n += 1
-            self._s += max(1.0 / self._n, self.alpha) * (x - self._s)
+            alpha = self.alpha if steps <= 1 else 1.0 - (1.0 - self.alpha) ** steps
+            self._s += max(1.0 / self._n, alpha) * (x - self._s)
         return self._s.copy()
 
     def run(self, X) -> np.ndarray:

@@ -13,6 +13,11 @@ Payload files are TOML::
     mass = 1.615                      # kg, 0 < mass <= 10
     com = [0.01, -0.02, 0.06]         # m, flange frame, each |x| <= 1
     inertia = [Ixx, Ixy, Ixz, Iyy, Iyz, Izz]   # kg·m² about the CoM, flange axes
+    phi_std = [...]                   # optional: standard deviations of phi (10 values)
+
+``phi_std`` (optional; ``iem identify`` writes it) gives how well each parameter of ``phi``
+is known, in phi's order and units (kg, kg·m, kg·m² about the flange origin); the plug-in
+uses it as the prior's spread when it starts from the file (``[estimate] initial_payload``).
 """
 
 from __future__ import annotations
@@ -197,15 +202,20 @@ def _numbers(doc: dict, key: str, where: str, n: int, bound: float, names: str) 
     return out
 
 
+OPTIONAL_KEYS = ("phi_std",)
+"""Keys a payload file may hold besides the required ones."""
+
+
 def payload_from_dict(doc: dict, where: str = "payload") -> Payload:
     """Build and check a payload from a parsed TOML table (see the module docstring)."""
     required = ("name", "mass", "com", "inertia")
     missing = [k for k in required if k not in doc]
     if missing:
         raise PayloadError(f"{where}: missing key(s) {missing}; a payload needs {list(required)}")
-    unknown = sorted(set(doc) - set(required))
+    unknown = sorted(set(doc) - set(required) - set(OPTIONAL_KEYS))
     if unknown:
-        raise PayloadError(f"{where}: unknown key(s) {unknown}; valid keys are {list(required)}")
+        raise PayloadError(f"{where}: unknown key(s) {unknown}; valid keys are "
+                           f"{[*required, *OPTIONAL_KEYS]}")
     if not isinstance(doc["name"], str) or not doc["name"].strip():
         raise PayloadError(f"{where}: key 'name' must be a non-empty string, got {doc['name']!r}")
     mass = _number(doc, "mass", where, 0.0, MAX_FILE_MASS)
@@ -222,22 +232,52 @@ def payload_from_dict(doc: dict, where: str = "payload") -> Payload:
     return payload
 
 
+def phi_std_from_dict(doc: dict, where: str = "payload") -> np.ndarray | None:
+    """The optional ``phi_std`` of a parsed payload file (10 values > 0), or None."""
+    if "phi_std" not in doc:
+        return None
+    values = _numbers(doc, "phi_std", where, 10, MAX_FILE_MASS,
+                      "standard deviations of [m, m·rx, m·ry, m·rz, Ixx, Ixy, Ixz, Iyy, Iyz, "
+                      "Izz] (kg, kg·m, kg·m²)")
+    if not all(v > 0.0 for v in values):
+        raise PayloadError(f"{where}: key 'phi_std' must hold 10 values > 0, got {values}")
+    return np.array(values)
+
+
+def load_payload_prior(path) -> tuple[Payload, np.ndarray | None]:
+    """A payload file and its optional ``phi_std`` (None if the file has none)."""
+    doc = _read_toml(path)
+    return payload_from_dict(doc, where=str(path)), phi_std_from_dict(doc, where=str(path))
+
+
 def load_payload(path) -> Payload:
     """Read a payload TOML file; errors name the file, the key and the valid range."""
+    doc = _read_toml(path)
+    payload = payload_from_dict(doc, where=str(path))
+    phi_std_from_dict(doc, where=str(path))  # checked even when not used
+    return payload
+
+
+def _read_toml(path) -> dict:
     path = FsPath(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise PayloadError(f"{path}: cannot read payload file: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        line = exc.object.count(b"\n", 0, exc.start) + 1
+        raise PayloadError(f"{path}: payload file is not UTF-8 text (byte "
+                           f"0x{exc.object[exc.start]:02x} on line {line}, offset "
+                           f"{exc.start}); a payload file must be UTF-8 TOML") from exc
     try:
-        doc = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise PayloadError(f"{path}: not valid TOML: {exc}") from exc
-    return payload_from_dict(doc, where=str(path))
 
 
-def payload_to_toml(payload: Payload) -> str:
-    """The TOML text of a payload file (round-trips through :func:`load_payload`)."""
+def payload_to_toml(payload: Payload, phi_std=None) -> str:
+    """The TOML text of a payload file (round-trips through :func:`load_payload`), with its
+    ``phi_std`` if given."""
     def fmt(values):
         return "[" + ", ".join(repr(float(v)) for v in values) + "]"
 
@@ -247,6 +287,8 @@ def payload_to_toml(payload: Payload) -> str:
         f"mass = {float(payload.mass)!r}  # kg\n"
         f"com = {fmt(payload.com)}  # m, flange frame\n"
         f"inertia = {fmt(payload.inertia)}  # kg·m² about the CoM: Ixx, Ixy, Ixz, Iyy, Iyz, Izz\n"
+        + ("" if phi_std is None else
+           f"phi_std = {fmt(phi_std)}  # std of [m, m·r, I about the flange origin]\n")
     )
 
 

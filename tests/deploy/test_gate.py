@@ -1,11 +1,12 @@
 """The safety gate: every refusal reason, on hand-made estimates with an explicit clock."""
 
 import logging
+import math
 
 import numpy as np
 import pytest
 
-from deploy.gate import REASONS, GateConfig, SafetyGate
+from deploy.gate import REASONS, Decision, GateConfig, SafetyGate
 from sim.family import test_payloads
 from sim.payload import Payload
 
@@ -255,3 +256,221 @@ def test_a_decision_is_logged_when_its_reason_changes(caplog):
     assert all(r.event == "gate" for r in records)
     assert records[0].levelno == logging.INFO and records[-1].levelno == logging.DEBUG
     assert "rated 3 kg" in records[1].getMessage() and records[1].detail
+
+
+# -- the wire ------------------------------------------------------------------------------------
+BAR = Payload("bar", 2.5, (0.0, 0.0, 0.05), (0.6, 0.0, 0.0, 0.001, 0.0, 0.6))
+"""A 2.5 kg bar 1.7 m long: physically possible, within the rating and reach, but Ixx 0.6
+kg·m² is beyond the CAN signal's range (±0.524 kg·m²)."""
+
+
+def wire_gate(profile: str = "fd", **config) -> SafetyGate:
+    from functools import partial
+
+    from firmware_bridge.protocol import payload_wire_error
+
+    return SafetyGate(GateConfig(**config), wire_check=partial(payload_wire_error,
+                                                                profile=profile))
+
+
+@pytest.mark.parametrize("profile", ["fd", "classic"])
+def test_a_load_the_wire_cannot_carry_is_refused_counted_and_logged(profile, caplog):
+    assert BAR.is_consistent()
+    gate = wire_gate(profile)
+    with caplog.at_level(logging.INFO, logger="iem.gate"):
+        decisions = feed(gate, BAR.to_phi(), 0.0, 1.0)
+    assert set(reasons(decisions)) == {"out_of_wire_range"}
+    d = decisions[0]
+    assert "Ixx" in d.detail and "0.6" in d.detail and "0.524287" in d.detail
+    assert gate.counts["out_of_wire_range"] == len(decisions)
+    assert gate.summary()["rejected"] == len(decisions) and gate.last_sent is None
+    logged = [r for r in caplog.records if getattr(r, "reason", "") == "out_of_wire_range"]
+    assert len(logged) == 1 and logged[0].levelno == logging.INFO  # once, when it began
+    # the same bar without a wire check (a link without ranges) would be written
+    assert any(d.send for d in feed(SafetyGate(), BAR.to_phi(), 0.0, 1.0))
+    # and a load the wire carries passes the check
+    assert first_send(wire_gate(profile)) > 0
+
+
+def test_the_wire_check_agrees_with_cantools_own_encoder():
+    """Independent truth: cantools encodes the DBC's LoadCommandFD with its range checks on
+    exactly when payload_wire_error finds nothing to say."""
+    from cantools.database.errors import EncodeError as CantoolsEncodeError
+
+    from firmware_bridge.protocol import PAYLOAD_FIELDS, database, payload_wire_error
+
+    message = database().get_message_by_name("LoadCommandFD")
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        mass = float(rng.uniform(0.0, 15.0))
+        com = rng.uniform(-1.5, 1.5, 3)
+        inertia = rng.uniform(-0.7, 0.7, 6)
+        load = Payload("x", mass, tuple(com), tuple(inertia))
+        values = dict(zip(PAYLOAD_FIELDS, (mass, *com, *inertia), strict=True))
+        signals = {**values, "Seq": 1, "E2E_CRC": 0, "E2E_Counter": 0}
+        signals = {s.name: signals.get(s.name, 0) for s in message.signals}
+        try:
+            message.encode(signals, strict=True)
+            fits = True
+        except (CantoolsEncodeError, ValueError):
+            fits = False
+        error = payload_wire_error(load, "fd")
+        if round(mass / 1e-4) == 0:  # 0 on the wire means "no load": refused, valid in DBC
+            assert error is not None and "rounds to 0" in error
+            continue
+        assert (error is None) == fits, (values, error)
+
+
+# -- the model's own figures: uncertainty and agreement ------------------------------------------
+def estimate(std_mass: float | None = None, nis: float | None = None):
+    from iem.types import PayloadEstimate
+
+    std = None if std_mass is None else np.r_[std_mass, np.full(9, 1e-4)]
+    return PayloadEstimate(t=0.0, phi=phi_of(), std=std,
+                           extra={} if nis is None else {"nis": nis})
+
+
+def feed_with(gate: SafetyGate, est, t0: float, t1: float) -> list:
+    decisions = []
+    for k in range(round((t1 - t0) / DT) + 1):
+        t = round(t0 + k * DT, 9)
+        gate.observe(t, phi_of(), est)
+        if gate.due(t):
+            decisions.append(gate.decide(t, phi_of()))
+    return decisions
+
+
+def test_a_wide_two_sigma_band_on_the_mass_holds_writes_back():
+    gate = SafetyGate()
+    wide = feed_with(gate, estimate(std_mass=0.011), 0.0, 1.0)  # 2 sigma = 0.022 kg > 0.02
+    assert set(reasons(wide)) == {"uncertain"}
+    assert "2-sigma band on the mass 0.022 kg > 0.02 kg" in wide[0].detail
+    narrow = feed_with(gate, estimate(std_mass=0.009), 1.01, 1.2)  # 0.018 kg: written
+    assert narrow[0].send
+    # the limit is the configured one; a NaN std is no band at all
+    loose = SafetyGate(GateConfig(max_mass_2sigma_kg=0.05))
+    assert any(d.send for d in feed_with(loose, estimate(std_mass=0.011), 0.0, 1.0))
+    assert set(reasons(feed_with(SafetyGate(), estimate(std_mass=math.nan), 0.0, 1.0))) == {
+        "uncertain"}
+
+
+def test_data_disagreeing_with_the_model_holds_writes_back():
+    gate = SafetyGate()
+    bad = feed_with(gate, estimate(std_mass=0.001, nis=4.5), 0.0, 1.0)
+    assert set(reasons(bad)) == {"data_disagree"}
+    assert "normalised innovation squared 4.5" in bad[0].detail and "> 3" in bad[0].detail
+    good = feed_with(gate, estimate(std_mass=0.001, nis=1.1), 1.01, 1.2)
+    assert good[0].send
+    assert any(d.send for d in feed_with(SafetyGate(GateConfig(max_nis=5.0)),
+                                         estimate(nis=4.5), 0.0, 1.0))
+    # no verdict yet (NaN) does not hold a write back
+    assert any(d.send for d in feed_with(SafetyGate(), estimate(nis=math.nan), 0.0, 1.0))
+
+
+def test_a_model_without_std_or_nis_is_not_held_back():
+    assert any(d.send for d in feed_with(SafetyGate(), estimate(), 0.0, 1.0))
+    gate = SafetyGate()
+    assert first_send(gate) > 0  # no raw estimate given at all
+
+
+def test_decide_takes_the_raw_estimate_or_the_last_observed_one():
+    gate = SafetyGate()
+    feed(gate, phi_of(), 0.0, 0.6)  # stable (and written once)
+    gate.observe(0.7, phi_of(), estimate(std_mass=0.05))
+    assert gate.decide(0.7, phi_of(dm=0.015)).reason == "uncertain"  # the observed one
+    assert gate.decide(0.8, phi_of(dm=0.015), estimate(std_mass=0.001)).reason != "uncertain"
+
+
+# -- refusals by the controller --------------------------------------------------------------------
+def until_send(gate: SafetyGate, phi, t0: float, t1: float) -> tuple[list, Decision]:
+    """Like :func:`feed`, but stop at the first send; the decisions before it and the send."""
+    decisions = []
+    for k in range(round((t1 - t0) / DT) + 1):
+        t = round(t0 + k * DT, 9)
+        gate.observe(t, phi)
+        if gate.due(t):
+            d = gate.decide(t, phi)
+            if d.send:
+                return decisions, d
+            decisions.append(d)
+    raise AssertionError(f"no send in [{t0}, {t1}]: {reasons(decisions)}")
+
+
+def test_a_refused_load_is_not_the_written_one_and_is_retried_until_acknowledged(caplog):
+    gate = SafetyGate(GateConfig(refusal_retry_s=0.5, refusal_retry_max_s=1.0))
+    target = phi_of(dm=0.015)
+    t1 = first_send(gate)  # the first write, acknowledged: the robot has P
+    gate.sent_command(1, t1)
+    gate.acknowledged(1)
+    written = gate.last_sent
+    _, send = until_send(gate, target, 0.61, 2.0)
+    gate.sent_command(2, send.t)
+    with caplog.at_level(logging.INFO, logger="iem.gate"):
+        gate.refused(2, send.t, "command not possible in the current mode")
+    assert gate.last_sent is written  # the refused load was not written
+    assert gate.refusals == 1
+    record = next(r for r in caplog.records if getattr(r, "event", "") == "load_refused")
+    assert record.levelno == logging.WARNING and record.seq == 2
+    assert "command not possible in the current mode" in record.getMessage()
+    assert "retry in 0.5 s" in record.getMessage()
+    # it waits refusal_retry_s, then tries the same load again
+    wait, retry = until_send(gate, target, send.t + DT, send.t + 2.0)
+    assert wait and set(reasons(wait)) == {"refused"}
+    assert "refused command 2 (command not possible in the current mode); retry in" in \
+        wait[0].detail
+    assert retry.t >= send.t + 0.5 - 1e-9 and wait[-1].t < send.t + 0.5
+    assert retry.payload.mass == pytest.approx(P.mass + 0.015)
+    # refused again: the wait doubles (0.5 -> 1.0 s, the cap)
+    gate.sent_command(3, retry.t)
+    gate.refused(3, retry.t)
+    wait, again = until_send(gate, target, retry.t + DT, retry.t + 3.0)
+    assert set(reasons(wait)) == {"refused"}
+    assert again.t >= retry.t + 1.0 - 1e-9 and wait[-1].t < retry.t + 1.0
+    gate.sent_command(4, again.t)
+    gate.refused(4, again.t)  # a third time: still 1.0 s (capped)
+    wait, last = until_send(gate, target, again.t + DT, again.t + 3.0)
+    assert 1.0 - 1e-9 <= last.t - again.t < 1.0 + 0.05  # 1.0 s, on the decision grid
+    # accepted: that load is the written one and the retries stop
+    gate.sent_command(5, last.t)
+    gate.acknowledged(5)
+    assert gate.last_sent is last.payload
+    after = feed(gate, target, last.t + DT, last.t + 5.0)
+    assert set(reasons(after)) == {"no_change"}
+    assert (gate.sent, gate.acked, gate.refusals) == (5, 2, 3)
+    # a new refusal streak starts at refusal_retry_s again
+    _, nxt = until_send(gate, phi_of(dm=0.04), last.t + 5.0 + DT, last.t + 7.0)
+    gate.sent_command(6, nxt.t)
+    gate.refused(6, nxt.t)
+    assert "retry in 0.5 s" in gate.decide(nxt.t + 0.0001, phi_of(dm=0.04)).detail
+
+
+def test_the_first_load_refused_leaves_nothing_written_and_is_retried():
+    gate = SafetyGate(GateConfig(refusal_retry_s=0.2))
+    t = first_send(gate)
+    gate.sent_command(9, t)
+    gate.refused(9, t)
+    assert gate.last_sent is None
+    d = feed(gate, phi_of(), t + 0.01, t + 0.5)
+    assert reasons(d)[0] == "refused" and any(x.send for x in d)
+
+
+def test_a_refusal_of_an_older_command_is_counted_but_does_not_undo_the_newer(caplog):
+    gate = SafetyGate()
+    t = first_send(gate)
+    gate.sent_command(1, t)
+    with caplog.at_level(logging.WARNING, logger="iem.gate"):
+        gate.refused(7, t + 0.01, "stale")
+    assert gate.refusals == 1 and gate.last_sent is not None
+    assert "retry" not in caplog.records[-1].getMessage()
+
+
+def test_a_load_the_link_could_not_send_is_not_the_written_one(caplog):
+    gate = SafetyGate()
+    t = first_send(gate)
+    assert gate.last_sent is not None
+    with caplog.at_level(logging.ERROR, logger="iem.gate"):
+        gate.send_failed("Ixx does not fit")
+    assert gate.last_sent is None and gate.send_errors == 1
+    assert caplog.records[-1].event == "load_send_failed"
+    # no hammering: the next try waits for the rate limit
+    assert gate.decide(t + 0.5, phi_of()).reason == "rate_limited"

@@ -123,3 +123,69 @@ def test_formatter_alone():
     doc = json.loads(JsonFormatter().format(record))
     assert {k: doc[k] for k in ("level", "logger", "msg", "event")} == {
         "level": "info", "logger": "iem.t", "msg": "a 1", "event": "x"}
+
+
+# -- off a terminal, and log lines beside the status line ----------------------------------------
+def test_off_a_terminal_plain_lines_at_the_plain_period_and_never_a_carriage_return():
+    out = io.StringIO()  # a pipe or a file: not a terminal
+    line = StatusLine(True, out, period_s=0.25, plain_period_s=10.0)
+    assert line.enabled and not line.tty and line.interval_s == 10.0
+    line.show("m 1.615 kg", now=0.0)
+    assert not line.due(5.0)
+    line.show("m 1.616 kg", now=5.0)  # not due: nothing
+    line.show("m 1.617 kg", now=10.0)
+    assert out.getvalue() == "status: m 1.615 kg\nstatus: m 1.617 kg\n"
+    # a forced message is written once at once, not again while it stays the same
+    for t in (10.1, 10.2, 10.3):
+        line.show("controller silent: writes stopped", force=True, now=t)
+    line.clear()  # nothing to erase: the lines are whole
+    assert out.getvalue().count("controller silent") == 1
+    assert "\r" not in out.getvalue()
+    assert all(x.startswith("status: ") for x in out.getvalue().splitlines())
+
+
+def test_off_a_terminal_a_plain_period_of_0_means_no_status_at_all():
+    out = io.StringIO()
+    line = StatusLine(True, out, plain_period_s=0.0)
+    assert not line.enabled
+    line.show("x", force=True, now=0.0)
+    assert out.getvalue() == ""
+    cfg = LogConfig(status_line="on", status_plain_period_s=0.0)
+    assert not StatusLine.from_config(cfg, io.StringIO()).enabled
+    assert StatusLine.from_config(cfg, FakeTty()).enabled  # on a terminal it still shows
+    assert StatusLine.from_config(LogConfig(status_line="on"), io.StringIO()).interval_s == 10.0
+
+
+@pytest.mark.parametrize("fmt", ["json", "text"])
+def test_a_log_record_on_a_terminal_erases_the_status_line_first(restore_iem_logger, fmt):
+    out = FakeTty()
+    setup_logging("info", fmt, stream=out)
+    line = StatusLine(True, out, period_s=0.25)
+    line.show("m 1.615 kg  bags 4", now=0.0)
+    logging.getLogger("iem.service").warning("controller silent: writes stopped")
+    text = out.getvalue()
+    # the status text, erased by blanks, then the record from the start of the line
+    erased = "\rm 1.615 kg  bags 4" + "\r" + " " * 18 + "\r"
+    assert text.startswith(erased)
+    record = text[len(erased):]
+    assert record.endswith("\n") and record.count("\n") == 1 and "\r" not in record
+    assert "controller silent" in record and "bags 4" not in record
+    # the next redraw starts a fresh line, and padding does not run over the record
+    line.show("m 1.616 kg", now=0.3)
+    assert out.getvalue() == text + "\rm 1.616 kg"
+
+
+def test_off_a_terminal_logs_and_status_lines_stay_separate(restore_iem_logger):
+    out = io.StringIO()
+    setup_logging("info", "json", stream=out)
+    line = StatusLine(True, out, period_s=0.25, plain_period_s=1.0)
+    log = logging.getLogger("iem.gate")
+    for k in range(5):
+        line.show(f"tick {k}", now=k * 0.5)
+        log.info("gate %d", k, extra={"event": "gate"})
+    lines = out.getvalue().splitlines()
+    assert "\r" not in out.getvalue()
+    status = [x for x in lines if x.startswith("status: ")]
+    logs = [json.loads(x) for x in lines if not x.startswith("status: ")]
+    assert status == ["status: tick 0", "status: tick 2", "status: tick 4"]
+    assert [d["msg"] for d in logs] == [f"gate {k}" for k in range(5)]

@@ -95,7 +95,8 @@ def test_estimate_is_the_projected_posterior_with_its_std():
     mean, cov = model.posterior()
     np.testing.assert_allclose(est.std, np.sqrt(np.diag(cov)))
     np.testing.assert_allclose(est.phi, project(mean, np.linalg.inv(cov)), rtol=1e-9)
-    assert is_consistent(est.phi) and est.t == 0.6 and not est.extra
+    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"nis"}
+    assert 0.0 < est.extra["nis"] < 3.0  # the hand-made data fit the model
 
 
 # -- the regression ----------------------------------------------------------------------

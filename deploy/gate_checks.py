@@ -1,0 +1,82 @@
+"""The safety gate's checks of one estimate on its own: what it is (finite, a possible rigid
+body, within the robot's rating and reach, within the wire's ranges) and what the model says
+of it (its uncertainty, the agreement of the data). The gate (:mod:`deploy.gate`) adds what
+depends on time: the controller's state, acknowledgements and refusals, stability, change
+and rate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sim.payload import Payload
+
+if TYPE_CHECKING:
+    from .gate import GateConfig
+
+WireCheck = Callable[[Payload], "str | None"]
+"""A link's range check of a load: why its wire format cannot carry it, or None."""
+
+
+def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | None = None
+                   ) -> tuple[Payload | None, str, str]:
+    """``(payload, reason, detail)`` of the estimate ``phi`` (paper order): ``reason`` is
+    ``""`` when it may be written as far as its values go, else ``not_finite``,
+    ``inconsistent``, ``over_rated``, ``com_too_far`` or ``out_of_wire_range``; ``payload``
+    is None while ``phi`` has no recoverable CoM."""
+    c = config
+    if phi.shape != (10,) or not np.all(np.isfinite(phi)):
+        return None, "not_finite", "estimate has NaN or infinite values"
+    if not phi[0] > 0.0:
+        return None, "inconsistent", f"mass {phi[0]:.4g} kg is not > 0"
+    payload = Payload.from_phi(phi, name="estimate")
+    problems = payload.consistency_violations()
+    if problems:
+        return payload, "inconsistent", "; ".join(problems)
+    if payload.mass > c.rated_mass_kg:
+        return payload, "over_rated", f"mass {payload.mass:.3f} kg > rated {c.rated_mass_kg:g} kg"
+    radius = math.sqrt(sum(v * v for v in payload.com))
+    if radius > c.max_com_radius_m:
+        return (payload, "com_too_far",
+                f"CoM {radius:.3f} m from the flange > {c.max_com_radius_m:g} m")
+    if wire_check is not None:
+        why = wire_check(payload)
+        if why:
+            return payload, "out_of_wire_range", f"the link's wire format cannot carry it: {why}"
+    return payload, "", ""
+
+
+def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
+    """``("unverified" | "uncertain" | "data_disagree", detail)`` if the model's own figures
+    say its estimate (an :class:`iem.types.PayloadEstimate`) is not good enough to write,
+    else None; also None for a model that reports neither a ``std`` nor ``extra["nis"]``.
+
+    - ``unverified``: ``extra["unverified"]``: the estimate started from a payload file and
+      the model has not yet tested it against enough live data;
+    - ``uncertain``: ``2 * std[0]`` (the 2-sigma band on the mass, kg) is wider than
+      ``max_mass_2sigma_kg``, or not a number (no band known);
+    - ``data_disagree``: ``extra["nis"]`` (the mean normalised innovation squared per degree
+      of freedom over the model's recent equations, about 1 when the data agree with the
+      model) exceeds ``max_nis``; a NaN ``nis`` (no verdict yet) does not hold a write back.
+    """
+    if estimate is None:
+        return None
+    extra = getattr(estimate, "extra", None) or {}
+    if extra.get("unverified"):
+        return ("unverified", "the estimate starts from a payload file and has not yet been "
+                              "tested against enough live data")
+    std = getattr(estimate, "std", None)
+    if std is not None:
+        band = 2.0 * float(np.asarray(std, dtype=float).reshape(-1)[0])
+        if not band <= config.max_mass_2sigma_kg:
+            return ("uncertain", f"2-sigma band on the mass {band:.4g} kg > "
+                                 f"{config.max_mass_2sigma_kg:g} kg")
+    nis = extra.get("nis")
+    if nis is not None and math.isfinite(nis) and nis > config.max_nis:
+        return ("data_disagree", f"normalised innovation squared {nis:.3g} per degree of "
+                                 f"freedom > {config.max_nis:g}: the data disagree with the model")
+    return None

@@ -1,0 +1,125 @@
+"""``iem identify``: commissioning identification of a payload from recorded traffic.
+
+``iem identify --loaded LOG --bare LOG [--arm ARM] --out P.toml [--json S.json]``
+
+Both logs (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes them) are decoded
+by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus, as
+fast as the machine goes; the numerics are :func:`iem.identify.identify` (see there for the
+method and the refusals). The result is written as the project's payload TOML
+(:func:`sim.payload.save_payload`: mass, CoM in the flange frame, inertia about the CoM) and,
+with ``--json``, a summary holding ``payload {mass, com, inertia}`` and ``std {mass, com,
+inertia}`` in the same units, plus the ten parameters, their standard deviations, which of
+them the data determine, and the run's figures.
+
+Errors (a missing or unreadable log, logs of different motions, too little excitation, a load
+in the bare log) end with ``iem: error: ...`` and exit status 2; nothing is written then.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path as FsPath
+
+from iem.errors import InvalidInputError
+
+
+def read_log(path, profile: str = "fd"):
+    """The joint states of a CAN log as a :class:`iem.identify.Recording`."""
+    from firmware_bridge.errors import LogFileError
+    from firmware_bridge.replay import ReplaySource
+    from iem.identify import Recording
+
+    with ReplaySource(path, profile, pace="fast") as source:
+        states = list(source)
+        counters = source.counters
+    if len(states) < 2:
+        other = "classic" if profile == "fd" else "fd"
+        raise LogFileError(f"{path}: {len(states)} complete joint-state cycle(s) of the "
+                           f"{profile} profile ({counters.summary()}); a recording of the "
+                           f"motion is needed (recorded with --profile {other}?)")
+    return Recording.from_states(states)
+
+
+def configure(parser) -> None:
+    parser.add_argument("--loaded", required=True, metavar="LOG",
+                        help="CAN log of the motion with the payload mounted")
+    parser.add_argument("--bare", metavar="LOG",
+                        help="CAN log of the same motion without the payload")
+    parser.add_argument("--arm", metavar="ARM",
+                        help="arm file from 'iem calibrate' instead of --bare (any motion)")
+    parser.add_argument("--out", required=True, metavar="P.toml",
+                        help="payload file to write (mass, CoM, inertia about the CoM)")
+    parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
+    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+                        help="wire profile the logs were recorded with (default fd)")
+    parser.add_argument("--name", help="payload name in the file (default: the file's stem)")
+
+
+def print_result(result, summary: dict, log=print) -> None:
+    p, s = summary["payload"], summary["std"]
+    rep = result.report
+
+    def vec(values, fmt):
+        return "[" + ", ".join(format(v, fmt) for v in values) + "]"
+
+    log(f"payload {p['name']!r}:")
+    log(f"  mass    {p['mass']:.4f} ± {s['mass']:.4f} kg")
+    log(f"  com     {vec(p['com'], '.5f')} ± {vec(s['com'], '.5f')} m")
+    log(f"  inertia {vec(p['inertia'], '.6f')}")
+    log(f"        ± {vec(s['inertia'], '.6f')} kg·m² about the CoM")
+    prior = [k for k, v in summary["determined_by"].items() if v == "prior"]
+    log("  determined by the data: " + ("all ten parameters" if not prior else
+        "all but " + ", ".join(prior) + " (from the prior)"))
+    before = max(rep["residual_rms_before"])
+    after = max(rep["residual_rms_after"])
+    ref = "loaded minus bare" if rep["reference"] == "bare" else "loaded minus arm model"
+    log(f"  {rep['samples']} samples at {rep['rate_hz']:g} Hz; residual ({ref}) worst joint "
+        f"RMS {before:.3f} -> {after:.4f} N·m")
+    if rep["reference"] == "bare":
+        log(f"  bare aligned by {rep['lag_s'] * 1e3:+.2f} ms over {rep['overlap_s']:.2f} s, "
+            f"paths differ by at most {rep['path_diff_max_rad'] * 1e3:.2f} mrad")
+
+
+def run(args) -> int:
+    from iem.identify import identify
+    from sim.payload import payload_to_toml
+
+    if args.bare is None and args.arm is None:
+        raise InvalidInputError("iem identify needs --bare LOG (a bare recording of the same "
+                                "motion) or --arm ARM (an arm file from 'iem calibrate')")
+    if args.bare is not None and args.arm is not None:
+        raise InvalidInputError("iem identify takes one of --bare and --arm, not both")
+    start = time.perf_counter()
+    loaded = read_log(args.loaded, args.profile)
+    bare = read_log(args.bare, args.profile) if args.bare is not None else None
+    decoded = time.perf_counter()
+    result = identify(loaded, bare=bare, arm=args.arm)
+    done = time.perf_counter()
+    name = args.name or FsPath(args.out).stem or "identified"
+    summary = result.summary(name)
+    summary["files"] = {"loaded": str(args.loaded), "bare": args.bare, "arm": args.arm,
+                        "profile": args.profile}
+    summary["time_s"] = {"decode": decoded - start, "identify": done - decoded}
+    payload = result.payload(name).check()
+    _write(args.out, payload_to_toml(payload, phi_std=result.std))
+    if args.json:
+        _write(args.json, json.dumps(summary, indent=2) + "\n")
+    print_result(result, summary)
+    print(f"  wrote {args.out}" + (f" and {args.json}" if args.json else "")
+          + f" ({decoded - start:.2f} s decoding, {done - decoded:.2f} s identifying)")
+    return 0
+
+
+def _write(path, text: str) -> None:
+    try:
+        FsPath(path).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise InvalidInputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from .cli import main
+
+    sys.exit(main(["identify", *sys.argv[1:]]))

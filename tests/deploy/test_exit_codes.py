@@ -1,0 +1,134 @@
+"""Exit statuses and messages of ``iem`` on bad input: a configuration error ends in one line
+``iem: error: ...`` naming the file or key and what is valid, with status 78 (EX_CONFIG), so
+systemd does not restart into it; a link failure keeps status 2 (restarted)."""
+
+from __future__ import annotations
+
+import configparser
+from pathlib import Path
+
+import pytest
+
+from deploy.cli import EX_CONFIG, main
+
+from .conftest import cell_config, write_toml
+
+UNIT = Path(__file__).resolve().parents[2] / "deploy" / "iem.service"
+
+
+@pytest.fixture(autouse=True)
+def restore_iem_logger():
+    """``iem run`` points the ``iem`` loggers at this test's stderr; put them back."""
+    import logging
+
+    root = logging.getLogger("iem")
+    saved = root.handlers[:], root.level, root.propagate
+    yield
+    root.handlers[:], root.level, root.propagate = saved
+
+
+def run_iem(capsys, *argv: str) -> tuple[int, str]:
+    status = main(list(argv))
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return status, err
+
+
+def test_the_config_status_is_sysexits_ex_config_and_the_unit_does_not_restart_on_it():
+    assert EX_CONFIG == 78
+    unit = configparser.ConfigParser(interpolation=None, strict=True)
+    unit.optionxform = str
+    unit.read_string(UNIT.read_text())
+    assert unit["Service"]["RestartPreventExitStatus"].split() == ["78"]
+    assert unit["Service"]["Restart"] == "on-failure"  # link failures (2) still restart
+
+
+def test_a_non_utf8_cell_toml(tmp_path, capsys):
+    path = tmp_path / "cell.toml"
+    path.write_bytes(b'[link]\nchannel = "can\xff0"\n')
+    status, err = run_iem(capsys, "run", "--config", str(path))
+    assert status == EX_CONFIG
+    assert err.startswith(f"iem: error: {path}: not UTF-8 text (byte 0xff on line 2, offset 21)")
+    assert "must be UTF-8" in err and err.count("\n") == 1
+
+
+def test_a_non_utf8_payload_file(tmp_path, capsys):
+    payload = tmp_path / "payload.toml"
+    payload.write_bytes(b'name = "b\xe9cher"\nmass = 1.0\n')  # Latin-1, not UTF-8
+    status, err = run_iem(capsys, "replay", str(tmp_path / "traffic.blf"), "--truth",
+                          str(payload))
+    assert status == 2  # a command at a terminal: only the service exits EX_CONFIG
+    assert err.startswith(f"iem: error: {payload}: payload file is not UTF-8 text "
+                          "(byte 0xe9 on line 1, offset 9)")
+    assert "must be UTF-8 TOML" in err
+
+
+@pytest.mark.parametrize(("seed", "parts"), [
+    ("-1", ["[model] seed = -1 is out of range", "valid is an integer from 0 to "]),
+    ("1.5", ["[model] seed = 1.5 must be an integer from 0 to "]),
+])
+def test_a_seed_out_of_range(tmp_path, capsys, seed, parts):
+    path = tmp_path / "cell.toml"
+    path.write_text(f"[model]\nseed = {seed}\n")
+    status, err = run_iem(capsys, "run", "--config", str(path))
+    assert status == EX_CONFIG and err.startswith(f"iem: error: {path}: ")
+    for part in parts:
+        assert part in err
+
+
+@pytest.mark.parametrize(("text", "part"), [
+    ("[gate]\nmax_nis = 0.5\n", "[gate] max_nis = 0.5 is out of range; valid is [1, 1e+06]"),
+    ("[gate]\nmax_mass_2sigma_kg = 0\n", "[gate] max_mass_2sigma_kg = 0.0 is out of range"),
+    ("[gate]\nrefusal_retry_s = 5.0\nrefusal_retry_max_s = 2.0\n",
+     "refusal_retry_max_s = 2.0 is below refusal_retry_s = 5.0; valid is refusal_retry_max_s"),
+    ("[gate]\nmax_nsi = 3\n", "unknown key(s) ['max_nsi'] in [gate]"),
+    ("[link]\nkind = socketcan\n", "not valid TOML"),
+])
+def test_bad_keys_and_values_are_config_errors(tmp_path, capsys, text, part):
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    status, err = run_iem(capsys, "run", "--config", str(path))
+    assert status == EX_CONFIG and part in err, err
+
+
+def test_a_missing_cell_toml_is_a_config_error(tmp_path, capsys):
+    status, err = run_iem(capsys, "run", "--config", str(tmp_path / "nope.toml"))
+    assert status == EX_CONFIG and "cannot read the configuration" in err
+
+
+@pytest.mark.hil
+def test_a_link_failure_keeps_status_2(tmp_path, capsys, model_file):
+    """An slcan adapter that is not there: the link fails to open (systemd retries)."""
+    doc = cell_config(model_file, {"kind": "slcan", "channel": str(tmp_path / "ttyACM9")})
+    status, err = run_iem(capsys, "run", "--config", str(write_toml(tmp_path / "cell.toml",
+                                                                    doc)))
+    assert status == 2
+    last = err.splitlines()[-1]  # after the JSON logs of the start
+    assert last.startswith("iem: error: cannot open slcan bus") and "ttyACM9" in last
+
+
+def test_a_bad_path_file_is_a_config_error(tmp_path, capsys):
+    path = tmp_path / "path.csv"
+    path.write_bytes(b"t,q1,q2,q3,q4,q5,q6,q7\n0,\xff\n")
+    status, err = run_iem(capsys, "sim-controller", "--interface", "virtual", "--path",
+                          str(path))
+    assert status == 2 and err.startswith(f"iem: error: {path}: path file is not UTF-8")
+
+
+def test_which_errors_are_configuration_errors():
+    from deploy.cli import EX_ERROR, exit_status
+    from deploy.config import ConfigError
+    from firmware_bridge.errors import (
+        BridgeConfigError,
+        EncodeError,
+        LinkError,
+        LogFileError,
+    )
+    from iem.errors import ModelFileError, PathError, PayloadError
+
+    for exc in (ConfigError("x"), PayloadError("x"), PathError("x"), BridgeConfigError("x")):
+        assert exit_status(exc) == EX_CONFIG, exc
+        assert exit_status(exc, "replay") == exit_status(exc, "train") == EX_ERROR, exc
+    # a restart may help (the adapter is back), or it is a data file, not the configuration
+    for exc in (LinkError("x"), ModelFileError("x"), LogFileError("x"), EncodeError("x")):
+        assert exit_status(exc) == EX_ERROR == 2, exc
