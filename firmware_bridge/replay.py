@@ -8,6 +8,9 @@ as fast as it can. Decoding depends only on the frames, so replaying a file twic
 identical joint states, at either pace. ``read`` raises
 :class:`~firmware_bridge.errors.EndOfStream` at the end of the file; iterating yields the
 states until then. The ``timeout`` of ``read`` is not used: a replay has the recorded timing.
+Where the recording holds ``silence_timeout`` s (recorded time) without a complete cycle, the
+source does what the live link did there: it counts a silence and accepts a controller
+restart after it, so a restart in the log never makes the rest of the file stale.
 
 A damaged log loses only what is damaged:
 
@@ -48,7 +51,7 @@ class ReplaySource:
     """A :class:`~firmware_bridge.links.JointStateSource` over a CAN log file."""
 
     def __init__(self, path, profile: str = "fd", pace: str = "fast", skip: float = 60.0,
-                 window: int = 16) -> None:
+                 window: int = 16, silence_timeout: float = 0.1) -> None:
         if pace not in PACES:
             raise BridgeConfigError(f"unknown replay pace {pace!r}; valid are {', '.join(PACES)}")
         self.path = FsPath(path)
@@ -68,6 +71,9 @@ class ReplaySource:
         self.last_bad_line = ""
         self._bad_in_a_row = 0
         self._ended = False
+        self.silence_timeout = float(silence_timeout)
+        self._delivered_at: float | None = None  # recorded time of the last cycle delivered
+        self._silent = False
         self.decoder = CanDecoder(profile, window=window)
         self.profile = self.decoder.profile  # the wire profile (its sample rate, for one)
         self.counters = self.decoder.counters
@@ -151,9 +157,22 @@ class ReplaySource:
                 continue
             self._bad_in_a_row = 0
             self.frames += 1
+            self._silence_check(msg.timestamp)
             state = push(msg)
             if state is not None:
+                self._delivered_at = msg.timestamp
+                self._silent = False
                 return state
+
+    def _silence_check(self, stamp: float) -> None:
+        """What the live link did at this point of the recording: no complete cycle for
+        ``silence_timeout`` s of recorded time is a silence, after which a controller restart
+        (a counter that went backwards) is accepted. Counted in ``silences``, not raised."""
+        last = self._delivered_at
+        if last is not None and not self._silent and stamp - last > self.silence_timeout:
+            self._silent = True
+            self.counters.silences += 1
+            self.decoder.resync()
 
     def __iter__(self):
         while True:
@@ -175,6 +194,7 @@ class ReplaySource:
 def open_replay(kind: str, channel: str, *, profile: str = "fd", silence_timeout: float = 0.1,
                 pace: str = "recorded", skip: float = 60.0, window: int = 16) -> ReplaySource:
     """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the log file
-    (``silence_timeout`` is not used: a replay has the recorded timing and ends with
-    ``EndOfStream``)."""
-    return ReplaySource(channel, profile, pace, skip=skip, window=window)
+    (``silence_timeout``: recorded seconds without a complete cycle that count as a silence,
+    as on the live link)."""
+    return ReplaySource(channel, profile, pace, skip=skip, window=window,
+                        silence_timeout=silence_timeout)

@@ -215,3 +215,32 @@ def test_replay_of_a_log_with_a_bogus_frame_reads_the_whole_file(tmp_path, chann
     assert [s.cycle for s in got] == [k for k in range(300) if k != 150]
     assert src.counters.implausible == 1 and src.counters.lost == 1
     assert not math.isnan(got[-1].t)
+
+
+def write_log(path, messages):
+    writer = can.Logger(str(path))
+    for m in messages:
+        writer.on_message_received(m)
+    writer.stop()
+
+
+@pytest.mark.parametrize("gap_s", [0.5, 0.0])
+def test_a_controller_restart_in_a_log_does_not_make_the_rest_stale(tmp_path, gap_s):
+    """Cycles 0..299, then the controller restarts at cycle 0 (after a 0.5 s pause, or at
+    once). The live link would have gone silent (no new cycle for 0.1 s) and accepted the
+    restart; the replay does the same on the recorded clock instead of dropping the rest of
+    the file as stale."""
+    first = encoded("fd", synthetic_states(300), t0=1000.0)
+    second = encoded("fd", synthetic_states(300), counter0=300, t0=1000.3 + gap_s)
+    log = tmp_path / "restart.log"
+    write_log(log, [m for c in first + second for m in c])
+    with ReplaySource(log, "fd") as src:
+        got = [s.cycle for s in src]
+    assert got[:300] == list(range(300))
+    resumed = got[300]
+    if gap_s:
+        assert resumed == 0
+    else:  # at once: the ~100 ms the live link waited for a new cycle were stale
+        assert 99 <= resumed <= 101
+    assert got[300:] == list(range(resumed, 300))
+    assert src.counters.resyncs == 1 and src.counters.silences == 1
