@@ -111,6 +111,7 @@ class FrankaLink:
         self._waiting: list[tuple[int, bool, str, float]] = []  # outcomes waiting for a state
         # received after the command returned (the load it reports)
         self._load = None  # the load in the last state, as reported by the robot
+        self._load_key: tuple | None = None
         self._seq = 0
         self._owns_robot = owns_robot
         self._stop = threading.Event()
@@ -180,9 +181,11 @@ class FrankaLink:
     # -- source ----------------------------------------------------------------------------
     def _joint_state(self, rs) -> JointState | None:
         self.counters.received += 1
-        m = float(rs.m_load)
-        self._load = None if m == 0.0 else Payload.from_set_load(
-            m, list(rs.F_x_Cload), list(rs.I_load), name="robot")
+        key = (float(rs.m_load), tuple(rs.F_x_Cload), tuple(rs.I_load))
+        if key != self._load_key:  # built only when the robot reports another load
+            self._load_key = key
+            self._load = None if key[0] == 0.0 else Payload.from_set_load(
+                key[0], list(key[1]), list(key[2]), name="robot")
         t = float(rs.time.to_sec())
         cycle = round(t * 1000.0) % CYCLE_MOD
         verdict = self._order.judge(cycle)
