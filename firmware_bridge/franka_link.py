@@ -233,13 +233,12 @@ class FrankaLink:
             if isinstance(item, Exception):
                 raise _franka_error(self.api, item, self.name, "read_once") from item
             state = self._joint_state(item)
-            if self._waiting:
-                later = [w for w in self._waiting if w[3] > received]
-                for seq, applied, error, _ in self._waiting:  # states after set_load returned
-                    if (seq, applied, error, _) not in later:
-                        self._timed_out.discard(seq)
-                        self._ack(seq, applied, error)
-                self._waiting = later
+            if self._waiting:  # a state received after set_load returned reports its load
+                done = [w for w in self._waiting if w[3] <= received]
+                self._waiting = [w for w in self._waiting if w[3] > received]
+                for seq, applied, error, _ in done:
+                    self._timed_out.discard(seq)
+                    self._ack(seq, applied, error)
             if state is not None:
                 self._ready.append((state, received))
         return True
