@@ -5,18 +5,23 @@ serial-number arithmetic, RFC 1982, so it may wrap): a cycle newer than the last
 one is delivered and the gap counts as ``lost``; an older one is ``out_of_order`` (at most
 ``window`` published cycles old) or ``stale``; the same counter again with other content is
 ``stale``. After the caller saw a silence (:meth:`Sequencer.resync`), a counter that went
-backwards is accepted once as a controller restart (``resyncs``).
+backwards is accepted once as a controller restart (``resyncs``). A counter that jumps ahead
+further than ``JUMP_LIMIT`` published cycles must agree with the last heartbeat or be
+confirmed by the next cycle; otherwise that cycle is ``implausible`` (dropped).
 
 :class:`CycleAssembler` groups the frames of one cycle by their E2E alive counter (all frames
 of a cycle carry the same one; the first part, which holds the cycle counter and the time,
 decides whether the cycle is new). A cycle is complete when every part arrived with a valid
 CRC; when a newer cycle is delivered, incomplete older ones are discarded (their frames count
-as ``orphaned``). With one part per cycle (the FD profile) it reduces to the sequencer plus
-the duplicate check.
+as ``orphaned``), and a slot expires 8 alive-counter steps behind the newest frame seen (half
+the 4-bit counter's range), so a late frame can never complete another cycle that had the
+same counter. With one part per cycle (the FD profile) it reduces to the sequencer plus the
+duplicate check.
 
 :class:`TimeUnwrapper` turns the wire's controller time (µs modulo ``2**bits``) into seconds
-that keep increasing across the wrap, using the cycle counter to resolve gaps longer than
-one wrap period.
+that keep increasing across the wrap, using the cycle counter and the controller's clock rate
+(learnt from consecutive cycles) to resolve gaps longer than one wrap period, and checks the
+protocol's timing requirement (``TIMING_TOLERANCE``, ``TIMING_JITTER_S``).
 """
 
 from __future__ import annotations
