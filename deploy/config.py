@@ -125,6 +125,10 @@ INT_RANGES = {
 }
 
 
+MAY_BE_EMPTY = {("estimate", "initial_payload")}
+"""String keys for which "" means "none"."""
+
+
 def _check(section: str, key: str, value, default, where: str):
     name = f"{where}: [{section}] {key}"
     expected = type(default)
@@ -150,6 +154,8 @@ def _check(section: str, key: str, value, default, where: str):
             raise ConfigError(f"{name} = {value!r} is out of range; valid is [{lo:g}, {hi:g}]")
         return value
     if expected is str:
+        if isinstance(value, str) and not value and (section, key) in MAY_BE_EMPTY:
+            return value
         if not isinstance(value, str) or not value:
             raise ConfigError(f"{name} = {value!r} must be a non-empty string")
         choices = CHOICES.get((section, key))

@@ -161,14 +161,21 @@ class Service:
         gate_clock: ``"monotonic"``: the gate's times are this PC's monotonic clock;
             ``"controller"``: the joint states' own time stamps (a replay as fast as
             possible then decides as the cell did at recorded pace).
+        threaded_reader: read the link in a thread of its own (:mod:`deploy.reader`), so
+            reading never waits for estimating; None: for a live link (``gate_clock``
+            monotonic), not for a replay, which must lose nothing and run as fast as the
+            estimator goes.
     """
 
     def __init__(self, config: CellConfig, link=None, model=None,
                  notifier: Notifier | None = None, status: StatusLine | None = None,
-                 write: bool = True, gate_clock: str = "monotonic") -> None:
+                 write: bool = True, gate_clock: str = "monotonic",
+                 threaded_reader: bool | None = None) -> None:
         if gate_clock not in ("monotonic", "controller"):
             raise ValueError(f"gate_clock {gate_clock!r}; valid are 'monotonic', 'controller'")
         self.gate_clock = gate_clock
+        self.threaded_reader = (gate_clock == "monotonic" if threaded_reader is None
+                                else bool(threaded_reader))
         self.config = config
         self.link = link
         self.model = model
@@ -184,6 +191,7 @@ class Service:
         self.silent = False
         self.silences = 0
         self.skipped = 0
+        self.reader_skipped = 0
         self.unlearnt = 0
         self._behind = False
         self.checkpoints = 0
@@ -233,6 +241,8 @@ class Service:
         """Run until stopped, ``duration`` s passed, ``until()`` is true or a replay ends."""
         from firmware_bridge.errors import ControllerSilent, EncodeError, EndOfStream
 
+        from .reader import Item, LinkReader
+
         if self.link is None or self.model is None:
             self.open()
         cfg = self.config
@@ -251,6 +261,20 @@ class Service:
         log.info("running: link %s, model %s (%d bags), writes %s", getattr(link, "name", link),
                  self.model.name, self.model.n_bags, "on" if sink else "off",
                  extra={"event": "started"})
+        reader = (LinkReader(link, cfg.link.silence_timeout_s).start() if self.threaded_reader
+                  else None)
+
+        def next_item() -> Item | None:
+            if reader is not None:
+                return reader.get(cfg.link.silence_timeout_s + 0.5)
+            try:
+                state = link.read(cfg.link.silence_timeout_s)
+            except ControllerSilent as exc:
+                return Item("silent", str(exc))
+            except EndOfStream:
+                return Item("end")
+            return Item("state", state, getattr(link, "last_frame_time", 0.0))
+
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -261,18 +285,22 @@ class Service:
                 if watchdog is not None and now >= next_watchdog:
                     self.notifier.watchdog()
                     next_watchdog = now + watchdog
-                try:
-                    state = link.read(cfg.link.silence_timeout_s)
-                except ControllerSilent as exc:
-                    self._controller_silent(str(exc))
+                item = next_item()
+                if item is None:
+                    continue
+                if item.kind == "silent":
+                    self._controller_silent(item.value)
                     if last_smoothed is not None:  # the gate decides (and counts) on
                         gate.decide(time.monotonic(), last_smoothed)  # no write
                     continue
-                except EndOfStream:
+                if item.kind == "end":
                     break
+                if item.kind == "error":
+                    raise item.value
+                state = item.value
                 if self.silent:
                     self._controller_back()
-                frame_t = getattr(link, "last_frame_time", 0.0)  # its receive time (epoch s)
+                frame_t = item.frame_time  # its receive time (epoch s)
                 if max_lag:
                     lag = time.time() - frame_t if frame_t > 0 else 0.0
                     if lag > SKIP_LAG_S:
@@ -314,6 +342,10 @@ class Service:
         finally:
             self.wall_s = time.monotonic() - started
             self.cpu_s = time.thread_time() - cpu0
+            if reader is not None:
+                reader.stop()
+                self.reader_skipped += reader.skipped
+                self.cpu_s += reader.cpu_s
             self.status.clear()
             self.notifier.stopping()
         return self.summary()
@@ -433,7 +465,8 @@ class Service:
                        "rejected": gate["rejected"], "refused_by_controller": self.gate.refusals,
                        "send_errors": self.gate.send_errors},
             "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
-                       "skipped": self.skipped},
+                       "skipped": self.skipped + self.reader_skipped,
+                       "not_newer": self.online.skipped},
             "unlearnt": self.unlearnt,
             "learnt": self.online.learned_points,
             "gate": gate["decisions"],

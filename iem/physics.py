@@ -6,32 +6,38 @@ physics but needs rich motion and time. This model keeps both, per estimate:
 - **The ensemble** (:class:`iem.ensemble.IncrementalEnsemble`, held, not copied): the same
   bags, learners and ``learn_one``, so it never forgets. Its instantaneous estimate at every
   sample is the evidence the robot's motion need not provide.
-- **The prior** is a summary of the ensemble's estimates since the last payload change: their
-  running mean ``mu_p``, with the covariance ``C_p`` = the mean, over those samples, of the
-  covariance of the estimating bag's learner's error, plus the mean's own noise: the scatter
-  of the estimates divided by their number (shrunk toward the sensor noise's share while
-  there are few). A bag's error covariance is measured on what the
-  model has: the tandem samples of the training payloads at the bag's points, noise-free
-  inputs, learner output minus true phi (:meth:`PhysicsInformedEnsemble.fit` for the initial
-  bags, every learnt point for new ones). A learner sees 7 torques and outputs 10 parameters,
-  so at one instant 3 directions (mostly inertia) are guessed from the family; that spread is
-  exactly what this covariance measures. ``prior_scale`` multiplies its standard deviations.
+- **The prior** is a summary of the ensemble's estimates since the last payload change
+  (:class:`iem.prior_summary.PriorSummary`): their running mean ``mu_p``, with the covariance
+  ``C_p`` = the mean, over those samples, of the covariance of the estimating bag's learner's
+  error, plus the mean's own noise: the scatter of the estimates divided by their number
+  (shrunk toward the sensor noise's share while there are few). A bag's error covariance
+  (:class:`iem.prior_summary.BagCalibration`) is measured on what the model has: the tandem
+  samples of the training payloads at the bag's points, noise-free inputs, learner output
+  minus true phi (:meth:`PhysicsInformedEnsemble.fit` for the initial bags, every learnt
+  point for new ones). ``prior_scale`` multiplies its standard deviations.
   The calibration holds where the learners were trained; far from that an ensemble can be
   off by more than it says, so the data judge the prior: its covariance is scaled by the
   empirical-Bayes factor ``s² >= 1`` that makes the data most likely
   (:func:`prior_inflation`), 1 while they agree.
 - **The data**: the regression equations ``r = Y phi + e``, ``e ~ N(0, R)`` of
-  :class:`iem.regression.PayloadRegression` (q, dq and tau through the same ``cutoff_hz``
-  low-pass, ddq the difference of the filtered dq, ``R`` the torque noise plus the ddq noise
-  through the arm's and the payload's inertia), one every ``update_every`` samples after the
-  filter has settled, kept in information form since the last change:
-  ``Lambda_d = sum Y^T (c R)^-1 Y``, ``eta_d = sum Y^T (c R)^-1 r``, with ``c`` the filtered
-  noise's correlation length over ``update_every`` (equations closer than that are not
-  independent; this counts them as the independent ones they stand for).
-- **The posterior**, each estimate: precision ``Lambda = C_p^-1 + Lambda_d``, mean
-  ``phi = Lambda^-1 (C_p^-1 mu_p + eta_d)``, ``std = sqrt(diag(Lambda^-1))``; the mean is then
-  projected onto physically consistent parameters in the metric ``Lambda``
-  (:func:`iem.consistency.project`), so the least certain parameters move the most.
+  :class:`iem.regression.PayloadRegression`: the samples are averaged in blocks of
+  ``update_every`` (one addition per sample), the block means go through the ``cutoff_hz``
+  low-pass at the block rate (100 Hz by default), ddq is the difference of the filtered dq,
+  ``R`` the torque noise plus the ddq noise through the arm's and the payload's inertia (at
+  the block rate: the block mean has ``1 / update_every`` of the sample noise's variance);
+  one equation per block after the filter has settled, kept in information form since the
+  last change (:class:`iem.posterior.EquationWindow`): ``Lambda_d = sum Y^T (c R)^-1 Y``,
+  ``eta_d = sum Y^T (c R)^-1 r``. Equations at 100 Hz of a 4 Hz low-pass are not
+  independent: ``c`` (11.3 by default) is the sum of the filtered noise's autocorrelation at
+  the equations' spacing (:func:`iem.regression.correlation_weight`), so the window's
+  information about a constant payload is what the independent information in the signal
+  is, no more.
+- **The posterior** (:class:`iem.posterior.Posterior`): precision ``Lambda = C_p^-1 +
+  Lambda_d``, mean ``phi = Lambda^-1 (C_p^-1 mu_p + eta_d)``, ``std = sqrt(diag(Lambda^-1))``;
+  the mean is then projected onto physically consistent parameters in the metric ``Lambda``
+  (:func:`iem.consistency.project`), so the least certain parameters move the most. It is
+  refreshed every ``refresh_every`` equations (20 Hz by default: the output smoothing's time
+  constant is 0.2 s), and between refreshes every estimate is the cached one.
 - **Payload change**: each equation's innovation, whitened by its covariance
   ``R + Y Lambda^-1 Y^T``, feeds a CUSUM (:class:`iem.change.ChangeDetector`), from the
   window's :data:`DETECT_AFTER`-th equation on (before, a conflict is the prior's, which the
@@ -55,80 +61,25 @@ import numpy as np
 
 from .base import Samples, resolve
 from .change import ChangeDetector, chi_square
-from .consistency import EPS, project
+from .consistency import EPS
 from .ensemble import IncrementalEnsemble
 from .errors import InvalidInputError
 from .least_squares import DEFAULT_PRIOR_STD
+from .posterior import EquationWindow, Posterior, combine, prior_inflation
+from .prior_summary import BagCalibration, PriorSummary
 from .regression import PayloadRegression
 from .types import PayloadEstimate
+
+__all__ = ["DETECT_AFTER", "NIS_WINDOW", "PRIOR_FLOOR", "PhysicsInformedEnsemble",
+           "prior_inflation"]
 
 PRIOR_FLOOR = (1e-4, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
 """Smallest prior standard deviation per parameter (kg, kg·m, kg·m²): keeps ``C_p``
 invertible where the learners happen to agree with every training payload."""
-
-
-NOISE_PSEUDO_COUNT = 10
-"""Weight, in samples, of the input-noise covariance against the sample covariance of the
-ensemble's estimates in the prior's noise term (see :meth:`PhysicsInformedEnsemble._prior`)."""
-
-
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
 NIS_WINDOW = 50
 """Equations over which :attr:`PhysicsInformedEnsemble.nis` is averaged (0.5 s by default)."""
-MAX_INFLATION = 1e6
-"""Largest factor :func:`prior_inflation` puts on the prior covariance."""
-
-
-def prior_inflation(mu_p, c_p, info, eta) -> float:
-    """The factor ``s² >= 1`` on the prior covariance that makes the data most likely.
-
-    The data's sufficient statistics ``eta = sum Y^T R^-1 r`` and ``info = sum Y^T R^-1 Y``
-    have, under the prior ``phi ~ N(mu_p, s² C_p)``, ``eta ~ N(info mu_p, info + s² info C_p
-    info)``. Whitened by ``info`` and diagonalised (``gamma_i``: how much sharper the data
-    are than the prior along direction ``i``, ``a_i``: the whitened prior-data difference),
-    the log-likelihood is ``-1/2 sum [log(1 + s² gamma_i) + a_i² / (1 + s² gamma_i)]``; this
-    returns its maximiser over ``[1, MAX_INFLATION]`` (empirical Bayes). It stays 1 while the
-    data agree with the prior, and grows when they show the prior's mean off by more than
-    its covariance allows (e.g. an ensemble far outside its training data): then the prior's
-    claims elsewhere, e.g. on the inertia the data barely see, are not trusted either.
-    """
-    d, U = np.linalg.eigh(0.5 * (info + info.T))
-    keep = d > 1e-9 * max(float(d.max()), 1e-300)
-    if not keep.any():
-        return 1.0
-    U, root = U[:, keep], np.sqrt(d[keep])
-    v = (U.T @ (eta - info @ mu_p)) / root
-    G = root[:, None] * (U.T @ c_p @ U) * root[None, :]
-    gamma, V = np.linalg.eigh(0.5 * (G + G.T))
-    gamma = np.maximum(gamma, 0.0)
-    a2 = np.square(V.T @ v)
-
-    def slope(log_s2: np.ndarray) -> np.ndarray:  # 2 d(log-likelihood)/d(s²) on a grid
-        k = 1.0 + np.exp(log_s2)[:, None] * gamma[None, :]
-        return np.sum(gamma * (a2 / (k * k) - 1.0 / k), axis=1)
-
-    grid = np.linspace(0.0, math.log(MAX_INFLATION), 49)
-    g = slope(grid)
-    if g[0] <= 0.0:
-        return 1.0
-    for _refine in range(2):  # the first sign change of the slope, on finer grids
-        down = np.flatnonzero(g <= 0.0)
-        if down.size == 0:
-            return MAX_INFLATION
-        i = int(down[0])
-        grid = np.linspace(grid[i - 1], grid[i], 33)
-        g = slope(grid)
-    i = int(np.flatnonzero(g <= 0.0)[0])  # the last bracket: interpolate the slope
-    w = g[i - 1] / (g[i - 1] - g[i])
-    return float(math.exp(grid[i - 1] + w * (grid[i] - grid[i - 1])))
-
-
-def _sym_inv(A: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive-definite matrix (via Cholesky), symmetrised."""
-    L = np.linalg.cholesky(A)
-    Li = np.linalg.solve(L, np.eye(A.shape[0]))
-    return Li.T @ Li
 
 
 class PhysicsInformedEnsemble:
@@ -143,11 +94,12 @@ class PhysicsInformedEnsemble:
         cutoff_hz: low-pass cut-off of the regression, Hz (default 4: the motion of a task
             path is below 1 Hz, and the ddq noise grows with the cut-off cubed).
         rate_hz: sample rate, Hz.
-        update_every: one regression equation every this many samples.
+        update_every: samples per regression block: one equation every this many samples.
         prior_scale: factor on the calibrated prior standard deviations.
         drift, threshold: the change detector's CUSUM (see :mod:`iem.change`).
         holdoff_s: equations skipped after a change, s (-1: the filter's settling time).
         eps: smallest eigenvalue of the projected pseudo-inertia (:mod:`iem.consistency`).
+        refresh_every: equations between refreshes of the posterior and its projection.
     """
 
     name = "IEM+phys"
@@ -158,7 +110,8 @@ class PhysicsInformedEnsemble:
                  dynamics: str = "sim.robot:panda_dynamics", sigma_tau: float = 0.05,
                  sigma_dq: float = 2e-3, cutoff_hz: float = 4.0, rate_hz: float = 1000.0,
                  update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
-                 threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS) -> None:
+                 threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS,
+                 refresh_every: int = 5) -> None:
         self.ensemble = dict(ensemble or {})
         self.dynamics = dynamics
         self.sigma_tau = float(sigma_tau)
@@ -171,20 +124,25 @@ class PhysicsInformedEnsemble:
         self.threshold = float(threshold)
         self.holdoff_s = float(holdoff_s)
         self.eps = float(eps)
+        self.refresh_every = int(refresh_every)
         if not self.prior_scale > 0.0:
             raise InvalidInputError(f"prior_scale must be > 0, got {prior_scale}")
+        if self.refresh_every < 1:
+            raise InvalidInputError(f"refresh_every must be >= 1 equation, got {refresh_every}")
         self._ens = IncrementalEnsemble(**self.ensemble)
         self._reg = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq, self.cutoff_hz,
-                                      self.rate_hz, every=self.update_every, settle=-1,
-                                      payload_inertia=True)
-        self._weight = max(1.0, self._reg.correlation / self.update_every)
-        self._holdoff_n = (self._reg.settle if self.holdoff_s < 0
+                                      self.rate_hz, every=1, settle=-1, payload_inertia=True,
+                                      decimate=self.update_every)
+        self._weight = self._reg.correlation_weight
+        self._holdoff_n = (self._reg.settle * self.update_every if self.holdoff_s < 0
                            else round(self.holdoff_s * self.rate_hz))
         self._detector = ChangeDetector(7, self.drift, self.threshold)
         self._floor = np.square(PRIOR_FLOOR)
-        self._calib: list[np.ndarray] = []  # per bag: sum of r r^T of its learner's errors
-        self._calib_n: list[int] = []
-        self._routed = None  # (x as given, a copy of x, flange, bag) of the last observed point
+        self._calib = BagCalibration()
+        self._window = EquationWindow()
+        self._summary = PriorSummary()
+        self._nis = np.zeros(NIS_WINDOW)
+        self._routed: tuple[np.ndarray, int] | None = None  # (x observed last, its bag)
         self.reset()
 
     def params(self) -> dict:
@@ -194,7 +152,7 @@ class PhysicsInformedEnsemble:
                 "cutoff_hz": self.cutoff_hz, "rate_hz": self.rate_hz,
                 "update_every": self.update_every, "prior_scale": self.prior_scale,
                 "drift": self.drift, "threshold": self.threshold, "holdoff_s": self.holdoff_s,
-                "eps": self.eps}
+                "eps": self.eps, "refresh_every": self.refresh_every}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -214,6 +172,12 @@ class PhysicsInformedEnsemble:
         samples give no equations), the window of equations and the prior summary stay."""
         self._reg.reset()
 
+    def gap(self, steps: int) -> None:
+        """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
+        were lost, :mod:`iem.gaps`): the regression bridges them, so no equation straddles
+        the gap as if it were one cycle."""
+        self._steps = int(steps)
+
     def start_from(self, phi, std) -> None:
         """Start from a known payload (e.g. ``iem identify``'s): ``phi`` with standard
         deviations ``std`` is the prior (instead of the ensemble's summary) until the data
@@ -228,27 +192,16 @@ class PhysicsInformedEnsemble:
         self._forget()
         self._initial = (phi.copy(), np.diag(np.square(std)))
 
-    def gap(self, steps: int) -> None:
-        """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
-        were lost, :mod:`iem.gaps`): the regression's filter bridges them, so no equation
-        straddles the gap as if it were one cycle."""
-        self._steps = int(steps)
-
     def _forget(self) -> None:
-        self._info = np.zeros((10, 10))
-        self._m = 0  # equations in the window
-        self._eta = np.zeros(10)
-        self._n = 0
-        self._sum_phi = np.zeros(10)
-        self._sum_c = np.zeros((10, 10))
-        self._noise0 = np.zeros((10, 10))
-        self._sum_outer = np.zeros((10, 10))
+        self._window.clear()
+        self._summary.clear()
         self._detector.reset()
         self._changed = False
-        self._post = None
-        self._nis = np.zeros(NIS_WINDOW)
+        self._post: Posterior | None = None
+        self._since_refresh = 0
         self._nis_n = 0
-        self._initial = None  # (phi, cov) of a payload to start from (start_from)
+        self._nis_value = math.nan
+        self._initial: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -256,23 +209,33 @@ class PhysicsInformedEnsemble:
         return self._ens.n_bags
 
     @property
+    def _m(self) -> int:
+        """Equations in the window since the last change."""
+        return self._window.m
+
+    @property
+    def _info(self) -> np.ndarray:
+        return self._window.info
+
+    @property
     def prior_inflation(self) -> float:
         """The factor the data currently put on the prior covariance (1: they agree)."""
         post = self._posterior()
-        return 1.0 if post is None else float(post[4])
+        return 1.0 if post is None else post.inflation
 
     @property
     def data_std(self) -> np.ndarray:
         """Standard deviation per parameter from the window's equations alone, without the
         prior (inf along directions they do not see): what the motion since the last change
         told about the payload."""
-        d, U = np.linalg.eigh(0.5 * (self._info + self._info.T))
-        if not d.size or d.max() <= 0.0:
-            return np.full(10, math.inf)
-        seen = d > 1e-12 * d.max()
-        var = (U[:, seen] ** 2) @ (1.0 / d[seen])
-        var[np.any(np.abs(U[:, ~seen]) > 1e-6, axis=1)] = math.inf
-        return np.sqrt(var)
+        return self._window.data_std()
+
+    @property
+    def nis(self) -> float:
+        """The mean normalised innovation squared per degree of freedom of the last
+        :data:`NIS_WINDOW` equations (about 1 while the data agree with the model; NaN
+        before the first): the gate's check that the data fit the physics."""
+        return self._nis_value
 
     @property
     def ensemble_model(self) -> IncrementalEnsemble:
@@ -280,26 +243,21 @@ class PhysicsInformedEnsemble:
         return self._ens
 
     def nbytes(self) -> int:
-        fixed = 8 * 800 + 6 * 80 + 21 * 8 * 4  # info, sums, posterior; vectors; filter
-        return self._ens.nbytes() + sum(c.nbytes + 8 for c in self._calib) + fixed
+        state = (self._window.info, self._window.eta, self._summary._buf,
+                 self._summary._sum_outer, self._nis, self._reg._acc)
+        return (self._ens.nbytes() + self._calib.nbytes() + sum(a.nbytes for a in state)
+                + 8 * 10 * 10 * 3)  # the posterior's matrices
 
     # -- prior calibration ---------------------------------------------------------------
-    def _grow_calib(self) -> None:
-        while len(self._calib) < self._ens.n_bags:
-            self._calib.append(np.zeros((10, 10)))
-            self._calib_n.append(0)
-
     def _calibrate(self, bag: int, X, Y) -> None:
         """Add a bag's learner's errors on labelled samples to the bag's covariance."""
-        self._grow_calib()
         err = self._ens.learner(bag).predict_many(X) - np.asarray(Y, dtype=float)
-        self._calib[bag] += err.T @ err
-        self._calib_n[bag] += err.shape[0]
+        self._calib.add(bag, err)
 
     def _bag_cov(self, bag: int) -> np.ndarray:
         """The bag's learner's error covariance (a weak default if never measured)."""
-        if bag < len(self._calib) and self._calib_n[bag] > 0:
-            return self._calib[bag] / self._calib_n[bag]
+        if self._calib.measured(bag):
+            return self._calib.cov(bag)
         learner = self._ens.learner(bag)
         return np.diag(np.square((learner.hi - learner.lo) / 4.0))
 
@@ -318,7 +276,7 @@ class PhysicsInformedEnsemble:
         """The ensemble's initial bags and learners, then each bag's error covariance on the
         tandem samples of (a stride of) the points routed to it."""
         self._ens.fit(Q, F, samples_at)
-        self._grow_calib()
+        self._calib.grow(self._ens.n_bags)
         Q = np.asarray(Q, dtype=float)
         F = np.asarray(F, dtype=float)
         router = self._ens.router
@@ -365,44 +323,39 @@ class PhysicsInformedEnsemble:
         self._changed = False
         steps, self._steps = self._steps, 1
         equation = self._reg(x, self._mean_for_noise, steps)
-        if equation is not None:
-            if self._holdoff > 0:
-                pass
-            elif self._test(*equation):
+        if equation is not None and self._holdoff <= 0:
+            if self._test(*equation):
                 self._forget()
                 self._changed = True
                 self.changes += 1
                 self._holdoff = self._holdoff_n
             else:
-                Y, r, R = equation
-                Ri = _sym_inv(R * self._weight)
-                YtRi = Y.T @ Ri
-                self._info += YtRi @ Y
-                self._m += 1
-                self._eta += YtRi @ r
-                self._post = None
+                self._window.add(*equation, weight=self._weight)
+                self._since_refresh += 1
+                if self._window.m <= self.refresh_every or \
+                        self._since_refresh >= self.refresh_every:
+                    self._post = None  # refreshed at the next estimate
         if self._holdoff > 0:
             self._holdoff = max(0, self._holdoff - steps)
         self._routed = None
-        if self._ens.n_bags:
-            if est is None:
-                est = self._ens.predict_one(x, flange)
-            self._routed = (x, x.copy(), None if flange is None else np.array(flange, float),
-                            est.bag)
-            if est.bag >= 0 and np.all(np.isfinite(est.phi)):
-                if self._n == 0:
-                    self._noise0 = self._noise_cov(est.bag, x)
-                self._n += 1
-                self._sum_phi += est.phi
-                self._sum_c += self._bag_cov(est.bag)
-                self._sum_outer += np.outer(est.phi, est.phi)
-                if self._m == 0 and (self._n % self.update_every == 1 or self.update_every == 1):
-                    self._post = None  # no data yet: refresh the prior-only posterior every
-                    # few samples (with data, each equation refreshes it)
+        if not self._ens.n_bags:
+            return
+        if est is None:
+            est = self._ens.predict_one(x, flange)
+        self._routed = (x, est.bag)
+        if est.bag >= 0 and np.all(np.isfinite(est.phi)):
+            summary = self._summary
+            if summary.n == 0:
+                summary.noise0 = self._noise_cov(est.bag, x)
+            summary.add(est.phi, est.bag)
+            if self._window.empty and (summary.n % self.update_every == 1
+                                       or self.update_every == 1):
+                self._post = None  # no data yet: refresh the prior-only posterior every
+                # few samples (with data, the equations refresh it)
 
     def _mean_for_noise(self) -> np.ndarray | None:
         post = self._posterior()
-        return None if post is None else post[0]
+        return None if post is None else post.mean
 
     def _test(self, Y, r, R) -> bool:
         """Innovation test of one equation against the current posterior (whose prior the
@@ -412,41 +365,26 @@ class PhysicsInformedEnsemble:
         post = self._posterior()
         if post is None:
             return False
-        mean, cov = post[0], post[1]
-        nu = r - Y @ mean
-        S = R + Y @ cov @ Y.T
+        nu = r - Y @ post.mean
+        S = R + Y @ post.cov @ Y.T
         try:
             chi2 = chi_square(nu, 0.5 * (S + S.T))
         except np.linalg.LinAlgError:
             return False
         self._nis[self._nis_n % NIS_WINDOW] = chi2 / 7.0
         self._nis_n += 1
-        if self._m < DETECT_AFTER:
+        self._nis_value = float(self._nis[:min(self._nis_n, NIS_WINDOW)].mean())
+        if self._window.m < DETECT_AFTER:
             return False
         return self._detector(chi2)
-
-    @property
-    def nis(self) -> float:
-        """The mean normalised innovation squared per degree of freedom of the last
-        :data:`NIS_WINDOW` equations (about 1 while the data agree with the model; NaN
-        before the first): the gate's check that the data fit the physics."""
-        n = min(self._nis_n, NIS_WINDOW)
-        return float(self._nis[:n].mean()) if n else math.nan
 
     def _prior(self, x=None, flange=None):
         """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary
         since the last change, or the ensemble at ``x``."""
         if self._initial is not None:
             mean, cov = self._initial
-        elif self._n > 0:
-            n = self._n
-            mean = self._sum_phi / n
-            # the estimates' scatter: the sample covariance, shrunk toward the input noise's
-            # share while there are few samples (NOISE_PSEUDO_COUNT pseudo-samples)
-            scatter = self._sum_outer - n * np.outer(mean, mean)
-            k = NOISE_PSEUDO_COUNT
-            noise = (k * self._noise0 + scatter) / (k + n - 1)
-            cov = self._sum_c / n + noise / n
+        elif self._summary.n > 0:
+            mean, cov = self._summary.mean_cov(self._bag_cov)
         elif x is not None and self._ens.n_bags:
             est = self._ens.predict_one(x, flange)
             if est.bag < 0 or not np.all(np.isfinite(est.phi)):
@@ -459,22 +397,6 @@ class PhysicsInformedEnsemble:
         cov = cov * self.prior_scale ** 2
         return mean, 0.5 * (cov + cov.T) + np.diag(self._floor)
 
-    def _combine(self, prior) -> list:
-        """Posterior ``[mean, cov, precision, None, s²]`` of a prior (its covariance inflated
-        by :func:`prior_inflation`) and the data since the change (the fourth slot caches the
-        projected mean)."""
-        mu_p, c_p = prior
-        inflation = 1.0
-        if np.any(self._info):
-            inflation = prior_inflation(mu_p, c_p, self._info, self._eta)
-            c_p = c_p * inflation
-        prec_p = _sym_inv(c_p)
-        precision = prec_p + self._info
-        precision = 0.5 * (precision + precision.T)
-        cov = _sym_inv(precision)
-        mean = cov @ (prec_p @ mu_p + self._eta)
-        return [mean, cov, precision, None, inflation]
-
     def posterior(self, x=None, flange=None):
         """``(mean, cov)`` of the payload before the projection, or None.
 
@@ -484,45 +406,31 @@ class PhysicsInformedEnsemble:
         post = self._posterior()
         if post is None and x is not None:
             prior = self._prior(np.asarray(x, dtype=float), flange)
-            post = None if prior is None else self._combine(prior)
-        return None if post is None else (post[0].copy(), post[1].copy())
+            post = None if prior is None else combine(*prior, self._window, self.eps)
+        return None if post is None else (post.mean.copy(), post.cov.copy())
 
-    def _posterior(self):
-        """The posterior of the state (cached: refreshed by each equation and every
-        ``update_every`` samples of the prior summary, which moves slowly)."""
+    def _posterior(self) -> Posterior | None:
+        """The posterior of the state (cached: refreshed every ``refresh_every`` equations
+        and every ``update_every`` samples of the prior summary before the first)."""
         if self._post is None:
-            if self._n == 0 and self._ens.n_bags and self._initial is None:
+            if self._summary.n == 0 and self._ens.n_bags and self._initial is None:
                 return None  # nothing seen yet: predict_one uses the ensemble at its x
             try:
-                self._post = self._combine(self._prior())
+                self._post = combine(*self._prior(), self._window, self.eps)
             except np.linalg.LinAlgError:
                 return None
+            self._since_refresh = 0
         return self._post
 
-    def _bag_of(self, x: np.ndarray, flange) -> int:
-        """The bag of a point (the last observed point's, if it is that one)."""
-        seen = self._routed
-        if seen is not None and seen[0] is x:
-            return seen[3]  # the very array just observed (the online loop's case)
-        if (seen is not None and np.array_equal(seen[1], x)
-                and (flange is None) == (seen[2] is None)
-                and (flange is None or np.array_equal(seen[2], flange))):
-            return seen[3]
-        inside, nearest = self._ens.router.route(x[:7], flange)
-        return inside if inside >= 0 else nearest
-
-    def _estimate(self, post, t: float, bag: int = -1, learning: bool = False):
-        mean, cov, precision, phi = post[:4]
-        if phi is None:  # projected once per posterior, with its standard deviations
-            phi = post[3] = project(mean, precision, eps=self.eps)
-            post.append(np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    def _estimate(self, post: Posterior, t: float, bag: int = -1,
+                  learning: bool = False) -> PayloadEstimate:
         extra = {"change": True, "reset": True} if self._changed else {}
         if self._nis_n:
-            extra["nis"] = self.nis
-        if self._initial is not None and self._m < DETECT_AFTER:
+            extra["nis"] = self._nis_value
+        if self._initial is not None and self._window.m < DETECT_AFTER:
             extra["unverified"] = True
-        return PayloadEstimate(t=t, phi=phi.copy(), std=post[5].copy(), bag=bag,
-                               learning=learning, extra=extra)
+        return PayloadEstimate(t=t, phi=post.phi, std=post.std, bag=bag, learning=learning,
+                               extra=extra)
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)
@@ -530,14 +438,19 @@ class PhysicsInformedEnsemble:
             raise InvalidInputError(f"x must be [q, dq, tau] with 21 values, got {x.shape}")
         bag, learning = -1, False
         if self._ens.n_bags:
-            bag = self._bag_of(x, flange)
+            seen = self._routed
+            if seen is not None and seen[0] is x:
+                bag = seen[1]  # the very array just observed (the online loop's case)
+            else:
+                inside, nearest = self._ens.router.route(x[:7], flange)
+                bag = inside if inside >= 0 else nearest
             learning = bag == self._ens.open_bag
         post = self._posterior()
         if post is None:
             prior = self._prior(x, flange)
             if prior is None:
                 return PayloadEstimate(t=t, phi=np.full(10, math.nan), bag=bag)
-            post = self._combine(prior)
+            post = combine(*prior, self._window, self.eps)
         return self._estimate(post, t, bag, learning)
 
     def predict_many(self, X, F) -> np.ndarray:
@@ -554,15 +467,10 @@ class PhysicsInformedEnsemble:
     # -- persistence ---------------------------------------------------------------------
     def to_state(self) -> dict:
         return {"params": self.params(), "ensemble": self._ens.to_state(),
-                "calib": [c.tolist() for c in self._calib], "calib_n": list(self._calib_n),
-                "regression": self._reg.to_state(), "info": self._info.tolist(),
-                "eta": self._eta.tolist(), "m": self._m, "n": self._n,
-                "sum_phi": self._sum_phi.tolist(),
-                "sum_c": self._sum_c.tolist(), "noise0": self._noise0.tolist(),
-                "sum_outer": self._sum_outer.tolist(),
+                **self._calib.to_state(), "regression": self._reg.to_state(),
+                **self._window.to_state(), **self._summary.to_state(),
                 "detector": self._detector.to_state(), "changed": self._changed,
-                "post": None if self._post is None else [
-                    *(v.tolist() for v in self._post[:3]), self._post[4]],
+                "post": None if self._post is None else self._post.to_state(),
                 "holdoff": self._holdoff, "changes": self.changes,
                 "initial": None if self._initial is None else [
                     self._initial[0].tolist(), self._initial[1].tolist()]}
@@ -571,26 +479,17 @@ class PhysicsInformedEnsemble:
     def from_state(cls, state: dict):
         model = cls(**state["params"])
         model._ens = IncrementalEnsemble.from_state(state["ensemble"])
-        model._calib = [np.array(c, dtype=float).reshape(10, 10) for c in state["calib"]]
-        model._calib_n = [int(n) for n in state["calib_n"]]
-        if len(model._calib) != len(model._calib_n) or len(model._calib) > model.n_bags:
+        model._calib.set_state(state)
+        if len(model._calib) > model.n_bags:
             raise InvalidInputError(f"model state has {len(model._calib)} bag covariances "
                                     f"for {model.n_bags} bags")
         model._reg.set_state(state["regression"])
-        model._info = np.array(state["info"], dtype=float).reshape(10, 10)
-        model._eta = np.array(state["eta"], dtype=float).reshape(10)
-        model._m = int(state["m"])
-        model._n = int(state["n"])
-        model._sum_phi = np.array(state["sum_phi"], dtype=float).reshape(10)
-        model._sum_c = np.array(state["sum_c"], dtype=float).reshape(10, 10)
-        model._noise0 = np.array(state["noise0"], dtype=float).reshape(10, 10)
-        model._sum_outer = np.array(state["sum_outer"], dtype=float).reshape(10, 10)
+        model._window.set_state(state)
+        model._summary.set_state(state)
         model._detector.set_state(state["detector"])
         model._changed = bool(state["changed"])
         if state["post"] is not None:
-            mean, cov, precision = (np.array(v, dtype=float) for v in state["post"][:3])
-            model._post = [mean.reshape(10), cov.reshape(10, 10), precision.reshape(10, 10),
-                           None, float(state["post"][3])]
+            model._post = Posterior.from_state(state["post"], model.eps)
         model._holdoff = int(state["holdoff"])
         model.changes = int(state["changes"])
         initial = state.get("initial")  # files from before start_from have none

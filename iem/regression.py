@@ -79,6 +79,20 @@ def settle_samples(cutoff_hz: float, rate_hz: float, tol: float = 0.1) -> int:
     return int(bad[-1] + 1) if bad.size else 0
 
 
+def correlation_weight(cutoff_hz: float, rate_hz: float, every: int = 1) -> float:
+    """``sum_j rho(j * every)`` over all integers ``j``: ``rho`` the autocorrelation of white
+    noise through the low-pass (normalised to 1 at lag 0). The mean of ``N`` equations
+    spaced ``every`` filter samples apart has the variance of ``N / weight`` independent
+    ones (for ``N`` much longer than the correlation), so each is counted as ``1 / weight``
+    of one. At least 1."""
+    n = int(60 * rate_hz / cutoff_hz) + 10
+    h = impulse_response(cutoff_hz, rate_hz, n)
+    spectrum = np.fft.rfft(h, 2 * n)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum), 2 * n)[:n]
+    acf /= acf[0]
+    return max(1.0, float(acf[0] + 2.0 * acf[every::every].sum()))
+
+
 def load_dynamics(spec: str):
     """Resolve ``"module:function"`` and call the factory: the dynamics callable."""
     try:
@@ -98,40 +112,59 @@ class PayloadRegression:
         sigma_dq: velocity noise of the measurements, rad/s.
         cutoff_hz: low-pass cut-off for q, dq and tau, Hz.
         rate_hz: sample rate, Hz.
-        every: give an equation every this many samples (>= 1).
-        settle: withhold the equations of the first this many samples after a start
+        every: give an equation every this many filter samples (>= 1).
+        settle: withhold the equations of the first this many filter samples after a start
             (-1: :func:`settle_samples`).
         payload_inertia: add the payload's share of the mass matrix (for the ``phi`` passed
             to :meth:`__call__`) to the errors-in-variables term.
+        decimate: average this many samples into one before the low-pass, which then runs
+            at ``rate_hz / decimate`` (1: every sample is filtered). The mean of a block is
+            a low-pass itself (first null at the block rate), so a cut-off far below the
+            block rate loses nothing, and each sample costs one addition; the block means
+            of white noise are white, with ``1 / decimate`` of its variance.
     """
 
     def __init__(self, dynamics: str = "sim.robot:panda_dynamics", sigma_tau: float = 0.05,
                  sigma_dq: float = 2e-3, cutoff_hz: float = 20.0, rate_hz: float = 1000.0,
-                 every: int = 1, settle: int = 0, payload_inertia: bool = False) -> None:
-        if int(every) < 1:
-            raise InvalidInputError(f"every must be >= 1 sample, got {every}")
+                 every: int = 1, settle: int = 0, payload_inertia: bool = False,
+                 decimate: int = 1) -> None:
+        if int(every) < 1 or int(decimate) < 1:
+            raise InvalidInputError(f"every and decimate must be >= 1 sample, got {every}, "
+                                    f"{decimate}")
         self.dynamics = dynamics
         self.sigma_tau = float(sigma_tau)
         self.sigma_dq = float(sigma_dq)
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)
         self.every = int(every)
-        self.settle = settle_samples(cutoff_hz, rate_hz) if settle < 0 else int(settle)
+        self.decimate = int(decimate)
+        self.filter_rate_hz = self.rate_hz / self.decimate
+        """The rate the low-pass runs at, Hz."""
+        self.settle = (settle_samples(cutoff_hz, self.filter_rate_hz) if settle < 0
+                       else int(settle))
         self.payload_inertia = bool(payload_inertia)
-        gain, dgain = noise_gains(cutoff_hz, rate_hz)
-        self.r_tau = self.sigma_tau ** 2 * gain
+        gain, dgain = noise_gains(cutoff_hz, self.filter_rate_hz)
+        self.r_tau = self.sigma_tau ** 2 / self.decimate * gain
         """Variance of the filtered torque noise, (N·m)²."""
-        self.var_ddq = self.sigma_dq ** 2 * dgain
+        self.var_ddq = self.sigma_dq ** 2 / self.decimate * dgain
         """Variance of the ``ddq`` noise, (rad/s²)²."""
-        self.correlation = rate_hz / (2.0 * cutoff_hz)
-        """Samples over which the filtered noise stays correlated (about ``rate / 2 fc``)."""
+        self.correlation = self.filter_rate_hz / (2.0 * cutoff_hz)
+        """Filter samples over which the filtered noise stays correlated (``rate / 2 fc``)."""
+        self.correlation_weight = correlation_weight(cutoff_hz, self.filter_rate_hz,
+                                                     self.every)
+        """How many of the equations, one every ``every`` filter samples, carry the
+        information of one independent equation about a constant: the sum of the filtered
+        noise's autocorrelation at multiples of that spacing (:func:`correlation_weight`)."""
         self._f = None
         self.reset()
 
     def reset(self) -> None:
         """Restart the filter (the next sample is a new start)."""
-        self._lp = LowPass2(self.cutoff_hz, self.rate_hz, channels=21)
+        self._lp = LowPass2(self.cutoff_hz, self.filter_rate_hz, channels=21)
         self.count = 0
+        self._acc = np.zeros(21)  # the block being averaged (decimate > 1)
+        self._n_acc = 0
+        self._x: np.ndarray | None = None  # the last input sample
 
     @property
     def settled(self) -> bool:
@@ -165,31 +198,54 @@ class PayloadRegression:
         return out
 
     def __call__(self, x, phi=None, steps: int = 1):
-        """Filter one sample; at every ``every``-th nominal cycle after settling, return
-        ``(Y, r, R)``.
+        """Take one sample; when an equation is due (every ``every``-th filter sample after
+        settling), return ``(Y, r, R)``.
 
         ``steps`` is the gap rule's verdict on the sample (:mod:`iem.gaps`): the nominal
-        cycles since the last sample (lost ones are bridged by the filter, so ``ddq`` is
-        always a difference over one cycle), ``RESTART`` (the filter starts again here) or
-        ``SKIP`` (not filtered, no equation). Returns None when no equation is due. ``phi``
-        (10, or a zero-argument callable giving it, called only when an equation is formed)
-        is the payload used for its share of the mass matrix if ``payload_inertia`` (ignored
-        if it is or gives None).
+        cycles since the last sample (the lost ones are bridged: linearly interpolated
+        inputs, so ``ddq`` is always a difference over one filter sample), ``RESTART`` (the
+        filter starts again here) or ``SKIP`` (not used, no equation). Returns None when no
+        equation is due. ``phi`` (10, or a zero-argument callable giving it, called only
+        when an equation is formed) is the payload used for its share of the mass matrix if
+        ``payload_inertia`` (ignored if it is or gives None).
         """
         if steps == SKIP:
             return None
         if steps == RESTART:
             self.reset()
             steps = 1
-        f = self._lp(np.asarray(x, dtype=float), steps)
-        q, dq, tau = f[:7], f[7:14], f[14:]
+        x = np.asarray(x, dtype=float)
+        if self.decimate == 1:
+            self._x = x
+            return self._filter(x, steps, phi)
+        if steps > 1 and self._x is not None:  # bridge: the lost samples, interpolated
+            x0 = self._x
+            for j in range(1, steps):
+                self._push(x0 + (x - x0) * (j / steps), None, form=False)
+        self._x = x
+        return self._push(x, phi)
+
+    def _push(self, x: np.ndarray, phi, form: bool = True):
+        """Add a sample to the block; filter the block's mean when it is full."""
+        self._acc += x
+        self._n_acc += 1
+        if self._n_acc < self.decimate:
+            return None
+        mean = self._acc / self.decimate
+        self._acc[:] = 0.0
+        self._n_acc = 0
+        return self._filter(mean, 1, phi, form)
+
+    def _filter(self, x: np.ndarray, steps: int, phi, form: bool = True):
+        f = self._lp(x, steps)
         before = self.count
         self.count += steps
         prev = self._lp.previous
-        if (prev is None or self.count // self.every == before // self.every
+        if (not form or prev is None or self.count // self.every == before // self.every
                 or self.count <= self.settle):
             return None
-        ddq = (dq - prev[7:14]) * self.rate_hz
+        q, dq, tau = f[:7], f[7:14], f[14:]
+        ddq = (dq - prev[7:14]) * self.filter_rate_hz
         tau_robot, Y, M = self.model()(q, dq, ddq)
         if self.payload_inertia and callable(phi):
             phi = phi()
@@ -208,7 +264,8 @@ class PayloadRegression:
 
         return {"count": self.count,
                 "filter": None if not lp._started else [lp._z1.tolist(), lp._z2.tolist()],
-                "input": vec(lp._x), "output": vec(lp._y), "previous": vec(lp.previous)}
+                "input": vec(lp._x), "output": vec(lp._y), "previous": vec(lp.previous),
+                "block": [self._acc.tolist(), self._n_acc], "last": vec(self._x)}
 
     def set_state(self, state: dict) -> None:
         self.reset()
@@ -222,3 +279,8 @@ class PayloadRegression:
                 setattr(lp, attr, None if value is None else np.array(value, dtype=float))
             if lp.previous is None and state.get("prev_dq") is not None:
                 lp._started = False  # a file from before the gap rule: start the filter again
+        if state.get("block") is not None:
+            self._acc = np.array(state["block"][0], dtype=float).reshape(21)
+            self._n_acc = int(state["block"][1])
+        if state.get("last") is not None:
+            self._x = np.array(state["last"], dtype=float).reshape(21)

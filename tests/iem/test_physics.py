@@ -54,9 +54,10 @@ def test_information_form_equals_batch_weighted_least_squares():
     prior plus every equation so far (each weighted by its R times the correlation factor),
     and the Kalman form of LS fed the same equations agrees."""
     X = _hand_made(1500)
-    model = PhysicsInformedEnsemble(dynamics=FAKE, update_every=10)  # untrained: weak prior
-    twin = PayloadRegression(FAKE, cutoff_hz=4.0, every=10, settle=-1)
-    c = max(1.0, twin.correlation / 10)
+    # untrained: weak prior; the posterior refreshed at every equation, to compare each
+    model = PhysicsInformedEnsemble(dynamics=FAKE, update_every=10, refresh_every=1)
+    twin = PayloadRegression(FAKE, cutoff_hz=4.0, every=1, settle=-1, decimate=10)
+    c = twin.correlation_weight
     prior_cov = np.diag(np.square(DEFAULT_PRIOR_STD) + np.square(PRIOR_FLOOR))
     kalman = RecursiveLeastSquares(prior_std=np.sqrt(np.diag(prior_cov)))
     rows, rhs = [np.linalg.cholesky(np.linalg.inv(prior_cov)).T], [np.zeros(10)]

@@ -1,0 +1,140 @@
+"""IEM+phys's prior: what the ensemble's estimates since the last payload change say.
+
+- :class:`BagCalibration` (learnt with the model, kept forever): per bag, the covariance of
+  its learner's error measured on labelled samples (the tandem samples of the training
+  payloads at the bag's points: learner output minus the true phi). A learner sees 7 torques
+  and outputs 10 parameters, so at one instant 3 directions (mostly inertia) are guessed from
+  the family; that spread is what this covariance measures.
+- :class:`PriorSummary` (per payload, restarted at a change): the running mean ``mu_p`` of
+  the ensemble's estimates, how many of them each bag made, and their scatter. The prior's
+  covariance is the mean of the estimating bags' error covariances plus the mean's own noise:
+  the scatter of the estimates divided by their number, shrunk toward the sensor noise's
+  share while there are few (:data:`NOISE_PSEUDO_COUNT` pseudo-samples).
+
+The summary costs one row copy and one counter per sample: estimates are gathered in a block
+and folded into the sums (mean, outer products) once per :data:`BLOCK` samples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+NOISE_PSEUDO_COUNT = 10
+"""Weight, in samples, of the input-noise covariance against the sample covariance of the
+ensemble's estimates in the prior's noise term."""
+BLOCK = 64
+"""Estimates gathered before they are folded into the sums."""
+
+
+class BagCalibration:
+    """Per bag, the error covariance of its learner on labelled samples."""
+
+    def __init__(self) -> None:
+        self._sum: list[np.ndarray] = []  # per bag: sum of e e^T
+        self._n: list[int] = []
+        self._cov: dict[int, np.ndarray] = {}  # cache of sum / n
+
+    def __len__(self) -> int:
+        return len(self._sum)
+
+    def grow(self, n_bags: int) -> None:
+        while len(self._sum) < n_bags:
+            self._sum.append(np.zeros((10, 10)))
+            self._n.append(0)
+
+    def add(self, bag: int, errors: np.ndarray) -> None:
+        """Add a bag's learner's errors ``(K, 10)`` on labelled samples."""
+        self.grow(bag + 1)
+        self._sum[bag] += errors.T @ errors
+        self._n[bag] += errors.shape[0]
+        self._cov.pop(bag, None)
+
+    def measured(self, bag: int) -> bool:
+        return bag < len(self._n) and self._n[bag] > 0
+
+    def cov(self, bag: int) -> np.ndarray:
+        """The bag's error covariance (only if :meth:`measured`)."""
+        cov = self._cov.get(bag)
+        if cov is None:
+            cov = self._cov[bag] = self._sum[bag] / self._n[bag]
+        return cov
+
+    def nbytes(self) -> int:
+        return sum(c.nbytes + 8 for c in self._sum)
+
+    def to_state(self) -> dict:
+        return {"calib": [c.tolist() for c in self._sum], "calib_n": list(self._n)}
+
+    def set_state(self, state: dict) -> None:
+        self._sum = [np.array(c, dtype=float).reshape(10, 10) for c in state["calib"]]
+        self._n = [int(n) for n in state["calib_n"]]
+        self._cov = {}
+
+
+class PriorSummary:
+    """The ensemble's estimates since the last payload change, summarised."""
+
+    def __init__(self) -> None:
+        self._buf = np.empty((BLOCK, 10))
+        self.clear()
+
+    def clear(self) -> None:
+        self.n = 0
+        """Estimates summarised."""
+        self.noise0 = np.zeros((10, 10))
+        """Covariance of the first estimate from the sensor noise on its input."""
+        self._k = 0
+        self._sum_phi = np.zeros(10)
+        self._sum_outer = np.zeros((10, 10))
+        self._counts: dict[int, int] = {}
+        self._sum_c_base = np.zeros((10, 10))  # from a state saved before bag counts
+
+    def add(self, phi: np.ndarray, bag: int) -> None:
+        """One estimate ``phi`` made by ``bag``'s learner."""
+        self._buf[self._k] = phi
+        self._k += 1
+        if self._k == BLOCK:
+            self._fold()
+        self._counts[bag] = self._counts.get(bag, 0) + 1
+        self.n += 1
+
+    def _fold(self) -> None:
+        if self._k:
+            block = self._buf[:self._k]
+            self._sum_phi += block.sum(axis=0)
+            self._sum_outer += block.T @ block
+            self._k = 0
+
+    def mean_cov(self, bag_cov: Callable[[int], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """``(mu_p, C_p)``; ``bag_cov(bag)`` gives a bag's learner's error covariance."""
+        self._fold()
+        n = self.n
+        mean = self._sum_phi / n
+        scatter = self._sum_outer - n * np.outer(mean, mean)
+        k = NOISE_PSEUDO_COUNT
+        noise = (k * self.noise0 + scatter) / (k + n - 1)
+        sum_c = self._sum_c_base.copy()
+        for bag, count in self._counts.items():
+            sum_c += count * bag_cov(bag)
+        return mean, sum_c / n + noise / n
+
+    def to_state(self) -> dict:
+        self._fold()
+        return {"n": self.n, "sum_phi": self._sum_phi.tolist(),
+                "sum_outer": self._sum_outer.tolist(), "noise0": self.noise0.tolist(),
+                "bag_counts": [[int(b), int(c)] for b, c in self._counts.items()],
+                "sum_c_base": self._sum_c_base.tolist()}
+
+    def set_state(self, state: dict) -> None:
+        self.clear()
+        self.n = int(state["n"])
+        self._sum_phi = np.array(state["sum_phi"], dtype=float).reshape(10)
+        self._sum_outer = np.array(state["sum_outer"], dtype=float).reshape(10, 10)
+        self.noise0 = np.array(state["noise0"], dtype=float).reshape(10, 10)
+        if "bag_counts" in state:
+            self._counts = {int(b): int(c) for b, c in state["bag_counts"]}
+            self._sum_c_base = np.array(state["sum_c_base"], dtype=float).reshape(10, 10)
+        else:  # a file from before the per-bag counts: its sum of covariances as it was
+            self._sum_c_base = np.array(state["sum_c"], dtype=float).reshape(10, 10)
