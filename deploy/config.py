@@ -12,6 +12,7 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path as FsPath
 
+from firmware_bridge.links import LINKS
 from iem.errors import InvalidInputError
 
 from .gate import GateConfig
@@ -21,7 +22,7 @@ class ConfigError(InvalidInputError):
     """``cell.toml`` is missing, not TOML, or has a key with an invalid value."""
 
 
-LINK_KINDS = ("virtual", "socketcan", "slcan", "serial", "franka", "replay")
+LINK_KINDS = tuple(LINKS)  # the one table of link kinds (firmware_bridge.links)
 PROFILES = ("fd", "classic")
 MODEL_KINDS = ("IEM", "IEM+phys")
 LOG_FORMATS = ("json", "text")

@@ -17,7 +17,10 @@ Outputs: ``--out`` a CSV with one row per estimate (``t,cycle,bag``, the raw ``m
 the smoothed ``m_s..Izz_s``, the paper's parameter order, kg, kg·m, kg·m²); ``--truth`` the
 MAE of the smoothed estimates against a payload file, by group; ``--json`` the summary.
 A missing, unknown or unreadable log, or one without a single complete cycle of the given
-profile, is a :class:`firmware_bridge.errors.LogFileError` (``iem``: exit status 2).
+profile, is a :class:`firmware_bridge.errors.LogFileError` (``iem``: exit status 2). A damaged
+log loses only what is damaged: a truncated one replays what it holds and says so on stderr
+and in the summary (``"truncated": true``); a bad line of a ``.log``, ``.asc`` or ``.trc`` is
+skipped and counted (``frames.malformed``).
 """
 
 from __future__ import annotations
@@ -140,6 +143,9 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         from firmware_bridge.errors import LogFileError
 
         c = link.counters
+        if not c.received and getattr(link, "bad_lines", 0):
+            raise LogFileError(f"{log_file}: no line python-can can read as a CAN frame "
+                               f"({link.bad_lines} bad lines; last: {link.last_bad_line})")
         if not c.received:
             raise LogFileError(f"{log_file}: no CAN frames in it; is it a CAN log written by "
                                "'iem record' or python-can?")
@@ -148,11 +154,16 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
                            f"cycle of the {profile} profile ({c.summary()}; {c.foreign} "
                            f"frames of other IDs); recorded with --profile {other}?")
     decisions = service.gate.summary()
+    truncated = bool(getattr(link, "truncated", False))  # the link warned (iem.bridge)
+    summary["frames"]["malformed"] = link.counters.malformed
+    summary["frames"]["implausible"] = link.counters.implausible
+    summary["frames"]["timing"] = link.counters.timing
     for key in ("latency_us", "checkpoints"):  # no wall-clock latency, no checkpoints here
         summary.pop(key, None)
     summary.update({
         "log_file": str(log_file),
         "profile": profile,
+        "truncated": truncated,
         "recorded_s": estimates.t[-1] - estimates.t[0],
         "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
                    "rejected": decisions["rejected"]},
@@ -168,7 +179,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
 
 
 def print_summary(s: dict, log=print) -> None:
-    log(f"replay of {s['log_file']} ({s['profile']} profile, {s['model']}):")
+    log(f"replay of {s['log_file']} ({s['profile']} profile, {s['model']})"
+        + (", TRUNCATED: replayed what it holds" if s.get("truncated") else "") + ":")
     log(f"  {s['estimates']} estimates over {s['recorded_s']:.3f} s of recorded time, "
         f"{s['bags']} bags; {s['wall_s']:.2f} s wall"
         + (f" ({s['estimates_per_s']:.0f} estimates per s)" if s["estimates_per_s"] else ""))

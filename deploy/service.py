@@ -63,12 +63,11 @@ class CycleRecord:
 
 
 def link_rate(config: CellConfig) -> float:
-    """Joint states per second the configured link delivers (its wire profile's rate)."""
-    if config.link.kind in ("serial", "franka"):
-        return 1000.0
-    from firmware_bridge.protocol import profile
+    """Joint states per second the configured link delivers, as its kind and wire profile say
+    (:func:`firmware_bridge.links.rate_hz`)."""
+    from firmware_bridge.links import rate_hz
 
-    return float(profile(config.link.profile).joint_state.rate_hz)
+    return rate_hz(config.link.kind, config.link.profile)
 
 
 def wire_check_of(link):

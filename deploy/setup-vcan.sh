@@ -7,6 +7,8 @@ PROG=$(basename "$0")
 DEFAULT_VCAN=vcan0
 DEFAULT_BITRATE=1000000   # arbitration phase, bit/s (protocol.dbc: 1 Mbit/s)
 DEFAULT_DBITRATE=5000000  # CAN FD data phase, bit/s (protocol.dbc: 5 Mbit/s)
+DEFAULT_RESTART_MS=100    # ms after a bus-off until the interface restarts by itself
+VCAN_FD_MTU=72            # CANFD_MTU: vcan drops CAN FD frames until its MTU is 72
 
 usage() {
     cat <<EOF
@@ -17,11 +19,14 @@ usage: $PROG vcan [NAME]
 Set up a CAN interface for the IEM plug-in (run as root).
 
   vcan [NAME]   load the vcan module, add the virtual CAN interface NAME (default
-                $DEFAULT_VCAN) unless it exists, and bring it up. For tests on a Linux
-                host: link kind "socketcan", channel NAME.
+                $DEFAULT_VCAN) unless it exists, make it CAN FD capable (mtu
+                $VCAN_FD_MTU: vcan drops FD frames otherwise) and bring it up. For tests
+                on a Linux host: link kind "socketcan", channel NAME.
   can IFACE [BITRATE DBITRATE]
                 configure a CAN FD adapter (e.g. can0, candleLight/gs_usb) and bring it
-                up: ip link set IFACE type can bitrate BITRATE dbitrate DBITRATE fd on.
+                up: ip link set IFACE type can bitrate BITRATE dbitrate DBITRATE fd on
+                restart-ms $DEFAULT_RESTART_MS (after bus-off the interface restarts by
+                itself instead of staying off).
                 Defaults: bitrate $DEFAULT_BITRATE, dbitrate $DEFAULT_DBITRATE (the fd
                 profile). The classic profile needs the same 1 Mbit/s arbitration rate;
                 an FD-capable adapter carries it with fd on.
@@ -58,8 +63,11 @@ setup_vcan() {
     else
         ip link add dev "$name" type vcan || die "cannot add the vcan interface $name"
     fi
+    ip link set "$name" down || die "cannot take $name down"
+    ip link set "$name" mtu "$VCAN_FD_MTU" \
+        || die "cannot set $name's MTU to $VCAN_FD_MTU (CAN FD); is it a vcan interface?"
     ip link set "$name" up || die "cannot bring $name up"
-    echo "$PROG: $name is up (virtual CAN)"
+    echo "$PROG: $name is up (virtual CAN, CAN FD capable: mtu $VCAN_FD_MTU)"
 }
 
 setup_can() {
@@ -76,9 +84,10 @@ setup_can() {
         || die "no interface '$iface' (is the adapter plugged in? 'ip -details link show' lists them)"
     ip link set "$iface" down || die "cannot take $iface down"
     ip link set "$iface" type can bitrate "$bitrate" dbitrate "$dbitrate" fd on \
-        || die "cannot set $iface to bitrate $bitrate, dbitrate $dbitrate, fd on (does the adapter support CAN FD and these rates?)"
+        restart-ms "$DEFAULT_RESTART_MS" \
+        || die "cannot set $iface to bitrate $bitrate, dbitrate $dbitrate, fd on, restart-ms $DEFAULT_RESTART_MS (does the adapter support CAN FD and these rates?)"
     ip link set "$iface" up || die "cannot bring $iface up"
-    echo "$PROG: $iface is up: bitrate $bitrate, dbitrate $dbitrate, CAN FD on"
+    echo "$PROG: $iface is up: bitrate $bitrate, dbitrate $dbitrate, CAN FD on, restart-ms $DEFAULT_RESTART_MS"
 }
 
 main() {

@@ -6,12 +6,14 @@ The plug-in's only way to the robot. Modules, one concept each:
 - :mod:`.protocol`: the DBC loaded once; codecs per profile (``fd``, ``classic``).
 - :mod:`.e2e`: AUTOSAR end-to-end protection, profile 2 (CRC8H2F + alive counter).
 - :mod:`.reassembly`: frames -> ordered cycles, every drop counted by kind.
-- :mod:`.links`: the seam (``JointStateSource``, ``PayloadSink``, counters) and the table of
-  link kinds (``open_link``).
+- :mod:`.links`: the seam (``JointStateSource``, ``PayloadSink``, counters) and the one table
+  of link kinds (``LINKS``, ``open_link``: one opener signature, imported lazily).
+- :mod:`.framed`: the base classes of the framed links (CAN, serial), both ends.
 - :mod:`.can_link`: python-can buses by name (virtual, socketcan, slcan), the plug-in's link
   and the controller's port.
 - :mod:`.serial_link`: msgpack over pyserial, framed with COBS + CRC32.
-- :mod:`.franka_link`: a real Franka through pylibfranka (extra ``franka``).
+- :mod:`.franka_link`: a Franka Research 3 through pylibfranka (extra ``franka``; libfranka
+  >= 0.10, exclusive FCI).
 - :mod:`.sim_controller`: the MuJoCo plant at 1 kHz behind any of the above.
 - :mod:`.slcan_adapter`, :mod:`.pty_pair`: an emulated slcan adapter on a pty, for
   cross-process tests on a machine without AF_CAN.

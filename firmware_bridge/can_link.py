@@ -1,12 +1,16 @@
 """The bridge over python-can: buses by name, the plug-in's link and the controller's port.
 
-:data:`BUS_KINDS` is the one table of CAN bus kinds and how each is opened with
+The CAN bus kinds are the entries of :data:`firmware_bridge.links.LINKS` with a python-can
+interface (``bus``); :data:`BUS_OPTIONS` says how each interface is opened with
 ``can.Bus(interface=..., **options)`` for a profile:
 
 - ``virtual``: python-can's in-process bus; ``channel`` is any name shared by both ends.
 - ``socketcan``: Linux SocketCAN (``can0``, ``vcan0``); FD frames need ``fd=True``, which the
-  ``fd`` profile sets. The interface's bitrates are set outside (``ip link set can0 type can
-  bitrate 1000000 dbitrate 5000000 fd on``; see the README).
+  ``fd`` profile sets. The interface is set up outside (deploy/setup-vcan.sh, the README): a
+  real adapter with ``ip link set can0 type can bitrate 1000000 dbitrate 5000000 fd on
+  restart-ms 100`` (``restart-ms``: the interface recovers from bus-off by itself instead
+  of staying off), vcan0 with ``ip link set vcan0 mtu 72`` (vcan drops CAN FD frames until its
+  MTU is 72).
 - ``slcan``: a serial-line adapter speaking the LAWICEL/slcan ASCII protocol, on any pyserial
   URL or device. python-can 4.6.1's slcan also sends and receives CAN FD frames (the
   CANable 2.0 firmware's ``d``/``b`` frames, data bitrate 2 or 5 Mbit/s), so both profiles
@@ -19,26 +23,27 @@ python-can imports the interface module itself when a bus of that kind is opened
 the live link and :mod:`firmware_bridge.replay`); :class:`CanLink` is the plug-in's
 :class:`~firmware_bridge.links.JointStateSource` and
 :class:`~firmware_bridge.links.PayloadSink` over one bus; :class:`CanControllerPort` is the
-controller's side (used by the simulated controller), with optional fault injection.
+controller's side (used by the simulated controller), with optional fault injection. Both
+implement only the hooks of :mod:`firmware_bridge.framed`.
 """
 
 from __future__ import annotations
 
 import importlib
 import time
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import can
 
 from iem.types import JointState
 from sim.payload import Payload
 
-from .errors import AckTimeout, BridgeConfigError, ControllerSilent, DecodeError, LinkError
-from .faults import FaultInjector, FaultSpec
-from .links import BUFFERED_CYCLES, LinkCounters
+from .errors import BridgeConfigError, DecodeError, LinkError
+from .faults import FaultSpec
+from .framed import FramedControllerPort, FramedLink
+from .links import LinkCounters, bus_kinds, link_kind
 from .protocol import (
+    ACK_ERRORS,
     Heartbeat,
     LoadAck,
     LoadAssembler,
@@ -52,6 +57,8 @@ from .reassembly import CycleAssembler
 
 SEND_TIMEOUT = 0.1
 """Seconds a send may block before it counts as a bus error."""
+HEARTBEAT_FRESH_S = 2.0
+"""A heartbeat younger than this (by frame time stamps) vouches for a jumping cycle counter."""
 
 
 # -- bus kinds -----------------------------------------------------------------------------
@@ -80,47 +87,32 @@ def _slcan(channel: str, prof: WireProfile) -> dict:
     return opts
 
 
-@dataclass(frozen=True)
-class BusKind:
-    """How to open one kind of bus: python-can interface name and options for a profile.
-
-    ``bus_class`` ("module:Class"), if given, is a python-can bus class to instantiate
-    instead of looking the interface up (a subclass of python-can's own).
-    """
-
-    interface: str
-    options: Callable[[str, WireProfile], dict]
-    help: str
-    bus_class: str | None = None
-
-
-BUS_KINDS: dict[str, BusKind] = {
-    "virtual": BusKind("virtual", _virtual, "python-can in-process virtual bus"),
-    "socketcan": BusKind("socketcan", _socketcan, "Linux SocketCAN (can0, vcan0)"),
-    "slcan": BusKind("slcan", _slcan, "slcan serial adapter (device or pyserial URL)",
-                     "firmware_bridge.slcan_buffered:BufferedSlcanBus"),
-}
+BUS_OPTIONS: dict[str, Callable[[str, WireProfile], dict]] = {
+    "virtual": _virtual, "socketcan": _socketcan, "slcan": _slcan}
+"""python-can interface name -> the ``can.Bus`` options of a channel and profile. Which link
+kinds are CAN buses, and with which interface and bus class, is said by
+:data:`firmware_bridge.links.LINKS`."""
 
 
 def open_bus(kind: str, channel: str, profile: str = "fd", **overrides) -> can.BusABC:
-    """Open a python-can bus of ``kind`` for ``profile``; ``overrides`` replace options."""
-    try:
-        spec = BUS_KINDS[kind]
-    except KeyError:
-        raise BridgeConfigError(f"unknown CAN bus kind {kind!r}; valid kinds are "
-                                f"{', '.join(BUS_KINDS)}") from None
+    """Open a python-can bus of link ``kind`` for ``profile``; ``overrides`` replace options."""
+    spec = link_kind(kind)
+    if spec.bus is None:
+        raise BridgeConfigError(f"link kind {kind!r} is not a CAN bus; the CAN bus kinds are "
+                                f"{', '.join(bus_kinds())}")
     prof = get_profile(profile)
-    options = {**spec.options(channel, prof), **overrides}
+    options = {**BUS_OPTIONS[spec.bus](channel, prof), **overrides}
     try:
         if spec.bus_class is None:
-            return can.Bus(interface=spec.interface, **options)
+            return can.Bus(interface=spec.bus, **options)
         module, _, name = spec.bus_class.partition(":")
         return getattr(importlib.import_module(module), name)(**options)
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         hint = ""
         if kind == "socketcan":
             hint = ("; SocketCAN needs a Linux kernel with AF_CAN and the interface up "
-                    "(vcan: 'ip link add dev vcan0 type vcan && ip link set up vcan0')")
+                    "(vcan: 'ip link add dev vcan0 type vcan && ip link set vcan0 mtu 72 && "
+                    "ip link set up vcan0'; see deploy/setup-vcan.sh)")
         raise LinkError(f"cannot open {kind} bus on channel {options.get('channel')!r}: "
                         f"{exc}{hint}") from exc
 
@@ -146,6 +138,7 @@ class CanDecoder:
         self._ack_id = prof.ack.frame.frame_id
         self._hb_id = prof.heartbeat.frame.frame_id
         self.last_heartbeat: Heartbeat | None = None
+        self._hb_stamp = 0.0  # its frame's time stamp (recorded time in a replay)
         self.last_ack: LoadAck | None = None
         self.acks: dict[int, LoadAck] = {}
         self.last_error: DecodeError | None = None
@@ -168,7 +161,11 @@ class CanDecoder:
                 part, codec, unpack = entry
                 data = bytes(msg.data)
                 counter = codec.check(data, msg.is_fd, msg.is_remote_frame)
-                done = self._assembler.push(part, counter, data, unpack)
+                hb = self.last_heartbeat
+                age = msg.timestamp - self._hb_stamp
+                done = self._assembler.push(part, counter, data, unpack,
+                                            (hb.cycle, age) if hb and age < HEARTBEAT_FRESH_S
+                                            else None)
                 if done is None:
                     return None
                 return self._js.state(*done)
@@ -194,6 +191,7 @@ class CanDecoder:
         data = bytes(msg.data)
         codec.frame.check(data, msg.is_fd, msg.is_remote_frame)
         self.last_heartbeat = codec.decode(data, t=time.perf_counter())
+        self._hb_stamp = msg.timestamp
         self.counters.heartbeats += 1
 
     def _load_ack(self, msg: can.Message) -> None:
@@ -206,7 +204,8 @@ class CanDecoder:
         if raw is None:
             return
         seq, status, load = codec.values(raw)
-        ack = LoadAck(seq=seq, applied=status == 0, load=load, t=time.perf_counter())
+        ack = LoadAck(seq=seq, applied=status == 0, load=load, t=time.perf_counter(),
+                      error=ACK_ERRORS.get(status, ""))
         self.last_ack = ack
         self.acks[seq] = ack
         self.counters.acks += 1
@@ -235,8 +234,9 @@ class CanDecoder:
         return "; ".join(parts)
 
 
-class CanLink:
-    """The plug-in's end of the CAN protocol on one bus: joint-state source and payload sink.
+class CanLink(FramedLink):
+    """The plug-in's end of the CAN protocol on one bus: joint-state source and payload sink
+    (``read``, ``send``, ``wait_ack``, ``close``: :class:`~firmware_bridge.framed.FramedLink`).
 
     Args:
         bus: an open python-can bus.
@@ -252,189 +252,91 @@ class CanLink:
                  window: int = 16, name: str | None = None, owns_bus: bool = True) -> None:
         self.bus = bus
         self.profile = get_profile(profile)
-        self.silence_timeout = float(silence_timeout)
-        self.name = name or f"{getattr(bus, 'channel_info', 'CAN bus')} ({profile} profile)"
         self.decoder = CanDecoder(self.profile, window=window)
-        self.counters = self.decoder.counters
+        super().__init__(
+            name=name or f"{getattr(bus, 'channel_info', 'CAN bus')} ({profile} profile)",
+            rate_hz=self.profile.joint_state.rate_hz, silence_timeout=silence_timeout)
         self._owns_bus = owns_bus
-        self._ready: deque[tuple[JointState, float]] = deque()
-        self._frame_time = 0.0
-        self.last_frame_time = 0.0
-        """Receive time (python-can's ``Message.timestamp``, epoch s) of the frame that
-        completed the cycle ``read`` returned last: where frame-to-estimate latency starts."""
-        self._seq = 0
         self._cmd_counter = 0
-        self._closed = False
 
     @classmethod
     def open(cls, kind: str, channel: str, profile: str = "fd", *,
              bus_options: dict | None = None, **link_options) -> CanLink:
-        """Open a bus of ``kind`` (see :data:`BUS_KINDS`) and a link on it."""
+        """Open a bus of link ``kind`` (a CAN bus kind of ``LINKS``) and a link on it."""
         bus = open_bus(kind, channel, profile, **(bus_options or {}))
         return cls(bus, profile, name=f"{kind} bus {channel!r} ({profile} profile)",
                    **link_options)
 
-    # -- source ----------------------------------------------------------------------------
-    @property
-    def last_heartbeat(self) -> Heartbeat | None:
-        return self.decoder.last_heartbeat
-
-    def _recv(self, timeout: float) -> can.Message | None:
+    def _receive(self, timeout: float) -> None:
         try:
-            return self.bus.recv(timeout)
+            msg = self.bus.recv(timeout)
         except can.CanError as exc:
             raise LinkError(f"{self.name}: receiving failed: {exc}") from exc
+        if msg is not None:
+            state = self.decoder.push(msg)
+            if state is not None:
+                self._deliver(state, msg.timestamp)
 
-    def _pump(self, deadline: float) -> JointState | None:
-        """Read frames until one completes a cycle or ``deadline`` (perf_counter) passes."""
-        push = self.decoder.push
-        while True:
-            remaining = deadline - time.perf_counter()
-            if remaining <= 0:
-                return None
-            msg = self._recv(remaining)
-            if msg is not None:
-                state = push(msg)
-                if state is not None:
-                    self._frame_time = msg.timestamp
-                    return state
-
-    def read(self, timeout: float | None = None) -> JointState:
-        """The next complete cycle; ``ControllerSilent`` after ``timeout`` s without one."""
-        if self._ready:
-            state, self.last_frame_time = self._ready.popleft()
-            return state
-        timeout = self.silence_timeout if timeout is None else float(timeout)
-        state = self._pump(time.perf_counter() + timeout)
-        if state is None:
-            self.counters.silences += 1
-            self.decoder.resync()
-            raise ControllerSilent(f"{self.name}: no complete joint state for "
-                                   f"{timeout * 1e3:.0f} ms; {self.decoder.diagnosis()}")
-        self.last_frame_time = self._frame_time
-        return state
-
-    def __iter__(self):
-        while True:
-            yield self.read()
-
-    # -- sink ------------------------------------------------------------------------------
-    @property
-    def last_ack(self) -> LoadAck | None:
-        return self.decoder.last_ack
-
-    def send(self, payload: Payload | None) -> int:
-        """Send a payload command (``None`` clears the load); return its sequence number."""
-        if payload is not None:
-            payload.check()
-        self._seq = self._seq % 255 + 1
-        self.decoder.acks.pop(self._seq, None)  # an ack of the previous use of this number
+    def _transmit(self, seq: int, payload: Payload | None) -> None:
         codec = self.profile.command
-        frames, self._cmd_counter = codec.encode(self._seq, payload, self._cmd_counter)
+        frames, self._cmd_counter = codec.encode(seq, payload, self._cmd_counter)
         for data in frames:
             try:
                 self.bus.send(_message(codec.frame, data), timeout=SEND_TIMEOUT)
             except can.CanError as exc:
                 raise LinkError(f"{self.name}: sending the payload command failed: {exc}"
                                 ) from exc
-        return self._seq
 
-    def wait_ack(self, seq: int, timeout: float = 1.0) -> LoadAck:
-        """Read the bus until the ack of ``seq`` arrives (cycles read meanwhile are kept for
-        ``read``); ``AckTimeout`` after ``timeout`` s."""
-        deadline = time.perf_counter() + float(timeout)
-        acks = self.decoder.acks
-        while seq not in acks:
-            state = self._pump(min(deadline, time.perf_counter() + 0.01))
-            if state is not None:
-                if len(self._ready) >= BUFFERED_CYCLES:
-                    self._ready.popleft()
-                    self.counters.overflow += 1
-                self._ready.append((state, self._frame_time))
-            elif time.perf_counter() >= deadline:
-                raise AckTimeout(f"{self.name}: no acknowledgement of payload command {seq} "
-                                 f"within {timeout:g} s; {self.decoder.diagnosis()}")
-        return acks[seq]
-
-    # -- life ------------------------------------------------------------------------------
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            if self._owns_bus:
-                try:
-                    self.bus.shutdown()
-                except (can.CanError, OSError) as exc:
-                    raise LinkError(f"{self.name}: closing the bus failed: {exc}") from exc
-
-    def __enter__(self) -> CanLink:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def _shutdown(self) -> None:
+        if self._owns_bus:
+            try:
+                self.bus.shutdown()
+            except (can.CanError, OSError) as exc:
+                raise LinkError(f"{self.name}: closing the bus failed: {exc}") from exc
 
 
-def open_can_link(kind: str, channel: str, profile: str = "fd", **options) -> CanLink:
-    """Opener for :func:`firmware_bridge.links.open_link`."""
-    return CanLink.open(kind, channel, profile, **options)
+def open_can_link(kind: str, channel: str, *, profile: str = "fd", silence_timeout: float = 0.1,
+                  window: int = 16, bus_options: dict | None = None) -> CanLink:
+    """Opener for :func:`firmware_bridge.links.open_link` (the CAN bus kinds)."""
+    return CanLink.open(kind, channel, profile, bus_options=bus_options,
+                        silence_timeout=silence_timeout, window=window)
 
 
 # -- the controller's side -----------------------------------------------------------------
-class CanControllerPort:
+class CanControllerPort(FramedControllerPort):
     """The controller's end: publishes joint state, heartbeats and acks; receives commands.
 
     ``publish`` is called every controller cycle and sends every ``stride``-th (the
-    profile's rate). Frames pass through the optional fault injector. Send errors are
-    counted (``send_errors``), not raised: a controller keeps its cycle.
+    profile's rate). Frames pass through the optional fault injector
+    (:class:`~firmware_bridge.framed.FramedControllerPort`).
     """
 
     def __init__(self, bus: can.BusABC, profile: str = "fd", faults: FaultSpec | None = None,
                  owns_bus: bool = True, record_faults: bool = False) -> None:
+        super().__init__(faults, record_faults, owns=owns_bus)
         self.bus = bus
         self.profile = get_profile(profile)
         self.stride = self.profile.joint_state.stride
-        self.faults = FaultInjector(faults, record=record_faults) if faults and faults.active \
-            else None
-        self.counters = LinkCounters()
-        self._owns_bus = owns_bus
         self._js_counter = 0
         self._hb_counter = 0
         self._ack_counter = 0
         self._cmd = LoadAssembler(self.profile.command)
         self._cmd_id = self.profile.command.frame.frame_id
-        self._cycle = 0
-        self._silent = False
         self.saturated = 0
-        self.sent = 0
-        self.send_errors = 0
-        self.last_send_error: Exception | None = None
 
-    def tick(self, cycle: int, t: float) -> None:
-        """Start of a controller cycle: release delayed frames, enter or leave a silence."""
-        self._cycle = cycle
-        if self.faults is not None:
-            self._silent = self.faults.silent(t)
-            for codec, data in self.faults.due(cycle):
-                self._send_now(codec, data)
+    def _open(self) -> bool:
+        return getattr(self.bus, "is_open", True)
 
-    def _send(self, codec, data: bytes) -> None:
-        if self._silent:
-            self.faults.silence(codec, self._cycle)
-            return
-        if self.faults is None or not getattr(self.bus, "is_open", True):
-            # no faults on frames that go nowhere (an slcan adapter whose channel is closed
-            # drops them anyway), so the injected counts are what a reader can see
-            self._send_now(codec, data)
-            return
-        for out in self.faults.apply(codec, data, self._cycle):
-            self._send_now(codec, out)
-
-    def _send_now(self, codec, data: bytes) -> None:
+    def _emit(self, codec, data: bytes) -> None:
         try:
             self.bus.send(_message(codec, data), timeout=SEND_TIMEOUT)
             self.sent += 1
         except can.CanError as exc:
             self.send_errors += 1
             self.last_send_error = exc
+
+    def _shutdown(self) -> None:
+        self.bus.shutdown()
 
     def publish(self, state: JointState) -> None:
         if state.cycle % self.stride:
@@ -453,8 +355,9 @@ class CanControllerPort:
 
     def send_ack(self, ack: LoadAck) -> None:
         codec = self.profile.ack
+        status = 0 if ack.applied else (2 if ack.error == ACK_ERRORS[2] else 1)
         frames, self._ack_counter = codec.encode(ack.seq, ack.load, self._ack_counter,
-                                                 status=0 if ack.applied else 1)
+                                                 status=status)
         for data in frames:
             self._send(codec.frame, data)
 
@@ -488,7 +391,3 @@ class CanControllerPort:
                     out.append(LoadCommand(seq=seq, load=load))
             except DecodeError as exc:
                 setattr(c, exc.kind, getattr(c, exc.kind) + 1)
-
-    def close(self) -> None:
-        if self._owns_bus:
-            self.bus.shutdown()

@@ -1,141 +1,316 @@
-"""The pylibfranka backend (extra ``franka``): a real Franka robot as source and sink.
+"""The pylibfranka backend (extra ``franka``): a Franka Research 3 as source and sink.
 
-- Source: ``Robot.read_once()`` returns a ``RobotState``; the joint state is its ``q``,
-  ``dq`` and ``tau_J`` (link-side torques), ``t = state.time.to_sec()`` and, since Franka
-  states carry no cycle counter, ``cycle = round(t * 1000)`` (the robot's clock counts 1 ms
-  cycles). Cycles skipped between two reads count as ``lost``.
-- Sink: ``Robot.set_load(load_mass, F_x_Cload, load_inertia)`` (positional: the binding
-  names no arguments), CoM in the flange frame, inertia about the CoM column-major, exactly
-  :meth:`sim.payload.Payload.set_load_args`; clearing the load sends mass 0. The
-  acknowledgement is the load the robot reports afterwards (``m_load``, ``F_x_Cload``,
-  ``I_load`` of the next state), refused (``applied=False``) if ``set_load`` raised a
-  ``CommandException``.
+What it works with, stated plainly:
 
-``read_once`` cannot run while another control loop holds the robot (libfranka raises
-``InvalidOperationException``); the plug-in reads beside the robot's own motion, not inside
-a libfranka control loop. pylibfranka is imported only when a robot is opened.
+- **FR3 only.** pylibfranka 0.21 is built on libfranka >= 0.10, which speaks only to the
+  Franka Research 3. A Panda (FER) needs libfranka < 0.10 and has no pylibfranka: serve it
+  through a CAN or serial controller (``[link] kind = "socketcan"``, ``"slcan"``,
+  ``"serial"``) or through ROS 2.
+- **Exclusive FCI.** The Franka Control Interface gives one client control at a time.
+  ``read_once`` raises ``InvalidOperationException`` while a control loop runs in this
+  client, and the robot accepts one FCI client: this link does *not* read beside another
+  program's libfranka control loop. It serves a cell where the plug-in is the FCI client and
+  the arm moves under the robot's own programs (Desk) or is guided by hand.
+
+How:
+
+- Source: a reader thread calls ``Robot.read_once()`` (it blocks until the robot's next
+  state) and queues each ``RobotState``; ``read(timeout)`` waits at most ``timeout`` s for the
+  next one, else raises ``ControllerSilent``. The joint state is ``q``, ``dq`` and ``tau_J``
+  (link-side torques), ``t = state.time.to_sec()`` and, since Franka states carry no cycle
+  counter, ``cycle = round(t * 1000)`` (the robot's clock counts 1 ms cycles). Cycles skipped
+  between two states count as ``lost``.
+- Sink: ``send`` returns at once; a command thread calls ``Robot.set_load(load_mass,
+  F_x_Cload, load_inertia)`` (positional: the binding names no arguments; CoM in the flange
+  frame, inertia about the CoM column-major, exactly
+  :meth:`sim.payload.Payload.set_load_args`; clearing sends mass 0). Its outcome comes back
+  through ``last_ack`` as a :class:`~firmware_bridge.protocol.LoadAck`: applied, with the load
+  the robot reports in its next state (``m_load``, ``F_x_Cload``, ``I_load``); or refused
+  (``applied=False``) with libfranka's error text when it raised ``CommandException`` (the
+  robot refuses ``setLoad`` while a controller runs: "command not possible in the current
+  mode"). libfranka waits up to 60 s for a command's reply; the link does not wait that long:
+  a command that has not returned after ``load_timeout`` s (default 2 s, well below the
+  unit's WatchdogSec=5) is acknowledged as refused with that reason, and its late outcome, if
+  any, replaces it in ``last_ack``.
+- Errors are matched by class, against the classes of the pylibfranka module that made the
+  robot: ``NetworkException`` is :class:`~firmware_bridge.errors.ControllerSilent`,
+  ``InvalidOperationException`` (FCI held elsewhere) and the rest are
+  :class:`~firmware_bridge.errors.LinkError`.
+
+pylibfranka is imported only when a robot is opened.
 """
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
+from collections import deque
 
 from iem.types import JointState
 from sim.payload import Payload
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
-from .links import LinkCounters
+from .links import BUFFERED_CYCLES, LinkCounters
 from .protocol import LoadAck
 from .reassembly import CYCLE_MOD, Sequencer
 
+LOAD_TIMEOUT_S = 2.0
+"""Seconds a ``set_load`` may take before it is acknowledged as refused (timed out)."""
+RETRY_AFTER_ERROR_S = 0.1
+"""Pause of the reader thread after ``read_once`` raised, s."""
 
-def _franka_error(exc: Exception, name: str, what: str) -> LinkError:
-    """pylibfranka raises RuntimeError subclasses named ``NetworkException`` etc."""
+
+def _franka_error(api, exc: Exception, name: str, what: str) -> LinkError:
+    """The bridge's error for a pylibfranka exception, matched by class."""
     kind = type(exc).__name__
-    cls = ControllerSilent if kind == "NetworkException" else LinkError
-    return cls(f"{name}: {what} failed: {kind}: {exc}")
+    if isinstance(exc, api.NetworkException):
+        return ControllerSilent(f"{name}: {what} failed: {kind}: {exc}")
+    if isinstance(exc, api.InvalidOperationException):
+        return LinkError(f"{name}: {what} failed: {kind}: {exc} (the FCI gives one client "
+                         "control at a time: is a libfranka control loop or another FCI client "
+                         "running?)")
+    return LinkError(f"{name}: {what} failed: {kind}: {exc}")
 
 
 class FrankaLink:
-    """Source and sink over a ``pylibfranka.Robot`` (or an object with its signatures)."""
+    """Source and sink over a ``pylibfranka.Robot`` (or an object with its signatures).
 
-    def __init__(self, robot, *, name: str = "Franka robot", owns_robot: bool = True) -> None:
+    Args:
+        robot: the robot.
+        api: the pylibfranka module (or one with its exception classes): errors are matched
+            against its ``NetworkException``, ``InvalidOperationException`` and
+            ``CommandException``.
+        name: how the link names itself in messages.
+        silence_timeout: default ``read`` timeout, s.
+        load_timeout: seconds a ``set_load`` may take before it is acknowledged as refused.
+        owns_robot: drop the robot on ``close``.
+    """
+
+    def __init__(self, robot, api, *, name: str = "Franka robot", silence_timeout: float = 0.1,
+                 load_timeout: float = LOAD_TIMEOUT_S, owns_robot: bool = True) -> None:
         self.robot = robot
+        self.api = api
         self.name = name
+        self.rate_hz = 1000.0
+        self.silence_timeout = float(silence_timeout)
+        self.load_timeout = float(load_timeout)
         self.counters = LinkCounters()
-        self._seq_order = Sequencer(self.counters)
-        self._seq = 0
-        self._pending: JointState | None = None
+        self.last_frame_time = 0.0
+        """Time (epoch s) the reader thread received the state ``read`` returned last."""
         self.last_ack: LoadAck | None = None
         self.acks: dict[int, LoadAck] = {}
         self.last_heartbeat = None
+        self._order = Sequencer(self.counters, jump_limit=CYCLE_MOD)  # the robot's own clock
+        self._states: queue.Queue = queue.Queue(maxsize=BUFFERED_CYCLES)
+        self._ready: deque[tuple[JointState, float]] = deque()
+        self._jobs: queue.Queue = queue.Queue()
+        self._outcomes: queue.Queue = queue.Queue()
+        self._running: tuple[int, float] | None = None  # (seq, started) of set_load in flight
+        self._timed_out: set[int] = set()
+        self._waiting: list[tuple[int, bool, str, float]] = []  # outcomes waiting for a state
+        # received after the command returned (the load it reports)
+        self._load = None  # the load in the last state, as reported by the robot
+        self._load_key: tuple | None = None
+        self._seq = 0
         self._owns_robot = owns_robot
+        self._stop = threading.Event()
+        self._reader = threading.Thread(target=self._read_loop, name="franka-reader",
+                                        daemon=True)
+        self._commander = threading.Thread(target=self._command_loop, name="franka-commands",
+                                           daemon=True)
+        self._reader.start()
+        self._commander.start()
 
     @classmethod
-    def open(cls, address: str, realtime: bool = False) -> FrankaLink:
+    def open(cls, address: str, *, realtime: bool = False, **options) -> FrankaLink:
         """Connect to the robot at ``address``. ``realtime=False`` passes
         ``RealtimeConfig.kIgnore``: reading states needs no real-time kernel."""
         try:
             import pylibfranka
         except ImportError as exc:
-            raise BridgeConfigError("the franka link needs pylibfranka: install the extra, "
-                                    "pip install 'iem-payload[franka]'") from exc
+            raise BridgeConfigError("the franka link needs pylibfranka (Franka Research 3, "
+                                    "libfranka >= 0.10): install the extra, pip install "
+                                    "'iem-payload[franka]'") from exc
         config = pylibfranka.RealtimeConfig.kEnforce if realtime else \
             pylibfranka.RealtimeConfig.kIgnore
         try:
             robot = pylibfranka.Robot(address, config)
-        except Exception as exc:
-            raise _franka_error(exc, f"Franka robot {address!r}", "connecting") from exc
-        return cls(robot, name=f"Franka robot {address!r}")
+        except Exception as exc:  # any failure to connect; the class is named in the message
+            raise _franka_error(pylibfranka, exc, f"Franka robot {address!r}",
+                                "connecting") from exc
+        return cls(robot, pylibfranka, name=f"Franka robot {address!r}", **options)
+
+    # -- threads ---------------------------------------------------------------------------
+    def _read_loop(self) -> None:
+        while not self._stop.is_set():
+            robot = self.robot
+            if robot is None:
+                return
+            try:
+                item = robot.read_once()
+            except Exception as exc:  # handed to the caller's thread, mapped by class there
+                item = exc
+            now = time.time()
+            try:
+                self._states.put_nowait((item, now))
+            except queue.Full:
+                self.counters.overflow += 1
+            if isinstance(item, Exception):
+                self._stop.wait(RETRY_AFTER_ERROR_S)
+
+    def _command_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                seq, args = self._jobs.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            self._running = (seq, time.perf_counter())
+            error, fatal = "", None
+            try:
+                self.robot.set_load(*args)
+            except self.api.CommandException as exc:
+                error = str(exc) or type(exc).__name__
+            except self.api.NetworkException as exc:
+                error = f"{type(exc).__name__}: {exc}"
+            except Exception as exc:  # anything else ends the run, from the caller's thread
+                error, fatal = f"{type(exc).__name__}: {exc}", exc
+            self._running = None
+            self._outcomes.put((seq, not error, error, fatal, time.time()))
 
     # -- source ----------------------------------------------------------------------------
-    def _read_state(self):
-        try:
-            return self.robot.read_once()
-        except Exception as exc:
-            raise _franka_error(exc, self.name, "read_once") from exc
-
     def _joint_state(self, rs) -> JointState | None:
         self.counters.received += 1
+        key = (float(rs.m_load), tuple(rs.F_x_Cload), tuple(rs.I_load))
+        if key != self._load_key:  # built only when the robot reports another load
+            self._load_key = key
+            self._load = None if key[0] == 0.0 else Payload.from_set_load(
+                key[0], list(key[1]), list(key[2]), name="robot")
         t = float(rs.time.to_sec())
         cycle = round(t * 1000.0) % CYCLE_MOD
-        verdict = self._seq_order.judge(cycle)
+        verdict = self._order.judge(cycle)
         if verdict != "deliver":
             setattr(self.counters, verdict, getattr(self.counters, verdict) + 1)
             return None
-        self._seq_order.deliver(cycle)
-        return JointState(t=t, q=rs.q, dq=rs.dq, tau_J=rs.tau_J, cycle=cycle)
+        self._order.deliver(cycle)
+        return JointState(t=t, q=list(rs.q), dq=list(rs.dq), tau_J=list(rs.tau_J), cycle=cycle)
+
+    def _ack(self, seq: int, applied: bool, error: str) -> None:
+        ack = LoadAck(seq=seq, applied=applied, load=self._load, t=time.perf_counter(),
+                      error=error)
+        self.last_ack = self.acks[seq] = ack
+        self.counters.acks += 1
+
+    def _settle(self) -> None:
+        """Outcomes of finished commands wait for the next state (the load it reports); a
+        command running longer than ``load_timeout`` is acknowledged as refused now."""
+        while True:
+            try:
+                seq, applied, error, fatal, done = self._outcomes.get_nowait()
+            except queue.Empty:
+                break
+            if fatal is not None:
+                raise _franka_error(self.api, fatal, self.name, "set_load") from fatal
+            self._waiting.append((seq, applied, error, done))
+        running = self._running
+        if running is not None and running[0] not in self._timed_out \
+                and time.perf_counter() - running[1] > self.load_timeout:
+            self._timed_out.add(running[0])
+            self._ack(running[0], False, f"set_load did not return within "
+                                         f"{self.load_timeout:g} s")
+
+    def _take(self, deadline: float) -> bool:
+        """Process robot states until one is ready for ``read`` or ``deadline`` passes."""
+        while not self._ready:
+            self._settle()
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                return False
+            try:
+                item, received = self._states.get(timeout=min(remaining, 0.05))
+            except queue.Empty:
+                continue
+            if isinstance(item, Exception):
+                raise _franka_error(self.api, item, self.name, "read_once") from item
+            state = self._joint_state(item)
+            if self._waiting:  # a state received after set_load returned reports its load
+                done = [w for w in self._waiting if w[3] <= received]
+                self._waiting = [w for w in self._waiting if w[3] > received]
+                for seq, applied, error, _ in done:
+                    self._timed_out.discard(seq)
+                    self._ack(seq, applied, error)
+            if state is not None:
+                self._ready.append((state, received))
+        return True
 
     def read(self, timeout: float | None = None) -> JointState:
-        """The next robot state; ``timeout`` is libfranka's own (its network timeout)."""
-        if self._pending is not None:
-            state, self._pending = self._pending, None
-            return state
-        while True:
-            state = self._joint_state(self._read_state())
-            if state is not None:
-                return state
+        """The next robot state; ``ControllerSilent`` after ``timeout`` s without one."""
+        timeout = self.silence_timeout if timeout is None else float(timeout)
+        if not self._take(time.perf_counter() + timeout):
+            self.counters.silences += 1
+            raise ControllerSilent(f"{self.name}: no robot state for {timeout * 1e3:.0f} ms; "
+                                   f"{self.counters.summary()}")
+        state, self.last_frame_time = self._ready.popleft()
+        return state
 
     # -- sink ------------------------------------------------------------------------------
     def send(self, payload: Payload | None) -> int:
+        """Queue ``set_load`` for the command thread; return the command's number at once."""
         if payload is not None:
             payload.check()
             mass, com, inertia = payload.set_load_args()
         else:
             mass, com, inertia = 0.0, [0.0, 0.0, 0.0], [0.0] * 9
         self._seq = self._seq % 255 + 1
-        applied = True
-        try:
-            self.robot.set_load(float(mass), [float(v) for v in com],
-                                [float(v) for v in inertia])
-        except Exception as exc:
-            if type(exc).__name__ != "CommandException":
-                raise _franka_error(exc, self.name, "set_load") from exc
-            applied = False
-        rs = self._read_state()
-        self._pending = self._joint_state(rs)
-        m = float(rs.m_load)
-        load = None if m == 0.0 else Payload.from_set_load(m, list(rs.F_x_Cload),
-                                                          list(rs.I_load), name="robot")
-        ack = LoadAck(seq=self._seq, applied=applied, load=load, t=time.perf_counter())
-        self.last_ack = self.acks[self._seq] = ack
-        self.counters.acks += 1
+        self.acks.pop(self._seq, None)
+        self._jobs.put((self._seq, (float(mass), [float(v) for v in com],
+                                    [float(v) for v in inertia])))
         return self._seq
 
     def wait_ack(self, seq: int, timeout: float = 1.0) -> LoadAck:
-        """``set_load`` is synchronous: the ack exists as soon as ``send`` returned."""
-        try:
-            return self.acks[seq]
-        except KeyError:
-            raise AckTimeout(f"{self.name}: no payload command {seq} was sent") from None
+        """Read states (kept for ``read``) until ``seq`` is acknowledged; ``AckTimeout``
+        after ``timeout`` s."""
+        deadline = time.perf_counter() + float(timeout)
+        while seq not in self.acks:
+            if time.perf_counter() >= deadline:
+                raise AckTimeout(f"{self.name}: no acknowledgement of payload command {seq} "
+                                 f"within {timeout:g} s")
+            self._take_one(deadline)
+        return self.acks[seq]
 
+    def _take_one(self, deadline: float) -> None:
+        """Process at most one queued robot state (the state is kept for ``read``)."""
+        self._settle()
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            return
+        pending, self._ready = self._ready, deque()
+        try:
+            self._take(time.perf_counter() + min(remaining, 0.05))
+        finally:
+            pending.extend(self._ready)
+            self._ready = pending
+
+    # -- life ------------------------------------------------------------------------------
     def close(self) -> None:
+        self._stop.set()
+        for thread in (self._reader, self._commander):
+            if thread is not threading.current_thread():
+                thread.join(0.2)  # the reader may be inside read_once
         if self._owns_robot:
             self.robot = None
 
+    def __enter__(self) -> FrankaLink:
+        return self
 
-def open_franka_link(kind: str, channel: str, profile: str | None = None,
-                     realtime: bool = False) -> FrankaLink:
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_franka_link(kind: str, channel: str, *, profile: str = "fd",
+                     silence_timeout: float = 0.1, realtime: bool = False,
+                     load_timeout: float = LOAD_TIMEOUT_S) -> FrankaLink:
     """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the robot's IP
     (``profile`` is a CAN notion and not used)."""
-    return FrankaLink.open(channel, realtime=realtime)
+    return FrankaLink.open(channel, realtime=realtime, silence_timeout=silence_timeout,
+                           load_timeout=load_timeout)

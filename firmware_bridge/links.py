@@ -12,14 +12,18 @@ pylibfranka robot, a replayed log):
   semantics (None clears it); the controller's acknowledgement arrives as ``last_ack``
   (processed while ``read`` runs) or is awaited with ``wait_ack(seq, timeout)``.
 
-:data:`LINKS` is the one table of link kinds: name -> (module, opener, what it is). Modules
-are imported only when a link of that kind is opened (python-can's style), so the serial link
-never imports python-can and the CAN link never imports pylibfranka.
+:data:`LINKS` is the one table of link kinds (:class:`LinkKind`): the configuration, the
+service, the simulated controller and the recorder take their kinds from it. Every kind is
+opened by :func:`open_link` through one opener signature, ``opener(kind, channel, *, profile,
+silence_timeout, **kind_options)``; modules are imported only when a link of that kind is
+opened (python-can's style), so the serial link never imports python-can and the CAN link
+never imports pylibfranka. A new kind (a reader thread, ROS 2) is one entry and one opener.
 """
 
 from __future__ import annotations
 
 import importlib
+import inspect
 from dataclasses import dataclass, fields
 from typing import Protocol, runtime_checkable
 
@@ -27,7 +31,8 @@ from iem.types import JointState
 
 from .errors import BridgeConfigError
 
-DROP_KINDS = ("crc", "malformed", "duplicate", "out_of_order", "stale", "orphaned")
+DROP_KINDS = ("crc", "malformed", "duplicate", "out_of_order", "stale", "implausible",
+              "orphaned")
 """The kinds of dropped frames, in the order they are reported."""
 
 
@@ -52,6 +57,10 @@ class LinkCounters:
             again with different content, or older than ``window`` cycles), or a frame that
             repeats the last delivered E2E alive counter with new content (a sender whose
             counter is stuck).
+        implausible: a valid cycle whose cycle counter jumps ahead further than the link
+            believes without confirmation (``reassembly.JUMP_LIMIT`` published cycles) and
+            that neither the last heartbeat nor the next cycle confirms: one well-formed frame
+            with a wrong counter; the stream goes on from the last good cycle.
         orphaned: valid frames discarded because their cycle never completed (a sibling
             frame was lost, corrupt or late); the cycle itself counts in ``lost``.
         lost: cycles that never completed: gaps in the delivered cycle counter, in
@@ -65,6 +74,9 @@ class LinkCounters:
         acks: load acknowledgements received (complete).
         overflow: cycles dropped because the caller did not read them while it waited for
             an acknowledgement (more than ``BUFFERED_CYCLES`` buffered).
+        timing: delivered cycles whose controller ``Time`` breaks the protocol's timing
+            requirement against the cycle counter (see ``reassembly.TimeUnwrapper``; the
+            README states it); delivered with the wire's time, counted and reported.
     """
 
     received: int = 0
@@ -83,6 +95,8 @@ class LinkCounters:
     heartbeats: int = 0
     acks: int = 0
     overflow: int = 0
+    implausible: int = 0
+    timing: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -94,8 +108,9 @@ class LinkCounters:
     def summary(self) -> str:
         """One line: received, delivered, drops by kind and lost cycles."""
         drops = ", ".join(f"{k} {v}" for k, v in self.dropped().items()) or "none"
+        timing = f"; {self.timing} cycles break the timing requirement" if self.timing else ""
         return (f"{self.received} frames received, {self.delivered} cycles delivered, "
-                f"{self.lost} lost; dropped frames: {drops}")
+                f"{self.lost} lost; dropped frames: {drops}{timing}")
 
 
 BUFFERED_CYCLES = 4096
@@ -104,9 +119,21 @@ BUFFERED_CYCLES = 4096
 
 @runtime_checkable
 class JointStateSource(Protocol):
-    """A source of joint states, one complete controller cycle at a time."""
+    """A source of joint states, one complete controller cycle at a time.
+
+    Attributes:
+        counters: what the source saw and dropped.
+        name: how the link names itself in messages.
+        rate_hz: joint states per second it delivers (the wire profile's, or the kind's).
+        last_frame_time: receive time (``time.time()``, epoch s) of the frame that completed
+            the cycle ``read`` returned last, where frame-to-estimate latency starts; 0.0
+            when the link has no receive time (a replayed log).
+    """
 
     counters: LinkCounters
+    name: str
+    rate_hz: float
+    last_frame_time: float
 
     def read(self, timeout: float | None = None) -> JointState:
         """The next complete cycle; raises ``ControllerSilent`` after ``timeout`` s without one
@@ -118,7 +145,12 @@ class JointStateSource(Protocol):
 
 @runtime_checkable
 class PayloadSink(Protocol):
-    """A sink for payload parameters, with libfranka ``setLoad`` semantics."""
+    """A sink for payload parameters, with libfranka ``setLoad`` semantics.
+
+    ``send`` never blocks on the controller: its acknowledgement (applied, or refused with
+    the controller's ``error`` text) arrives later as ``last_ack``, which the link updates
+    while ``read`` runs, or is awaited with ``wait_ack``.
+    """
 
     def send(self, payload) -> int:
         """Send ``payload`` (a :class:`sim.payload.Payload`, or None to clear the load);
@@ -138,34 +170,128 @@ class PayloadSink(Protocol):
     def close(self) -> None: ...
 
 
-LINKS: dict[str, tuple[str, str, str]] = {
-    "virtual": ("firmware_bridge.can_link", "open_can_link",
-                "python-can's in-process virtual bus (tests, the in-process demo)"),
-    "socketcan": ("firmware_bridge.can_link", "open_can_link",
-                  "Linux SocketCAN: can0 on a robot-cell PC, vcan0 for tests"),
-    "slcan": ("firmware_bridge.can_link", "open_can_link",
-              "a serial-line CAN adapter (slcan/LAWICEL; CANable 2.0 for CAN FD): "
-              "any pyserial URL or device"),
-    "serial": ("firmware_bridge.serial_link", "open_serial_link",
-               "msgpack messages over a serial line (COBS + CRC32 framing): any pyserial URL"),
-    "franka": ("firmware_bridge.franka_link", "open_franka_link",
-               "a Franka robot through pylibfranka (extra 'franka'); channel: the robot's IP"),
-    "replay": ("firmware_bridge.replay", "open_replay",
-               "a recorded CAN log (.blf .log .asc .trc); channel: the file"),
-}
-"""Link kinds: name -> (module, opener function, description)."""
+@dataclass(frozen=True)
+class LinkKind:
+    """One kind of link: where its opener lives and what it can do.
 
+    Every opener has one signature, ``opener(kind, channel, *, profile, silence_timeout,
+    **kind_options)`` (``profile`` is the CAN wire profile; kinds without one ignore it), and
+    is imported only when a link of that kind is opened (python-can's interface table is the
+    model).
 
-def open_link(kind: str, channel: str, **options):
-    """Open a link of ``kind`` (see :data:`LINKS`) on ``channel``; options go to its opener.
-
-    The returned object is a :class:`JointStateSource` and, except for ``replay``, a
-    :class:`PayloadSink`.
+    Attributes:
+        module: the module of the opener, imported lazily.
+        opener: the opener's name in ``module``.
+        help: what it is, in words (for ``--help`` and error messages).
+        bus: the python-can interface name if the kind is a CAN bus (``iem record`` and the
+            simulated controller open it with :func:`firmware_bridge.can_link.open_bus`).
+        bus_class: ``"module:Class"`` of a python-can bus class to use instead of looking
+            ``bus`` up in python-can (a subclass of python-can's own).
+        controller: the simulated controller can serve a link of this kind.
+        pty: the simulated controller can also serve it on a new pty (``<kind>-pty``).
+        sink: the link also writes loads (a :class:`PayloadSink`).
+        fixed_rate_hz: joint states per second the link delivers whatever the profile; None:
+            the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
     """
+
+    module: str
+    opener: str
+    help: str
+    bus: str | None = None
+    bus_class: str | None = None
+    controller: bool = False
+    pty: bool = False
+    sink: bool = True
+    fixed_rate_hz: float | None = None
+
+
+LINKS: dict[str, LinkKind] = {
+    "virtual": LinkKind("firmware_bridge.can_link", "open_can_link",
+                        "python-can's in-process virtual bus (tests, the in-process demo)",
+                        bus="virtual", controller=True),
+    "socketcan": LinkKind("firmware_bridge.can_link", "open_can_link",
+                          "Linux SocketCAN: can0 on a robot-cell PC, vcan0 for tests",
+                          bus="socketcan", controller=True),
+    "slcan": LinkKind("firmware_bridge.can_link", "open_can_link",
+                      "a serial-line CAN adapter (slcan/LAWICEL; CANable 2.0 for CAN FD): any "
+                      "pyserial URL or device",
+                      bus="slcan", bus_class="firmware_bridge.slcan_buffered:BufferedSlcanBus",
+                      controller=True, pty=True),
+    "serial": LinkKind("firmware_bridge.serial_link", "open_serial_link",
+                       "msgpack messages over a serial line (COBS + CRC32 framing): any "
+                       "pyserial URL", controller=True, pty=True, fixed_rate_hz=1000.0),
+    "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
+                       "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
+                       "0.10; exclusive FCI); channel: the robot's IP", fixed_rate_hz=1000.0),
+    "replay": LinkKind("firmware_bridge.replay", "open_replay",
+                       "a recorded CAN log (.blf .log .asc .trc); channel: the file",
+                       sink=False),
+}
+"""The one table of link kinds: the configuration, the service, the simulated controller and
+the recorder all take their kinds from it."""
+
+
+def link_kind(kind: str) -> LinkKind:
+    """The entry of ``kind``; BridgeConfigError naming the valid kinds if there is none."""
     try:
-        module_name, opener, _ = LINKS[kind]
+        return LINKS[kind]
     except KeyError:
         raise BridgeConfigError(f"unknown link kind {kind!r}; valid kinds are "
                                 f"{', '.join(LINKS)}") from None
-    module = importlib.import_module(module_name)
-    return getattr(module, opener)(kind, channel, **options)
+
+
+def bus_kinds() -> tuple[str, ...]:
+    """The link kinds that are CAN buses (what ``iem record`` can record)."""
+    return tuple(k for k, v in LINKS.items() if v.bus)
+
+
+def controller_interfaces() -> dict[str, str]:
+    """What the simulated controller can serve: kind -> description (``<kind>-pty``: on a new
+    pty, whose path it prints on stdout)."""
+    out = {}
+    for k, v in LINKS.items():
+        if v.controller:
+            out[k] = v.help
+            if v.pty:
+                out[f"{k}-pty"] = f"act as the other end of a {k} link on a new pty; " \
+                                  "prints the pty path on stdout"
+    return out
+
+
+def rate_hz(kind: str, profile: str = "fd") -> float:
+    """Joint states per second a link of ``kind`` delivers with wire profile ``profile``."""
+    spec = link_kind(kind)
+    if spec.fixed_rate_hz is not None:
+        return float(spec.fixed_rate_hz)
+    from .protocol import profile as get_profile
+
+    return float(get_profile(profile).joint_state.rate_hz)
+
+
+def open_link(kind: str, channel: str, *, profile: str = "fd", silence_timeout: float = 0.1,
+              **kind_options):
+    """Open a link of ``kind`` (see :data:`LINKS`) on ``channel``.
+
+    Every kind takes ``profile`` and ``silence_timeout`` (the default ``read`` timeout, s);
+    ``kind_options`` go to that kind's opener (an unknown one is a BridgeConfigError). The
+    returned object is a :class:`JointStateSource` and, where ``LINKS[kind].sink``, a
+    :class:`PayloadSink`.
+    """
+    spec = link_kind(kind)
+    module = importlib.import_module(spec.module)
+    opener = getattr(module, spec.opener)
+    try:
+        inspect.signature(opener).bind(kind, channel, profile=profile,
+                                       silence_timeout=silence_timeout, **kind_options)
+    except TypeError as exc:
+        raise BridgeConfigError(f"link kind {kind!r}: {exc}; its options are "
+                                f"{_options_of(opener)}") from None
+    return opener(kind, channel, profile=profile, silence_timeout=silence_timeout,
+                  **kind_options)
+
+
+def _options_of(opener) -> str:
+    names = [p.name for p in inspect.signature(opener).parameters.values()
+             if p.kind is inspect.Parameter.KEYWORD_ONLY
+             and p.name not in ("profile", "silence_timeout")]
+    return ", ".join(names) or "none"

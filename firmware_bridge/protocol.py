@@ -65,7 +65,10 @@ _MESSAGES = {
                 "command": "LoadCommand", "ack": "LoadAck", "heartbeat": "Heartbeat"},
 }
 
-ACK_STATUS = {0: "applied", 1: "rejected_inconsistent"}
+ACK_STATUS = {0: "applied", 1: "rejected_inconsistent", 2: "refused_moving"}
+ACK_ERRORS = {1: "the load is not physically consistent",
+              2: "command not possible in the current mode (the arm is moving)"}
+"""The error text of a refusal status (the wire carries only the status)."""
 
 
 # -- value types ---------------------------------------------------------------------------
@@ -89,16 +92,21 @@ class LoadAck:
 
     Attributes:
         seq: the command's sequence number.
-        applied: True if the load was set; False if refused (not physically consistent).
+        applied: True if the load was set; False if refused (not physically consistent,
+            or the controller does not take load commands now, e.g. while the arm moves).
         load: the load now in force (after the command, or the previous one if refused);
             None if no load is set.
         t: ``time.perf_counter()`` when it was received, s.
+        error: why it was refused, in the controller's words (libfranka's exception text,
+            e.g. "command not possible in the current mode"); empty when applied, and on
+            the CAN wire, which carries only the status.
     """
 
     seq: int
     applied: bool
     load: Payload | None
     t: float = 0.0
+    error: str = ""
 
 
 @dataclass(frozen=True)

@@ -72,8 +72,11 @@ def record(bus: can.BusABC, out, *, duration: float | None = None,
 
 
 def configure(parser) -> None:
-    parser.add_argument("--interface", required=True, choices=["virtual", "socketcan", "slcan"],
-                        help="the bus kind")
+    from .links import LINKS, bus_kinds
+
+    parser.add_argument("--interface", required=True, choices=bus_kinds(),
+                        help="the bus kind: " + "; ".join(f"{k}: {LINKS[k].help}"
+                                                          for k in bus_kinds()))
     parser.add_argument("--channel", required=True, help="bus channel, device or URL")
     parser.add_argument("--out", required=True, metavar="FILE",
                         help=f"log file: {', '.join(FORMATS)}")

@@ -16,7 +16,7 @@ Messages (msgpack arrays; numbers as msgpack floats/ints):
 - ``["L", seq, mass, [x, y, z], [9 values]]``: payload command, exactly libfranka's
   ``setLoad(load_mass, F_x_Cload, load_inertia)`` (inertia column-major); mass 0 clears;
 - ``["A", seq, applied, mass, [x, y, z], [9 values]]``: acknowledgement with the load in
-  force (mass 0: none).
+  force (mass 0: none); a refusal may add a seventh field, the error text (a string).
 
 Drops are counted as on CAN (see :class:`~firmware_bridge.links.LinkCounters`): ``crc``
 (CRC32 mismatch), ``malformed`` (bad COBS, too short, not msgpack, wrong schema),
@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 import time
 import zlib
-from collections import deque
 
 import msgpack
 import numpy as np
@@ -37,9 +36,10 @@ import numpy as np
 from iem.types import N_JOINTS, JointState
 from sim.payload import Payload
 
-from .errors import AckTimeout, ControllerSilent, DecodeError, LinkError
-from .faults import FaultInjector, FaultSpec
-from .links import BUFFERED_CYCLES, LinkCounters
+from .errors import DecodeError, LinkError
+from .faults import FaultSpec
+from .framed import FramedControllerPort, FramedLink
+from .links import LinkCounters
 from .protocol import Heartbeat, LoadAck, LoadCommand
 from .reassembly import CYCLE_MOD, Sequencer
 
@@ -193,10 +193,15 @@ def decode_message(body: bytes):
     if tag == "L":
         _shape(msg, tag, 5)
         return tag, (_int(msg[1], "seq", 0, 255), _load(msg[2], msg[3], msg[4]))
-    _shape(msg, tag, 6)
+    if len(msg) != 7:
+        _shape(msg, tag, 6)
     if not isinstance(msg[2], bool):
         raise DecodeError(f"serial message 'A': applied must be true or false, got {msg[2]!r}")
-    return tag, (_int(msg[1], "seq", 0, 255), msg[2], _load(msg[3], msg[4], msg[5]))
+    error = msg[6] if len(msg) == 7 else ""
+    if not isinstance(error, str):
+        raise DecodeError(f"serial message 'A': the error text must be a string, got "
+                          f"{type(error).__name__}")
+    return tag, (_int(msg[1], "seq", 0, 255), msg[2], _load(msg[3], msg[4], msg[5]), error)
 
 
 def _load(mass, com, inertia) -> Payload | None:
@@ -271,7 +276,9 @@ class SerialDecoder:
                 c.duplicate += 1
                 return None
             cycle = f[0]
-            verdict = self.seq.judge(cycle)
+            hb = self.last_heartbeat
+            verdict = self.seq.judge(cycle, None if hb is None else
+                                     (hb.cycle, time.perf_counter() - hb.t))
             if verdict != "deliver":
                 setattr(c, verdict, getattr(c, verdict) + 1)
                 return None
@@ -284,8 +291,9 @@ class SerialDecoder:
             self.last_heartbeat = Heartbeat(*f, t=now)
             c.heartbeats += 1
         elif tag == "A":
-            seq, applied, load = f
-            self.last_ack = self.acks[seq] = LoadAck(seq=seq, applied=applied, load=load, t=now)
+            seq, applied, load, error = f
+            self.last_ack = self.acks[seq] = LoadAck(seq=seq, applied=applied, load=load, t=now,
+                                                     error=error)
             c.acks += 1
         else:
             c.foreign += 1  # a command: the other direction
@@ -294,9 +302,23 @@ class SerialDecoder:
     def resync(self) -> None:
         self.seq.resync()
 
+    def diagnosis(self) -> str:
+        """Why messages might not be getting through, in words (for silence messages)."""
+        parts = [self.counters.summary()]
+        if self.last_error is not None:
+            parts.append(f"last bad message: {self.last_error}")
+        hb = self.last_heartbeat
+        if hb is None:
+            parts.append("no heartbeat yet")
+        else:
+            parts.append(f"last heartbeat {time.perf_counter() - hb.t:.2f} s ago "
+                         f"(controller {hb.state}, cycle {hb.cycle})")
+        return "; ".join(parts)
 
-class SerialLink:
-    """The plug-in's end of the serial link: joint-state source and payload sink.
+
+class SerialLink(FramedLink):
+    """The plug-in's end of the serial link: joint-state source and payload sink (``read``,
+    ``send``, ``wait_ack``, ``close``: :class:`~firmware_bridge.framed.FramedLink`).
 
     Args:
         port: an open pyserial port (or anything with ``read``, ``write``, ``in_waiting``).
@@ -308,27 +330,13 @@ class SerialLink:
     def __init__(self, port, *, silence_timeout: float = 0.1, stride: int = 1,
                  window: int = 16, name: str | None = None, owns_port: bool = True) -> None:
         self.port = port
-        self.silence_timeout = float(silence_timeout)
-        self.name = name or f"serial link {getattr(port, 'name', port)!r}"
         self.decoder = SerialDecoder(stride=stride, window=window)
-        self.counters = self.decoder.counters
+        super().__init__(name=name or f"serial link {getattr(port, 'name', port)!r}",
+                         rate_hz=1000.0 / max(1, int(stride)), silence_timeout=silence_timeout)
         self._owns_port = owns_port
-        self._ready: deque[tuple[JointState, float]] = deque()
-        self.last_frame_time = 0.0
-        """Time (epoch s) the message of the cycle ``read`` returned last was decoded."""
-        self._seq = 0
-        self._closed = False
 
-    @property
-    def last_heartbeat(self) -> Heartbeat | None:
-        return self.decoder.last_heartbeat
-
-    @property
-    def last_ack(self) -> LoadAck | None:
-        return self.decoder.last_ack
-
-    def _fill(self, deadline: float) -> bool:
-        """Read what is there (waiting up to the port timeout); True if a cycle is ready."""
+    def _receive(self, timeout: float) -> None:
+        """Read what is there (waiting up to the port's own timeout)."""
         try:
             data = self.port.read(max(1, self.port.in_waiting))
         except Exception as exc:  # pyserial raises SerialException and OSError subclasses
@@ -337,70 +345,32 @@ class SerialLink:
             states = self.decoder.feed(data)
             if states:
                 now = time.time()
-                self._ready.extend((state, now) for state in states)
-                while len(self._ready) > BUFFERED_CYCLES:
-                    self._ready.popleft()
-                    self.counters.overflow += 1
-        return bool(self._ready)
+                for state in states:
+                    self._deliver(state, now)
 
-    def read(self, timeout: float | None = None) -> JointState:
-        if self._ready:
-            state, self.last_frame_time = self._ready.popleft()
-            return state
-        timeout = self.silence_timeout if timeout is None else float(timeout)
-        deadline = time.perf_counter() + timeout
-        while not self._fill(deadline):
-            if time.perf_counter() >= deadline:
-                self.counters.silences += 1
-                self.decoder.resync()
-                raise ControllerSilent(f"{self.name}: no joint state for {timeout * 1e3:.0f} ms;"
-                                       f" {self.counters.summary()}")
-        state, self.last_frame_time = self._ready.popleft()
-        return state
-
-    def send(self, payload: Payload | None) -> int:
-        if payload is not None:
-            payload.check()
-        self._seq = self._seq % 255 + 1
-        self.decoder.acks.pop(self._seq, None)
-        body = msgpack.packb(["L", self._seq, *_load_args(payload)])
+    def _transmit(self, seq: int, payload: Payload | None) -> None:
+        body = msgpack.packb(["L", seq, *_load_args(payload)])
         try:
             self.port.write(frame(body))
         except Exception as exc:
             raise LinkError(f"{self.name}: sending the payload command failed: {exc}") from exc
-        return self._seq
 
-    def wait_ack(self, seq: int, timeout: float = 1.0) -> LoadAck:
-        deadline = time.perf_counter() + float(timeout)
-        while seq not in self.decoder.acks:
-            if time.perf_counter() >= deadline:
-                raise AckTimeout(f"{self.name}: no acknowledgement of payload command {seq} "
-                                 f"within {timeout:g} s; {self.counters.summary()}")
-            self._fill(deadline)
-        return self.decoder.acks[seq]
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            if self._owns_port:
-                self.port.close()
-
-    def __enter__(self) -> SerialLink:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def _shutdown(self) -> None:
+        if self._owns_port:
+            self.port.close()
 
 
-def open_serial_link(kind: str, channel: str, profile: str | None = None,
-                     baudrate: int = 1_000_000, **options) -> SerialLink:
+def open_serial_link(kind: str, channel: str, *, profile: str = "fd",
+                     silence_timeout: float = 0.1, baudrate: int = 1_000_000, stride: int = 1,
+                     window: int = 16) -> SerialLink:
     """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is a device or URL
     (``profile`` is a CAN notion and not used)."""
-    return SerialLink(open_serial(channel, baudrate), name=f"serial link {channel!r}", **options)
+    return SerialLink(open_serial(channel, baudrate), name=f"serial link {channel!r}",
+                      silence_timeout=silence_timeout, stride=stride, window=window)
 
 
 # -- the controller's side -----------------------------------------------------------------
-class SerialControllerPort:
+class SerialControllerPort(FramedControllerPort):
     """The controller's end of the serial link (see :class:`SimController`).
 
     Faults apply to ``body + CRC32`` before COBS, so a corrupted message fails its CRC.
@@ -408,42 +378,24 @@ class SerialControllerPort:
 
     def __init__(self, port, faults: FaultSpec | None = None, stride: int = 1,
                  owns_port: bool = True, record_faults: bool = False) -> None:
+        super().__init__(faults, record_faults, owns=owns_port)
         self.port = port
         self.stride = max(1, int(stride))
-        self.faults = FaultInjector(faults, record=record_faults) if faults and faults.active \
-            else None
-        self.counters = LinkCounters()
         self.deframer = Deframer()
-        self._owns_port = owns_port
-        self._cycle = 0
-        self._silent = False
-        self.sent = 0
-        self.send_errors = 0
 
-    def tick(self, cycle: int, t: float) -> None:
-        self._cycle = cycle
-        if self.faults is not None:
-            self._silent = self.faults.silent(t)
-            for _, raw in self.faults.due(cycle):
-                self._write(raw)
-
-    def _write(self, raw: bytes) -> None:
+    def _emit(self, key, raw: bytes) -> None:
         try:
             self.port.write(cobs_encode(raw) + b"\x00")
             self.sent += 1
-        except Exception:  # a controller keeps its cycle; the count tells
+        except Exception as exc:  # a controller keeps its cycle; the count tells
             self.send_errors += 1
+            self.last_send_error = exc
 
     def _send(self, body: bytes, key: str) -> None:
-        if self._silent:
-            self.faults.silence(key, self._cycle)
-            return
-        raw = body + zlib.crc32(body).to_bytes(4, "little")
-        if self.faults is None:
-            self._write(raw)
-            return
-        for out in self.faults.apply(key, raw, self._cycle):
-            self._write(out)
+        super()._send(key, body + zlib.crc32(body).to_bytes(4, "little"))
+
+    def _shutdown(self) -> None:
+        self.port.close()
 
     def publish(self, state: JointState) -> None:
         if state.cycle % self.stride == 0:
@@ -455,7 +407,9 @@ class SerialControllerPort:
                    "H")
 
     def send_ack(self, ack: LoadAck) -> None:
-        self._send(msgpack.packb(["A", ack.seq, bool(ack.applied), *_load_args(ack.load)]), "A")
+        error = [ack.error] if ack.error else []
+        self._send(msgpack.packb(["A", ack.seq, bool(ack.applied), *_load_args(ack.load),
+                                  *error]), "A")
 
     def poll_commands(self) -> list[LoadCommand]:
         out = []
@@ -482,8 +436,3 @@ class SerialControllerPort:
             else:
                 c.foreign += 1
         return out
-
-    def close(self) -> None:
-        if self._owns_port:
-            self.port.close()
-

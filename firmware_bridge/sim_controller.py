@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from .protocol import Heartbeat, LoadAck, LoadCommand
+from .protocol import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
 
 MAX_LAG = 20
 """Cycles behind schedule after which the loop stops catching up and restarts its clock."""
@@ -82,11 +82,15 @@ class SimController:
         realtime: keep 1 kHz in real time (False: as fast as possible).
         heartbeat_period: s between heartbeats.
         spin_us: the last part of each interval spent spinning instead of sleeping, µs.
+        refuse_while_moving: refuse load commands while the arm moves and accept them at
+            rest, as a real Franka refuses setLoad while a controller runs: the ack says
+            applied=False with the error "command not possible in the current mode (the arm
+            is moving)" and the load stays.
     """
 
     def __init__(self, port, *, path=None, payload=None, once: bool = False, seed: int = 0,
                  sensor=None, realtime: bool = True, heartbeat_period: float = 0.1,
-                 spin_us: float = 200.0) -> None:
+                 spin_us: float = 200.0, refuse_while_moving: bool = False) -> None:
         from sim.family import default_test_payload
         from sim.paths import excitation_path
         from sim.plant import DT, PandaPlant
@@ -105,27 +109,40 @@ class SimController:
         self.overruns = 0
         self.skips = 0
         self.load_seq = 0
+        self.refuse_while_moving = refuse_while_moving
+        self.refused_moving = 0
         self.commands: list[tuple[LoadCommand, bool]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
 
     # -- one cycle -------------------------------------------------------------------------
-    def _apply(self, cmd: LoadCommand) -> None:
+    def moving(self, k: int) -> bool:
+        """True while the arm moves at cycle ``k`` (not holding at rest at the path's end)."""
+        return not self.player.holding(k)
+
+    def _apply(self, cmd: LoadCommand, k: int) -> None:
         load = cmd.load
-        ok = load is None or load.is_consistent()
+        error = ""
+        if self.refuse_while_moving and self.moving(k):
+            error = ACK_ERRORS[2]
+            self.refused_moving += 1
+        elif not (load is None or load.is_consistent()):
+            error = ACK_ERRORS[1]
+        ok = not error
         if ok:
             self.plant.set_controller_load(load)
             self.load_seq = cmd.seq
         self.commands.append((cmd, ok))
-        self.port.send_ack(LoadAck(seq=cmd.seq, applied=ok, load=self.plant.controller_load))
+        self.port.send_ack(LoadAck(seq=cmd.seq, applied=ok, load=self.plant.controller_load,
+                                   error=error))
 
     def step(self) -> None:
         """One controller cycle (without waiting for its deadline)."""
         k = self.cycles
         self.port.tick(k, k * self.period)
         for cmd in self.port.poll_commands():
-            self._apply(cmd)
+            self._apply(cmd, k)
         state = self.plant.step(*self.player.at(k))
         self.port.publish(state)
         if k % self.hb_every == 0:
@@ -197,6 +214,7 @@ class SimController:
         return {"cycles": self.cycles, "overruns": self.overruns, "skips": self.skips,
                 "commands": len(self.commands),
                 "refused": sum(1 for _, ok in self.commands if not ok),
+                "refused_moving": self.refused_moving,
                 "sent": getattr(port, "sent", 0), "send_errors": getattr(port, "send_errors", 0),
                 "saturated": getattr(port, "saturated", 0),
                 "faults": dict(port.faults.counts) if getattr(port, "faults", None) else {},
@@ -206,19 +224,12 @@ class SimController:
 
 
 # -- command line --------------------------------------------------------------------------
-INTERFACES = {
-    "virtual": "python-can virtual bus (in-process only: a smoke run)",
-    "socketcan": "SocketCAN interface, e.g. vcan0 or can0",
-    "slcan": "an slcan adapter on a serial device or pyserial URL",
-    "slcan-pty": "act as an slcan adapter on a new pty; prints the pty path on stdout",
-    "serial": "msgpack serial link on a device or pyserial URL",
-    "serial-pty": "msgpack serial link on a new pty; prints the pty path on stdout",
-}
-
-
 def configure(parser) -> None:
-    parser.add_argument("--interface", required=True, choices=list(INTERFACES),
-                        help="; ".join(f"{k}: {v}" for k, v in INTERFACES.items()))
+    from .links import controller_interfaces
+
+    kinds = controller_interfaces()
+    parser.add_argument("--interface", required=True, choices=list(kinds),
+                        help="; ".join(f"{k}: {v}" for k, v in kinds.items()))
     parser.add_argument("--channel", default="",
                         help="bus channel, device or URL (not used by the *-pty interfaces)")
     parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
@@ -241,6 +252,9 @@ def configure(parser) -> None:
     parser.add_argument("--silence", metavar="START:LENGTH",
                         help="say nothing for LENGTH s from controller time START s")
     parser.add_argument("--fault-seed", type=int, default=0, help="seed of the fault draws")
+    parser.add_argument("--refuse-while-moving", action="store_true",
+                        help="refuse load commands while the arm moves (accept them at rest), "
+                        "as a real Franka refuses setLoad while a controller runs")
     parser.add_argument("--stats-json", metavar="FILE",
                         help="at exit, write the controller's counts (cycles, overruns, "
                              "commands, faults injected per message) as JSON")
@@ -266,31 +280,38 @@ def fault_spec(args):
 def open_port(interface: str, channel: str, profile: str, faults=None,
               record_faults: bool = False):
     """``(port, announce)``: the controller port, and the pty path to print (or None).
-    ``record_faults`` keeps a log of every fault drawn (CAN ports; for tests)."""
-    if interface in ("virtual", "socketcan", "slcan"):
+    ``interface`` is a link kind the controller serves, or ``<kind>-pty`` (see
+    :func:`firmware_bridge.links.controller_interfaces`). ``record_faults`` keeps a log of
+    every fault drawn (for tests)."""
+    from .errors import BridgeConfigError
+    from .links import LINKS, controller_interfaces
+
+    valid = controller_interfaces()
+    if interface not in valid:
+        raise BridgeConfigError(f"unknown interface {interface!r}; valid are {', '.join(valid)}")
+    kind, pty = interface.removesuffix("-pty"), interface.endswith("-pty")
+    spec = LINKS[kind]
+    if spec.bus is not None:
         from .can_link import CanControllerPort, open_bus
 
-        return CanControllerPort(open_bus(interface, channel, profile), profile, faults,
+        if pty:
+            from .slcan_adapter import SlcanPtyAdapter
+
+            adapter = SlcanPtyAdapter()
+            return CanControllerPort(adapter, profile, faults,
+                                     record_faults=record_faults), adapter.slave_path
+        return CanControllerPort(open_bus(kind, channel, profile), profile, faults,
                                  record_faults=record_faults), None
-    if interface == "slcan-pty":
-        from .can_link import CanControllerPort
-        from .slcan_adapter import SlcanPtyAdapter
+    from .serial_link import SerialControllerPort, open_serial
 
-        adapter = SlcanPtyAdapter()
-        return CanControllerPort(adapter, profile, faults,
-                                 record_faults=record_faults), adapter.slave_path
-    if interface in ("serial", "serial-pty"):
-        from .serial_link import SerialControllerPort, open_serial
+    if not pty:
+        return SerialControllerPort(open_serial(channel), faults=faults,
+                                    record_faults=record_faults), None
+    from .pty_pair import PtyPair
 
-        if interface == "serial":
-            return SerialControllerPort(open_serial(channel), faults=faults), None
-        from .pty_pair import PtyPair
-
-        pty = PtyPair()
-        return SerialControllerPort(pty, faults=faults), pty.slave_path
-    from .errors import BridgeConfigError
-
-    raise BridgeConfigError(f"unknown interface {interface!r}; valid are {', '.join(INTERFACES)}")
+    pty_port = PtyPair()
+    return SerialControllerPort(pty_port, faults=faults,
+                                record_faults=record_faults), pty_port.slave_path
 
 
 def run(args) -> int:
@@ -302,7 +323,8 @@ def run(args) -> int:
     path = load_path_csv(args.path) if args.path else None
     payload = load_payload(args.payload) if args.payload else None
     port, announce = open_port(args.interface, args.channel, args.profile, fault_spec(args))
-    controller = SimController(port, path=path, payload=payload, once=args.once, seed=args.seed)
+    controller = SimController(port, path=path, payload=payload, once=args.once, seed=args.seed,
+                               refuse_while_moving=args.refuse_while_moving)
 
     def _stop(signum, frame):
         controller._stop.set()

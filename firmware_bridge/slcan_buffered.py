@@ -7,6 +7,10 @@ second of the classic profile, the adapter's buffer filled and frames (acknowled
 among them) were lost. :class:`BufferedSlcanBus` overrides only that method: it reads what
 the port holds in one call and splits it at the protocol's terminators (CR, or BEL for an
 error). Everything else, the protocol, the frame parsing and sending, is python-can's own.
+
+It relies on private members of python-can's ``slcanBus`` (``_read``, ``_buffer``,
+``serialPortOrig``, ``_OK``, ``_ERROR``), so pyproject.toml pins python-can to 4.6.x and
+``tests/firmware_bridge/test_slcan_buffered.py`` fails when a release changes them.
 """
 
 from __future__ import annotations

@@ -162,3 +162,53 @@ def test_bad_files_exit_2_with_clear_errors(tmp_path, fd_log, replay_model_file,
     missing_model = tmp_path / "none.msgpack"
     assert main(["replay", str(bad), "--model", str(missing_model)]) == 2
     assert "none.msgpack" in capsys.readouterr().err
+
+
+# -- damaged logs: a truncated one replays what it holds, a bad line is skipped and counted --
+def test_a_truncated_blf_replays_what_it_holds_and_says_so(tmp_path, fd_log, replay_model_file,
+                                                           capsys):
+    log_file, published = fd_log
+    data = log_file.read_bytes()
+    cut = tmp_path / "cut.blf"
+    cut.write_bytes(data[:len(data) // 2])
+    held = sum(1 for _ in can.LogReader(str(cut)))  # python-can's own reader: what it holds
+    assert 0 < held < sum(1 for _ in can.LogReader(str(log_file)))
+    out = tmp_path / "summary.json"
+    assert main(["replay", str(cut), "--model", str(replay_model_file), "--json", str(out),
+                 "--no-status"]) == 0
+    s = json.loads(out.read_text())
+    assert s["truncated"] is True and 0 < s["estimates"] < published
+    assert s["frames"]["received"] == held
+    captured = capsys.readouterr()
+    assert "cut.blf is truncated" in captured.err and "TRUNCATED" in captured.out
+    whole = tmp_path / "whole.json"
+    assert main(["replay", str(log_file), "--model", str(replay_model_file), "--json",
+                 str(whole), "--no-status"]) == 0
+    assert json.loads(whole.read_text())["truncated"] is False
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc"])
+def test_a_bad_line_is_skipped_and_counted_not_fatal(tmp_path, suffix):
+    from firmware_bridge.replay import ReplaySource
+
+    clean = tmp_path / f"clean{suffix}"
+    record_sim(clean, "fd")
+    lines = clean.read_text().splitlines()
+    frame_lines = [i for i, line in enumerate(lines) if "#" in line or "CANFD" in line]
+    damaged_at = frame_lines[len(frame_lines) // 3], frame_lines[2 * len(frame_lines) // 3]
+    for i in damaged_at:  # a joint-state frame line whose data python-can cannot parse
+        lines[i] = lines[i].replace("#", "#Z", 1) if suffix == ".log" else \
+            lines[i].replace(" f 64 ", " f 64 ZZ ", 1)
+    bad = tmp_path / f"bad{suffix}"
+    bad.write_text("\n".join(lines) + "\n")
+    kwargs = {"relative_timestamp": False} if suffix == ".asc" else {}
+    with pytest.raises(Exception):  # noqa: B017 - python-can's reader alone stops there
+        list(can.LogReader(str(bad), **kwargs))
+    expected = sum(1 for _ in can.LogReader(str(clean), **kwargs)) - len(damaged_at)
+    with ReplaySource(bad, "fd") as src:
+        states = list(src)
+    assert src.frames == expected and src.bad_lines == 2 and src.counters.malformed == 2
+    assert not src.truncated
+    with ReplaySource(clean, "fd") as whole:
+        all_states = list(whole)
+    assert 0 < len(all_states) - len(states) <= 2  # only the damaged cycles are missing

@@ -59,8 +59,17 @@ def vcan_unavailable() -> str | None:
         return (f"this kernel has no AF_CAN (socket(AF_CAN, SOCK_RAW, CAN_RAW) failed: {exc}); "
                 "vcan tests run where 'ip link add dev vcan0 type vcan' works")
     if os.path.exists("/sys/class/net/vcan0"):
+        try:
+            with open("/sys/class/net/vcan0/mtu") as f:
+                mtu = int(f.read())
+        except (OSError, ValueError):
+            mtu = 72
+        if mtu < 72:
+            return (f"vcan0 has MTU {mtu}: it drops CAN FD frames; run "
+                    "'sudo deploy/setup-vcan.sh vcan' (ip link set vcan0 mtu 72)")
         return None
     for cmd in (["ip", "link", "add", "dev", "vcan0", "type", "vcan"],
+                ["ip", "link", "set", "vcan0", "mtu", "72"],  # vcan drops FD frames below 72
                 ["ip", "link", "set", "up", "vcan0"]):
         try:
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=10)

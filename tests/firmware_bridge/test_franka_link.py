@@ -1,115 +1,134 @@
-"""The pylibfranka backend against a fake with pylibfranka's signatures."""
+"""The pylibfranka backend against a fake with pylibfranka 0.21's types and exceptions
+(checked against the real module where it is installed)."""
 
+import inspect
 import sys
-import types
+import threading
 
 import numpy as np
 import pytest
 
-from firmware_bridge.errors import BridgeConfigError, ControllerSilent, LinkError
+from firmware_bridge.errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
 from firmware_bridge.franka_link import FrankaLink
 from firmware_bridge.links import JointStateSource, PayloadSink, open_link
 from sim.family import default_test_payload
-from sim.paths import excitation_path
-from sim.plant import PandaPlant
+
+from . import franka_fake
+from .franka_fake import Robot
 
 
-class Duration:
-    def __init__(self, ms):
-        self._ms = ms
-
-    def to_sec(self):
-        return self._ms / 1000.0
+@pytest.fixture
+def fake():
+    return Robot(udp_timeout=0.5)
 
 
-class RobotState:
-    """The fields of pylibfranka.RobotState the link reads (NumPy arrays, as pylibfranka)."""
-
-    def __init__(self, q, dq, tau_J, time_ms, m_load, F_x_Cload, I_load):
-        self.q, self.dq, self.tau_J = np.asarray(q), np.asarray(dq), np.asarray(tau_J)
-        self.time = Duration(time_ms)
-        self.m_load, self.F_x_Cload, self.I_load = m_load, np.asarray(F_x_Cload), \
-            np.asarray(I_load)
+@pytest.fixture
+def link(fake):
+    out = FrankaLink(fake, franka_fake.module(), silence_timeout=0.2, load_timeout=0.3)
+    yield out
+    out.close()
 
 
-class CommandException(RuntimeError):
-    pass
+def ack_of(link, fake, seq, states=200):
+    """The ack of ``seq``: the robot sends states (one at a time) until it arrives."""
+    for _ in range(states):
+        fake.release()
+        try:
+            return link.wait_ack(seq, 0.05)
+        except AckTimeout:
+            continue
+    raise AssertionError(f"no ack of {seq} after {states} states")
 
 
-class NetworkException(RuntimeError):
-    pass
-
-
-class FakeRobot:
-    """``read_once()`` steps a plant 1 ms per call (``skip`` extra ms sometimes);
-    ``set_load(load_mass, F_x_Cload, load_inertia)`` positional, std::array sizes checked."""
-
-    def __init__(self):
-        self.path = excitation_path(2.0)
-        self.plant = PandaPlant(payload=default_test_payload())
-        self.plant.reset(self.path.q[0])
-        self.k = 0
-        self.load = (0.0, [0.0] * 3, [0.0] * 9)
-        self.skip_next = 0
-        self.fail = None
-
-    def read_once(self):
-        if self.fail == "network":
-            raise NetworkException("libfranka: UDP receive: Timeout")
-        for _ in range(1 + self.skip_next):
-            s = self.plant.step(self.path.q[self.k], self.path.dq[self.k], self.path.ddq[self.k])
-            self.k += 1
-        self.skip_next = 0
-        m, c, i = self.load
-        return RobotState(s.q, s.dq, s.tau_J, round(s.t * 1000), m, c, i)
-
-    def set_load(self, *args):
-        load_mass, F_x_Cload, load_inertia = args  # pybind11: positional, no names
-        if len(F_x_Cload) != 3 or len(load_inertia) != 9:
-            raise TypeError("incompatible function arguments")
-        if self.fail == "command":
-            raise CommandException("libfranka: Set Load command rejected")
-        self.load = (float(load_mass), list(F_x_Cload), list(load_inertia))
-
-
-def test_states_come_from_read_once_and_skipped_cycles_are_lost():
-    robot = FrankaLink(FakeRobot())
-    assert isinstance(robot, JointStateSource) and isinstance(robot, PayloadSink)
-    a, b = robot.read(), robot.read()
-    robot.robot.skip_next = 2
-    c = robot.read()
+def test_states_come_from_read_once_and_skipped_cycles_are_lost(fake, link):
+    assert isinstance(link, JointStateSource) and isinstance(link, PayloadSink)
+    fake.release(2)
+    a, b = link.read(), link.read()
+    fake.skip_next = 2
+    fake.release()
+    c = link.read()
     assert (a.cycle, b.cycle, c.cycle) == (0, 1, 4)
-    assert robot.counters.lost == 2 and robot.counters.delivered == 3
+    assert link.counters.lost == 2 and link.counters.delivered == 3
     np.testing.assert_allclose(b.t, 1e-3)
+    assert link.rate_hz == 1000.0 and link.last_frame_time > 0
 
 
-def test_set_load_gets_column_major_inertia_and_the_ack_reads_it_back():
-    fake = FakeRobot()
-    robot = FrankaLink(fake)
+def test_read_honours_its_timeout(link):
+    """No state from the robot: ControllerSilent after the timeout given, not libfranka's."""
+    with pytest.raises(ControllerSilent, match="no robot state for 50 ms"):
+        link.read(0.05)
+    assert link.counters.silences == 1
+
+
+def test_set_load_gets_column_major_inertia_and_the_ack_reads_it_back(fake, link):
     p = default_test_payload()
-    seq = robot.send(p)
+    seq = link.send(p)  # returns at once; the command thread calls set_load
+    ack = ack_of(link, fake, seq)
     mass, com, inertia = fake.load
     assert mass == p.mass and com == list(p.com)
     np.testing.assert_allclose(np.reshape(inertia, (3, 3), order="F"), p.inertia_matrix)
-    ack = robot.wait_ack(seq)
-    assert ack.applied and ack.load.mass == p.mass
+    assert ack.applied and ack.error == "" and ack.load.mass == p.mass
     np.testing.assert_allclose(ack.load.inertia, p.inertia)
-    assert robot.read().cycle == 0  # the state read for the ack is not lost
-    assert robot.wait_ack(robot.send(None)).load is None and fake.load[0] == 0.0
+    assert link.read().cycle == 0  # the states read while waiting are not lost
+    seq = link.send(None)
+    assert ack_of(link, fake, seq).load is None and fake.load[0] == 0.0
 
 
-def test_refused_and_network_failures():
-    fake = FakeRobot()
-    robot = FrankaLink(fake)
-    fake.fail = "command"
-    ack = robot.wait_ack(robot.send(default_test_payload()))
+def test_a_refusal_comes_back_as_an_ack_with_the_error_text(fake, link):
+    fake.refuse = "libfranka: Set Load command rejected: command not possible in the current mode"
+    seq = link.send(default_test_payload())
+    ack = ack_of(link, fake, seq)
     assert not ack.applied and ack.load is None
-    robot.read()  # the state read for the ack
+    assert "command not possible in the current mode" in ack.error
+    assert link.last_ack is ack
+    fake.refuse = None
+    seq = link.send(default_test_payload())  # accepted once the robot takes commands again
+    assert ack_of(link, fake, seq).applied
+
+
+def test_set_load_runs_off_the_cycle_with_a_bounded_timeout(fake, link):
+    """A set_load that hangs (libfranka waits 60 s) does not stop reading; after
+    load_timeout it is acknowledged as refused, and its late outcome replaces that."""
+    fake.hold = threading.Event()
+    seq = link.send(default_test_payload())
+    fake.release(5)
+    cycles = [link.read().cycle for _ in range(5)]
+    assert cycles == [0, 1, 2, 3, 4]  # read goes on while set_load hangs
+    for _ in range(50):  # nothing from the robot meanwhile: reads time out, the ack comes
+        with pytest.raises(ControllerSilent):
+            link.read(0.1)
+        if link.last_ack is not None:
+            break
+    ack = link.last_ack
+    assert ack.seq == seq and not ack.applied and "did not return within 0.3 s" in ack.error
+    fake.hold.set()
+    for _ in range(200):
+        fake.release()
+        link.read()
+        if link.last_ack is not ack:
+            break
+    assert link.last_ack.seq == seq and link.last_ack.applied
+
+
+def test_network_and_exclusive_failures_are_matched_by_class(fake, link):
     fake.fail = "network"
+    fake.release()
     with pytest.raises(ControllerSilent, match="NetworkException"):
-        robot.read()
-    with pytest.raises(LinkError, match="no payload command 99"):
-        robot.wait_ack(99)
+        link.read()
+    fake.fail = "exclusive"
+    fake.release()
+    with pytest.raises(LinkError, match="one client control at a time"):
+        link.read(1.0)
+    with pytest.raises(AckTimeout, match="no acknowledgement of payload command 99"):
+        link.wait_ack(99, 0.05)
+
+
+def test_an_exception_with_the_right_name_but_another_class_is_not_a_network_error(link):
+    """Matched by class: a foreign RuntimeError named NetworkException is a plain LinkError."""
+    other = type("NetworkException", (RuntimeError,), {})
+    error = __import__("firmware_bridge.franka_link", fromlist=["_franka_error"])._franka_error(
+        franka_fake.module(), other("x"), "robot", "read_once")
+    assert type(error) is LinkError
 
 
 def test_without_pylibfranka_the_extra_is_named(monkeypatch):
@@ -118,17 +137,43 @@ def test_without_pylibfranka_the_extra_is_named(monkeypatch):
         open_link("franka", "172.16.0.2")
 
 
-def test_open_uses_pylibfranka_robot_and_realtime_config(monkeypatch):
-    made = {}
+def test_open_link_uses_pylibfranka_robot_and_realtime_config(monkeypatch):
+    made = []
 
-    class Robot(FakeRobot):
+    class Robot_(Robot):
         def __init__(self, address, config):
-            super().__init__()
-            made.update(address=address, config=config)
+            super().__init__(address, config)
+            made.append(self)
 
-    module = types.SimpleNamespace(Robot=Robot, RealtimeConfig=types.SimpleNamespace(
-        kEnforce="enforce", kIgnore="ignore"))
+    module = franka_fake.module()
+    module.Robot = Robot_
     monkeypatch.setitem(sys.modules, "pylibfranka", module)
-    link = open_link("franka", "172.16.0.2")
-    assert made == {"address": "172.16.0.2", "config": "ignore"}
-    assert link.read().cycle == 0
+    link = open_link("franka", "172.16.0.2", profile="fd", silence_timeout=0.3)
+    try:
+        assert (made[0].address, made[0].config) == ("172.16.0.2", "kIgnore")
+        made[0].release()
+        assert link.read().cycle == 0 and link.silence_timeout == 0.3
+    finally:
+        link.close()
+
+
+def test_the_fake_matches_the_real_pylibfranka():
+    """Class names, exception bases, the methods and fields the link uses: as in the real
+    binding (pylibfranka 0.21, ``pip install 'iem-payload[franka]'``)."""
+    real = pytest.importorskip("pylibfranka")
+    fake = franka_fake.module()
+    for name in ("FrankaException", "CommandException", "ControlException",
+                 "InvalidOperationException", "NetworkException", "RealtimeException"):
+        r, f = getattr(real, name), getattr(fake, name)
+        assert [c.__name__ for c in r.__mro__[1:]] == [c.__name__ for c in f.__mro__[1:]], name
+    for name in ("read_once", "set_load"):
+        assert callable(getattr(real.Robot, name))
+    doc = real.Robot.set_load.__doc__
+    assert "FixedSize(3)" in doc and "FixedSize(9)" in doc  # the arity the fake checks
+    for name in ("q", "dq", "tau_J", "time", "m_load", "F_x_Cload", "I_load"):
+        assert isinstance(inspect.getattr_static(real.RobotState, name), property), name
+    for name in ("q", "dq", "tau_J"):  # lists, as the fake returns them
+        assert "-> typing.Annotated[list[float], \"FixedSize(7)\"]" in \
+            getattr(real.RobotState, name).fget.__doc__
+    assert callable(real.Duration.to_sec)
+    assert hasattr(real.RealtimeConfig, "kIgnore") and hasattr(real.RealtimeConfig, "kEnforce")

@@ -87,3 +87,28 @@ def test_the_sink_refuses_impossible_payloads_before_sending(channel):
     with pytest.raises(PayloadError, match="not physically consistent"):
         link.send(Payload("bad", -1.0, (0, 0, 0), (1, 0, 0, 1, 0, 1)))
     link.close()
+
+
+def test_one_opener_signature_and_unknown_options_name_the_valid_ones(channel):
+    import inspect
+
+    from firmware_bridge.links import bus_kinds, controller_interfaces, link_kind
+
+    for kind, spec in LINKS.items():  # every opener: (kind, channel, *, profile, silence_timeout)
+        module = __import__(spec.module, fromlist=[spec.opener])
+        params = inspect.signature(getattr(module, spec.opener)).parameters
+        assert list(params)[:2] == ["kind", "channel"], kind
+        for name in ("profile", "silence_timeout"):
+            assert params[name].kind is inspect.Parameter.KEYWORD_ONLY, (kind, name)
+    with pytest.raises(BridgeConfigError, match=r"unexpected keyword argument 'baudrate'.*"
+                                                r"its options are window, bus_options"):
+        open_link("virtual", channel, baudrate=9600)
+    link = open_link("virtual", channel, profile="classic", silence_timeout=0.2, window=8)
+    assert (link.silence_timeout, link.rate_hz) == (0.2, 500.0)
+    link.close()
+    assert bus_kinds() == ("virtual", "socketcan", "slcan")
+    assert set(controller_interfaces()) == {"virtual", "socketcan", "slcan", "slcan-pty",
+                                            "serial", "serial-pty"}
+    with pytest.raises(BridgeConfigError, match="is not a CAN bus"):
+        open_bus("serial", "loop://")
+    assert link_kind("replay").sink is False

@@ -119,7 +119,7 @@ def test_over_loop_url_with_resync():
     assert [s.cycle for s in got] == [*range(10), *range(11, 20)]
     np.testing.assert_allclose(got[3].q, states[3].q)
     assert link.counters.malformed == 1 and link.counters.lost == 1
-    with pytest.raises(ControllerSilent, match="no joint state for 20 ms"):
+    with pytest.raises(ControllerSilent, match="no complete joint state for 20 ms"):
         link.read(0.02)
     link.close()
 

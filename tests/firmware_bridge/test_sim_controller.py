@@ -117,3 +117,51 @@ def test_cli_fault_options_are_checked():
     assert spec.drop == 0.05 and spec.silence_at == 1.0 and spec.silence_for == 0.5
     with pytest.raises(BridgeConfigError, match="START:LENGTH"):
         fault_spec(parser.parse_args(["--interface", "virtual", "--silence", "soon"]))
+
+
+@pytest.mark.parametrize("kind", ["fd", "classic", "serial"])
+def test_refuse_while_moving_refuses_in_motion_and_accepts_at_rest(kind, channel):
+    """A real Franka refuses setLoad while a controller runs: with refuse_while_moving the
+    simulated controller acks applied=False with the error text while the path plays, and
+    applies the same load once the arm holds at rest."""
+    from firmware_bridge.errors import AckTimeout
+    from firmware_bridge.pty_pair import PtyPair
+    from firmware_bridge.serial_link import SerialControllerPort, SerialLink, open_serial
+
+    if kind == "serial":
+        pty = PtyPair()
+        port, link = SerialControllerPort(pty), SerialLink(open_serial(pty.slave_path))
+    else:
+        port = CanControllerPort(open_bus("virtual", channel, kind), kind)
+        link = CanLink(open_bus("virtual", channel, kind), kind)
+    path = excitation_path(0.2)
+    sim = SimController(port, path=path, once=True, realtime=False, refuse_while_moving=True)
+    p = default_test_payload()
+
+    def ack_of(seq):
+        for _ in range(500):  # the controller steps until the command has arrived
+            sim.step()
+            if _try(seq):
+                return link.decoder.acks[seq]
+        raise AssertionError(f"no ack of command {seq}")
+
+    def _try(seq):
+        try:
+            link.wait_ack(seq, 0.005)
+            return True
+        except AckTimeout:
+            return False
+
+    try:
+        seq = link.send(p)
+        ack = ack_of(seq)
+        assert not ack.applied and ack.load is None
+        assert ack.error == "command not possible in the current mode (the arm is moving)"
+        sim.run(cycles=len(path))  # to the end of the path: at rest
+        seq = link.send(p)
+        ack = ack_of(seq)
+        assert ack.applied and ack.error == "" and ack.load.mass == pytest.approx(p.mass)
+        assert sim.stats()["refused_moving"] == 1
+    finally:
+        link.close()
+        sim.close()
