@@ -332,8 +332,7 @@ class CanControllerPort(FramedControllerPort):
             self.bus.send(_message(codec, data), timeout=SEND_TIMEOUT)
             self.sent += 1
         except can.CanError as exc:
-            self.send_errors += 1
-            self.last_send_error = exc
+            self._send_failed(codec, exc)
 
     def _shutdown(self) -> None:
         self.bus.shutdown()

@@ -27,7 +27,7 @@ from collections import deque
 from iem.types import JointState
 
 from .errors import AckTimeout, ControllerSilent
-from .faults import FaultInjector, FaultSpec
+from .faults import MAX_EVENTS, FaultInjector, FaultSpec
 from .links import BUFFERED_CYCLES, LinkCounters
 from .protocol import Heartbeat, LoadAck
 
@@ -161,6 +161,16 @@ class FramedControllerPort:
         self.sent = 0
         self.send_errors = 0
         self.last_send_error: Exception | None = None
+        self.send_failures: list[tuple[int, str]] = []
+        """``(cycle, message name)`` of each frame that could not be sent (the first
+        :data:`~firmware_bridge.faults.MAX_EVENTS`): losses the fault injector did not make."""
+
+    def _send_failed(self, key, exc: Exception) -> None:
+        """Count a frame that could not be sent (the controller keeps its cycle)."""
+        self.send_errors += 1
+        self.last_send_error = exc
+        if len(self.send_failures) < MAX_EVENTS:
+            self.send_failures.append((self._cycle, getattr(key, "name", None) or str(key)))
 
     def _emit(self, key, data: bytes) -> None:  # pragma: no cover - every backend has one
         raise NotImplementedError

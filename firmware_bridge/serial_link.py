@@ -385,11 +385,11 @@ class SerialControllerPort(FramedControllerPort):
 
     def _emit(self, key, raw: bytes) -> None:
         try:
-            self.port.write(cobs_encode(raw) + b"\x00")
+            if self.port.write(cobs_encode(raw) + b"\x00") == 0:  # a full backlog: dropped
+                raise OSError("the serial port's backlog is full: the message was dropped")
             self.sent += 1
         except Exception as exc:  # a controller keeps its cycle; the count tells
-            self.send_errors += 1
-            self.last_send_error = exc
+            self._send_failed(key, exc)
 
     def _send(self, body: bytes, key: str) -> None:
         super()._send(key, body + zlib.crc32(body).to_bytes(4, "little"))

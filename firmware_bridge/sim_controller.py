@@ -220,7 +220,8 @@ class SimController:
                 "faults": dict(port.faults.counts) if getattr(port, "faults", None) else {},
                 "faults_by_message": (dict(port.faults.by_message)
                                       if getattr(port, "faults", None) else {}),
-                "fault_events": list(port.faults.events) if getattr(port, "faults", None) else []}
+                "fault_events": list(port.faults.events) if getattr(port, "faults", None) else [],
+                "send_failures": list(getattr(port, "send_failures", []))}
 
 
 # -- command line --------------------------------------------------------------------------
@@ -343,7 +344,8 @@ def run(args) -> int:
         port.close()
         stats = controller.stats()
         print("sim-controller: " + ", ".join(f"{k} {v}" for k, v in stats.items()
-                                             if k not in ("faults_by_message", "fault_events")),
+                                             if k not in ("faults_by_message", "fault_events",
+                                                          "send_failures")),
               file=sys.stderr, flush=True)
         if args.stats_json:
             import json

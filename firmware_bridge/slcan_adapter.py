@@ -23,7 +23,8 @@ Commands understood (each ends with CR; reply CR for OK, BEL for an error):
 
 Frames sent while the client has not opened the channel are not delivered (counted in
 ``dropped_closed``); if the client stops reading, the pty backlog fills and further frames
-are dropped whole (``pty.dropped_writes``).
+are dropped whole (``pty.dropped_writes``) and ``send`` raises ``CanOperationError``, as
+python-can does when an adapter's transmit queue overflows.
 """
 
 from __future__ import annotations
@@ -163,7 +164,10 @@ class SlcanPtyAdapter(can.BusABC):
         else:
             line = f"{'T' if msg.is_extended_id else 't'}{ident}{len(msg.data):d}" \
                    f"{msg.data.hex().upper()}"
-        self.pty.write(line.encode("ascii") + b"\r")
+        if not self.pty.write(line.encode("ascii") + b"\r"):
+            raise can.CanOperationError(
+                "slcan adapter: the client does not read; its backlog is full and the frame "
+                "was dropped (as a real adapter's transmit queue overflows)")
 
     def shutdown(self) -> None:
         super().shutdown()
