@@ -18,9 +18,9 @@ ended and the link has gone quiet, so every frame sent is accounted for.
 Figures (``--json FILE`` writes them with these keys):
 
 - ``mae_groups_faulty``, ``mae_groups_clean``: MAE of the smoothed estimate (what the gate
-  sees) against the truth, per group (mass kg, com kg·m, inertia kg·m²), over every cycle the
-  service processed after the first second; ``mae_groups_raw_faulty``/``_clean``: the same
-  for the raw estimate.
+  sees) against the truth, per group (mass kg, com kg·m, inertia kg·m²), over the controller
+  cycles both runs estimated (``compared_cycles``), from a second after the later start;
+  ``mae_groups_raw_faulty``/``_clean``: the same for the raw estimate.
 - ``writes``: ``sent``, ``during_silence`` (loads sent between the last joint state before
   the silence and the first after it, judged by the clock of this process, not by the
   gate's own state), ``max_error_mass_kg`` and ``max_error_com_m`` (the largest error of
@@ -154,15 +154,8 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
 
 
 def _figures(cycles, writes, summary, service, controller, truth, seconds, faulty) -> dict:
-    from iem.metrics import mae_groups
-
-    t = np.array([c[1] for c in cycles])
-    keep = t >= t[0] + WARMUP_S if t.size else np.zeros(0, bool)
-    smoothed = np.array([c[2] for c in cycles])[keep]
-    raw = np.array([c[3] for c in cycles])[keep]
-    phi = truth.to_phi()
-    out = {"mae_groups": mae_groups(smoothed, phi), "mae_groups_raw": mae_groups(raw, phi),
-           "cycles": summary["cycles"], "summary": summary}
+    out = {"cycles": summary["cycles"], "summary": summary,
+           "per_cycle": {c[4]: (c[2], c[3]) for c in cycles}}
     during = 0
     if faulty:  # wall-clock window between the last state before and the first after
         start, end = seconds / 2.0, seconds / 2.0 + SILENCE_S
@@ -191,6 +184,27 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
     gaps = service.online.state_filter.gaps
     out["gaps"] = {"bridged": gaps.bridged, "skipped": gaps.skipped, "restarts": gaps.restarts}
     return out
+
+
+def _score(clean: dict, faulty: dict, truth) -> None:
+    """MAE of both runs over the same instants: the controller cycles both estimated, from
+    ``WARMUP_S`` after the later of their first cycles (the faulty run has holes, the silence
+    above all; comparing over all of each run's own cycles would weigh their starts
+    differently)."""
+    from iem.metrics import mae_groups
+
+    a, b = clean.pop("per_cycle"), faulty.pop("per_cycle")
+    common = sorted(set(a) & set(b))
+    if common:
+        start = max(min(a), min(b)) + round(WARMUP_S * 1000.0)
+        common = [c for c in common if c >= start]
+    phi = truth.to_phi()
+    for run, per in ((clean, a), (faulty, b)):
+        smoothed = np.array([per[c][0] for c in common]).reshape(-1, 10)
+        raw = np.array([per[c][1] for c in common]).reshape(-1, 10)
+        run["mae_groups"] = mae_groups(smoothed, phi)
+        run["mae_groups_raw"] = mae_groups(raw, phi)
+        run["compared_cycles"] = len(common)
 
 
 def expected_counters(events, first: int, last: int, failures=()) -> dict:
@@ -250,6 +264,7 @@ def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str
     clean = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, None, fault_seed, log)
     faulty = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, FAULTS, fault_seed,
                   log)
+    _score(clean, faulty, truth)
     expected = faulty["expected"]
     counters = faulty["counters"]
     return {
@@ -264,6 +279,7 @@ def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str
         "counters_match": all(counters.get(k) == v for k, v in expected.items()),
         "adapter_dropped": faulty["adapter_dropped"],
         "gaps": faulty["gaps"], "gaps_clean": clean["gaps"],
+        "compared_cycles": faulty["compared_cycles"],
         "cycles": {"faulty": faulty["cycles"], "clean": clean["cycles"]},
         "controller": faulty["controller"],
     }
