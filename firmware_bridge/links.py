@@ -150,6 +150,9 @@ LINKS: dict[str, tuple[str, str, str]] = {
                "msgpack messages over a serial line (COBS + CRC32 framing): any pyserial URL"),
     "franka": ("firmware_bridge.franka_link", "open_franka_link",
                "a Franka robot through pylibfranka (extra 'franka'); channel: the robot's IP"),
+    "ros2": ("firmware_bridge.ros2_link", "open_ros2_link",
+             "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: the "
+             "JointState topic"),
     "replay": ("firmware_bridge.replay", "open_replay",
                "a recorded CAN log (.blf .log .asc .trc); channel: the file"),
 }

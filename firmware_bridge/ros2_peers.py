@@ -1,0 +1,168 @@
+"""Stand-ins for franka_ros2's side of the ``ros2`` link, for tests and ``iem bench bridge``.
+
+- :func:`publish_joint_states`: ``sensor_msgs/msg/JointState`` at a fixed rate, stamped
+  ``t0 + i/rate`` exactly (so gaps are countable), with franka_ros2's joint names; run in
+  its own process with ``python -m firmware_bridge.ros2_peers publish ...`` (it prints
+  ``matched`` when a reader matched, then ``done <n>``).
+- :class:`SetLoadServer`: ``/service_server/set_load`` as rmw_cyclonedds_cpp serves it
+  (request header echoed, USER_DATA ``serviceid=``), or, with ``layout="fastrtps"``, a
+  replier as rmw_fastrtps_cpp's looks to a Cyclone client: no ``serviceid=`` and no header
+  echoed (Fast DDS announces no XTypes type information, so Cyclone matches it on the type
+  name alone; here the same Python types stand in for that match). ``answer(request)``
+  decides ``(success, error)``.
+
+Cyclone is configured by the caller (:func:`firmware_bridge.ros2_dds.cyclone_config`): the
+tests and the benchmark use ``lo`` with the unicast peer 127.0.0.1 and no multicast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+
+import numpy as np
+
+from .ros2_link import JOINT_SETS, _stamp
+
+
+def joint_state_messages(n: int, t0: float, rate_hz: float = 1000.0, arm: str = "fr3"):
+    """``n`` JointState messages of a smooth motion (rad, rad/s, N·m), stamped
+    ``t0 + i/rate_hz``."""
+    from .ros2_types import Header, JointStateMsg
+
+    names = list(JOINT_SETS[arm])
+    k = np.arange(n)[:, None] / rate_hz
+    phase = np.arange(7)[None, :]
+    q = 0.6 * np.sin(0.5 * k + phase)
+    dq = 0.3 * np.cos(0.5 * k + phase)
+    tau = 5.0 * np.sin(0.5 * k + phase) + np.array([0, -20, 0, 10, 0, 2, 0])
+    return [JointStateMsg(header=Header(stamp=_stamp(t0 + i / rate_hz), frame_id=""),
+                          name=names, position=q[i].tolist(), velocity=dq[i].tolist(),
+                          effort=tau[i].tolist()) for i in range(n)]
+
+
+def publish_joint_states(topic: str, n: int, *, rate_hz: float = 1000.0, domain_id: int = 0,
+                         config: str | None = None, reliable: bool = True, arm: str = "fr3",
+                         match_timeout: float = 20.0, out=None) -> int:
+    """Publish ``n`` messages on ``topic`` at ``rate_hz`` once a reader matched (sleep most
+    of each period, spin the rest); the number published."""
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.topic import Topic
+
+    from . import ros2_dds
+    from .ros2_types import JointStateMsg, topic_name
+
+    dp = ros2_dds.participant(domain_id, config)
+    writer = DataWriter(dp, Topic(dp, topic_name(topic), JointStateMsg),
+                        qos=ros2_dds.qos(reliable=reliable, depth=1000))
+    deadline = time.monotonic() + match_timeout
+    while not writer.get_matched_subscriptions():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"no reader of {topic} matched within {match_timeout} s")
+        time.sleep(0.01)
+    if out is not None:
+        print("matched", file=out, flush=True)
+    time.sleep(0.2)  # let the reader's side finish matching too
+    messages = joint_state_messages(n, time.time(), rate_hz, arm)
+    perf = time.perf_counter
+    period = 1.0 / rate_hz
+    start = perf() + 0.01
+    for i, msg in enumerate(messages):
+        due = start + i * period
+        while (left := due - perf()) > 0:
+            time.sleep(left * 0.5 if left > 4e-4 else 0)
+        writer.write(msg)
+    time.sleep(0.3)  # a reliable writer: let the last ones go out before the writer goes
+    if out is not None:
+        print(f"done {n}", file=out, flush=True)
+    return n
+
+
+class SetLoadServer:
+    """A SetLoad service on ``service`` (see the module docstring); ``requests`` holds
+    ``(mass, center_of_mass, load_inertia)`` of every request taken."""
+
+    def __init__(self, participant, service: str = "/service_server/set_load", *,
+                 layout: str = "cyclonedds", answer=None, service_number: int = 7) -> None:
+        from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.sub import DataReader
+        from cyclonedds.topic import Topic
+
+        from . import ros2_dds
+        from .ros2_types import (
+            SetLoadRequest,
+            SetLoadResponse,
+            csid_of,
+            csid_string,
+            reply_topic,
+            request_topic,
+        )
+
+        if layout not in ("cyclonedds", "fastrtps"):
+            raise ValueError(f"layout {layout!r}; valid: 'cyclonedds', 'fastrtps'")
+        self.layout = layout
+        self.answer = answer or (lambda request: (True, ""))
+        self.requests: list[tuple[float, list[float], list[float]]] = []
+        cyclone = layout == "cyclonedds"
+        req_t, rep_t = SetLoadRequest, SetLoadResponse
+        self._reply_type = rep_t
+        user_data = (f"serviceid={csid_string(csid_of(participant.guid.bytes, service_number))};"
+                     .encode() if cyclone else b"")
+        self._reader = DataReader(participant, Topic(participant, request_topic(service), req_t),
+                                  qos=ros2_dds.qos(reliable=True, depth=10, user_data=user_data))
+        self._writer = DataWriter(participant, Topic(participant, reply_topic(service), rep_t),
+                                  qos=ros2_dds.qos(reliable=True, depth=10, user_data=user_data))
+        self._waitset = WaitSet(participant)
+        self._waitset.attach(ReadCondition(self._reader, SampleState.Any | ViewState.Any
+                                           | InstanceState.Any))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="set-load-server", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            self._waitset.wait(50_000_000)
+            for req in self._reader.take(N=16):
+                if not hasattr(req, "mass"):
+                    continue
+                request = (float(req.mass), list(req.center_of_mass), list(req.load_inertia))
+                self.requests.append(request)
+                success, error = self.answer(request)
+                if self.layout == "cyclonedds":
+                    reply = self._reply_type(guid=req.guid, seq=req.seq, success=success,
+                                             error=error)
+                else:
+                    reply = self._reply_type(success=success, error=error)  # no header
+                self._writer.write(reply)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m firmware_bridge.ros2_peers")
+    sub = parser.add_subparsers(dest="command", required=True)
+    pub = sub.add_parser("publish", help="publish JointStates at a fixed rate")
+    pub.add_argument("--topic", default="/franka/joint_states")
+    pub.add_argument("--count", type=int, default=1000)
+    pub.add_argument("--rate", type=float, default=1000.0)
+    pub.add_argument("--domain", type=int, default=0)
+    pub.add_argument("--interface", default="")
+    pub.add_argument("--peer", action="append", default=[])
+    pub.add_argument("--best-effort", action="store_true")
+    pub.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
+    args = parser.parse_args(argv)
+    from .ros2_dds import cyclone_config
+
+    publish_joint_states(args.topic, args.count, rate_hz=args.rate, domain_id=args.domain,
+                         config=cyclone_config(args.interface, tuple(args.peer)),
+                         reliable=not args.best_effort, arm=args.arm, out=sys.stdout)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
