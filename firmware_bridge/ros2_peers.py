@@ -45,9 +45,10 @@ def joint_state_messages(n: int, t0: float, rate_hz: float = 1000.0, arm: str = 
 
 def publish_joint_states(topic: str, n: int, *, rate_hz: float = 1000.0, domain_id: int = 0,
                          config: str | None = None, reliable: bool = True, arm: str = "fr3",
-                         match_timeout: float = 20.0, out=None) -> int:
+                         match_timeout: float = 20.0, out=None, pace: bool = True) -> int:
     """Publish ``n`` messages on ``topic`` at ``rate_hz`` once a reader matched (sleep most
-    of each period, spin the rest); the number published."""
+    of each period, spin the rest; ``pace=False``: as fast as the writer takes them, the
+    stamps still ``1/rate_hz`` apart); the number published."""
     from cyclonedds.pub import DataWriter
     from cyclonedds.topic import Topic
 
@@ -67,7 +68,7 @@ def publish_joint_states(topic: str, n: int, *, rate_hz: float = 1000.0, domain_
     time.sleep(0.2)  # let the reader's side finish matching too
     messages = joint_state_messages(n, time.time(), rate_hz, arm)
     perf = time.perf_counter
-    period = 1.0 / rate_hz
+    period = 1.0 / rate_hz if pace else 0.0
     start = perf() + 0.01
     for i, msg in enumerate(messages):
         due = start + i * period
@@ -143,6 +144,68 @@ class SetLoadServer:
         self._thread.join(5.0)
 
 
+def measure_loopback(rate_cycles: int = 20000, latency_cycles: int = 10000,
+                     domain_id: int = 97) -> dict:
+    """``iem bench bridge``'s ros2 row: a reliable JointState writer in another process, the
+    ``ros2`` link reading in this one, over loopback (``lo``, unicast 127.0.0.1).
+
+    - ``cycles_per_s``: ``rate_cycles`` messages written as fast as the writer takes them,
+      delivered by ``read`` per second (first to last);
+    - ``latency_us``: ``latency_cycles`` messages at 1 kHz, from the writer's source time
+      stamp to ``read`` returning the state, p50 and p99; ``lost`` and ``delivered`` of
+      that run; ``cpu_share``: this process's CPU time (the link and Cyclone's threads)
+      over the run's wall time.
+    """
+    import os
+    import subprocess
+
+    from .errors import ControllerSilent
+    from .ros2_link import open_ros2_link
+
+    def run(n: int, paced: bool, topic: str) -> dict:
+        link = open_ros2_link("ros2", topic, domain_id=domain_id, set_load_service="",
+                              estimate_topic=topic + "_estimate", interface="lo",
+                              peers=["127.0.0.1"], silence_timeout=2.0)
+        cmd = [sys.executable, "-m", "firmware_bridge.ros2_peers", "publish", "--topic", topic,
+               "--count", str(n), "--domain", str(domain_id), "--interface", "lo", "--peer",
+               "127.0.0.1", *([] if paced else ["--unpaced"])]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            proc.stdout.readline()  # matched
+            lat, first, last = [], None, None
+            cpu0, wall0 = time.process_time(), time.perf_counter()
+            while True:
+                try:
+                    link.read(2.0)
+                except ControllerSilent:
+                    break
+                now = time.perf_counter()
+                first = first if first is not None else now
+                last = now
+                lat.append(time.time() - link.last_frame_time)
+            wall = time.perf_counter() - wall0 - 2.0
+            cpu = time.process_time() - cpu0
+        finally:
+            proc.terminate()
+            proc.wait(10)
+            c = link.counters
+            link.close()
+        a = np.asarray(lat) * 1e6
+        return {"delivered": c.delivered, "lost": c.lost, "sent": n,
+                "span_s": (last - first) if lat else 0.0,
+                "latency_us": {"p50": float(np.percentile(a, 50)) if lat else float("nan"),
+                               "p99": float(np.percentile(a, 99)) if lat else float("nan")},
+                "cpu_share": cpu / wall if wall > 0 else float("nan")}
+
+    burst = run(rate_cycles, False, "/bench/burst")
+    paced = run(latency_cycles, True, "/bench/joint_states")
+    return {"cycles_per_s": burst["delivered"] / burst["span_s"] if burst["span_s"] else 0.0,
+            "burst_lost": burst["sent"] - burst["delivered"],
+            "latency_us": paced["latency_us"], "delivered": paced["delivered"],
+            "lost": paced["sent"] - paced["delivered"], "cpu_share": paced["cpu_share"]}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m firmware_bridge.ros2_peers")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -154,13 +217,15 @@ def main(argv=None) -> int:
     pub.add_argument("--interface", default="")
     pub.add_argument("--peer", action="append", default=[])
     pub.add_argument("--best-effort", action="store_true")
+    pub.add_argument("--unpaced", action="store_true", help="as fast as the writer takes them")
     pub.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
     args = parser.parse_args(argv)
     from .ros2_dds import cyclone_config
 
     publish_joint_states(args.topic, args.count, rate_hz=args.rate, domain_id=args.domain,
                          config=cyclone_config(args.interface, tuple(args.peer)),
-                         reliable=not args.best_effort, arm=args.arm, out=sys.stdout)
+                         reliable=not args.best_effort, arm=args.arm, out=sys.stdout,
+                         pace=not args.unpaced)
     return 0
 
 
