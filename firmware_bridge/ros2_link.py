@@ -285,11 +285,11 @@ class Ros2Link:
         """Publish ``estimate`` (a :class:`iem.types.PayloadEstimate`; ``phi``: the values to
         publish instead of its own, e.g. the smoothed ones) if ``1/estimate_rate_hz`` s
         passed since the last one; True if published. An estimate without a positive mass
-        has no CoM: counted in ``unpublishable``, not published."""
+        (no CoM) or with non-finite values is counted in ``unpublishable``, not published,
+        and the next one may go at once."""
         now = time.monotonic()
         if now < self._next_publish:
             return False
-        self._next_publish = max(self._next_publish + self._period, now)
         phi = np.asarray(estimate.phi if phi is None else phi, dtype=float)
         try:
             values = inertia_values(phi)
@@ -299,6 +299,8 @@ class Ros2Link:
         if not np.all(np.isfinite(values)):
             self.unpublishable += 1
             return False
+        due = self._next_publish + self._period  # keeps the average rate ...
+        self._next_publish = due if due > now else now + self._period  # ... unless behind
         frame = self._flange_frame or "fr3_link8"
         self._estimate_writer.write(_inertia_message(values, frame, estimate.t))
         if getattr(estimate, "std", None) is not None:

@@ -248,3 +248,62 @@ def test_no_service_at_all_is_a_refusal_with_the_reason():
         assert not ack.applied and link.set_load.not_written == 1
     finally:
         link.close()
+
+
+def test_domain_from_the_environment_and_joints_auto(monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "96")
+    link = open_ros2_link("ros2", "/t2/joint_states", set_load_service="",
+                          estimate_topic="/t2/payload", **LOOPBACK)
+    try:
+        assert link.domain_id == 96 and link.rate_hz == 1000.0
+        _, w = _writer(96, "/t2/joint_states")
+        assert _until(lambda: w.get_matched_subscriptions())
+        msg = joint_state_messages(1, 50.0, arm="panda")[0]
+        w.write(msg)
+        state = link.read(5.0)
+        np.testing.assert_array_equal(state.q, msg.position)
+        assert link._flange_frame == "panda_link8"
+    finally:
+        link.close()
+    monkeypatch.setenv("ROS_DOMAIN_ID", "zero")
+    with pytest.raises(BridgeConfigError, match="ROS_DOMAIN_ID='zero' is not an integer"):
+        open_ros2_link("ros2", "/t2/joint_states", **LOOPBACK)
+    with pytest.raises(BridgeConfigError, match="joints 'ur5'"):
+        open_ros2_link("ros2", "/t2/joint_states", domain_id=96, joints="ur5", **LOOPBACK)
+
+
+def test_estimate_and_its_std_published_at_the_configured_rate():
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from firmware_bridge.ros2_types import InertiaStamped
+    from iem.types import PayloadEstimate
+
+    link = _link(98, "", estimate_rate_hz=0.1, flange_frame="tool0")
+    dp = participant(98, cyclone_config(**LOOPBACK))
+    readers = [DataReader(dp, Topic(dp, topic_name(t), InertiaStamped),
+                          qos=qos(reliable=True, depth=100))
+               for t in ("/d98/payload", "/d98/payload_std")]
+    try:
+        assert _until(lambda: all(r.get_matched_publications() for r in readers))
+        phi, std = TOOL.to_phi(), np.linspace(1e-4, 1e-3, 10)
+        bad = PayloadEstimate(t=2.0, phi=np.r_[-0.1, phi[1:]])  # no CoM: not published
+        assert not link.publish_estimate(bad) and link.unpublishable == 1
+        calls = [link.publish_estimate(PayloadEstimate(t=3.0 + k * 1e-3, phi=phi, std=std))
+                 for k in range(50)]
+        assert calls[0] and not any(calls[1:])  # 0.1 Hz: the next one only after 10 s
+        assert link.published == 1
+        assert _until(lambda: all(r.read(N=10) for r in readers))
+        (est,), (sd,) = (r.take(N=10) for r in readers)
+        assert est.header.frame_id == sd.header.frame_id == "tool0"
+        assert est.header.stamp.sec == 3 and est.header.stamp.nanosec == 0
+        np.testing.assert_allclose(
+            [sd.inertia.m, sd.inertia.com.x, sd.inertia.com.y, sd.inertia.com.z,
+             sd.inertia.ixx, sd.inertia.ixy, sd.inertia.ixz, sd.inertia.iyy, sd.inertia.iyz,
+             sd.inertia.izz], inertia_std(phi, std), rtol=1e-12)
+        assert est.inertia.m == TOOL.mass
+        with pytest.raises(BridgeConfigError, match="does not write loads"):
+            link.send(TOOL)
+        assert link.last_ack is None
+    finally:
+        link.close()
