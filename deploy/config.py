@@ -81,10 +81,10 @@ class LogConfig:
 class Ros2Config:
     """The ``ros2`` link's ROS 2 side (``[ros2]``; see deploy/cell.toml for every key).
 
-    ``domain_id`` -1 (the key absent): ``ROS_DOMAIN_ID`` from the environment, else 0;
-    ``estimate_std_topic`` "": ``estimate_topic`` + ``_std``; ``joint_names`` (): the set
-    ``joints`` names; ``flange_frame`` "": ``<arm>_link8`` of the joints read; ``interface``
-    "" and ``peers`` (): Cyclone's configuration from ``CYCLONEDDS_URI``."""
+    ``domain_id`` -1: ``ROS_DOMAIN_ID`` from the environment, else 0;
+    ``estimate_std_topic`` "": ``estimate_topic`` + ``_std``; ``joints``: "auto", "fr3",
+    "panda" or 7 names; ``flange_frame`` "": ``<arm>_link8`` of the joints read;
+    ``interface`` "" and ``peers`` (): Cyclone's configuration from ``CYCLONEDDS_URI``."""
 
     domain_id: int = -1
     estimate_topic: str = "/iem/payload"
@@ -92,8 +92,7 @@ class Ros2Config:
     estimate_rate_hz: float = 10.0
     set_load_service: str = "/service_server/set_load"
     set_load_timeout_s: float = 2.0
-    joints: str = "auto"
-    joint_names: tuple = ()
+    joints: str | tuple = "auto"
     flange_frame: str = ""
     interface: str = ""
     peers: tuple = ()
@@ -101,7 +100,7 @@ class Ros2Config:
     def link_options(self) -> dict:
         """The ``ros2`` opener's options (:func:`firmware_bridge.ros2_link.open_ros2_link`)."""
         return {"domain_id": None if self.domain_id < 0 else self.domain_id,
-                "joints": list(self.joint_names) or self.joints,
+                "joints": list(self.joints) if isinstance(self.joints, tuple) else self.joints,
                 "estimate_topic": self.estimate_topic,
                 "estimate_std_topic": self.estimate_std_topic,
                 "estimate_rate_hz": self.estimate_rate_hz,
@@ -165,8 +164,11 @@ RANGES = {
 }
 INT_RANGES = {
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
-    ("ros2", "domain_id"): (0, 232),  # ROS 2's valid domain ids
+    ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
 }
+MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
+                ("ros2", "interface")}
+"""String keys for which "" means "none" (the default the key's comment names)."""
 ROS_NAMES = {("ros2", "estimate_topic"), ("ros2", "estimate_std_topic"),
              ("ros2", "set_load_service")}
 ROS_NAME = re.compile(r"/[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
@@ -205,15 +207,16 @@ def _check(section: str, key: str, value, default, where: str):
         if not lo <= value <= hi:
             raise ConfigError(f"{name} = {value!r} is out of range; valid is [{lo:g}, {hi:g}]")
         return value
-    if expected is tuple:
-        n = 7 if (section, key) == ("ros2", "joint_names") else None
-        if not isinstance(value, list) or not value or \
-                not all(isinstance(v, str) and v for v in value) or \
-                (n is not None and (len(value) != n or len(set(value)) != n)):
+    if expected is tuple or ((section, key) == ("ros2", "joints") and isinstance(value, list)):
+        n = 7 if (section, key) == ("ros2", "joints") else None
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value) \
+                or (n is not None and (len(value) != n or len(set(value)) != n)):
             what = f"{n} distinct non-empty strings" if n else "non-empty strings"
             raise ConfigError(f"{name} = {value!r} must be a list of {what}")
         return tuple(value)
     if expected is str:
+        if isinstance(value, str) and not value and (section, key) in MAY_BE_EMPTY:
+            return value
         if not isinstance(value, str) or not value:
             raise ConfigError(f"{name} = {value!r} must be a non-empty string")
         if (section, key) in ROS_NAMES and (error := _ros_name_error(name, value)):

@@ -21,8 +21,7 @@ def test_defaults_and_the_options_the_opener_gets():
     assert config_from_dict({"link": {"kind": "socketcan", "channel": "can0"},
                              "ros2": {"domain_id": 3}}).link_options() == {}
     cfg = config_from_dict({"link": {"kind": "ros2", "channel": "/left/franka/joint_states"},
-                            "ros2": {"domain_id": 7, "joint_names": [f"l_j{i}" for i in
-                                                                     range(7)],
+                            "ros2": {"domain_id": 7, "joints": [f"l_j{i}" for i in range(7)],
                                      "interface": "eth1", "peers": ["10.0.0.2"]}})
     opts = cfg.link_options()
     assert opts["domain_id"] == 7 and opts["joints"] == [f"l_j{i}" for i in range(7)]
@@ -39,12 +38,13 @@ def test_the_example_cell_toml_documents_every_ros2_key():
     assert "[ros2]" in text
     for f in fields(Ros2Config):
         assert f"# {f.name}:" in text, f.name
-    load_config(Path(__file__).resolve().parents[2] / "deploy" / "cell.toml")
+    cfg = load_config(Path(__file__).resolve().parents[2] / "deploy" / "cell.toml")
+    assert cfg.ros2 == Ros2Config()  # the example sets every key to its default
 
 
 @pytest.mark.parametrize(("doc", "message"), [
     ({"ros2": {"domain_id": 233}}, r"domain_id = 233 is out of range; valid is an integer "
-                                   r"from 0 to 232"),
+                                   r"from -1 to 232"),
     ({"ros2": {"domain_id": "0"}}, "must be an integer"),
     ({"ros2": {"estimate_topic": "iem/payload"}}, "not a fully qualified ROS 2 name"),
     ({"ros2": {"set_load_service": "/service_server/"}}, "not a fully qualified ROS 2 name"),
@@ -52,8 +52,9 @@ def test_the_example_cell_toml_documents_every_ros2_key():
     ({"ros2": {"estimate_rate_hz": 0}}, r"estimate_rate_hz = 0.0 is out of range"),
     ({"ros2": {"set_load_timeout_s": 5.0}}, r"valid is \[0.05, 4\]"),
     ({"ros2": {"joints": "ur5"}}, "valid values are 'auto', 'fr3', 'panda'"),
-    ({"ros2": {"joint_names": ["a", "b"]}}, "list of 7 distinct non-empty strings"),
-    ({"ros2": {"joint_names": ["a"] * 7}}, "list of 7 distinct non-empty strings"),
+    ({"ros2": {"joints": ["a", "b"]}}, "list of 7 distinct non-empty strings"),
+    ({"ros2": {"joints": ["a"] * 7}}, "list of 7 distinct non-empty strings"),
+    ({"ros2": {"set_load_service": ""}}, "must be a non-empty string"),
     ({"ros2": {"peers": "127.0.0.1"}}, "must be a list of non-empty strings"),
     ({"ros2": {"topic": "/x"}}, r"unknown key\(s\) \['topic'\] in \[ros2\]"),
     ({"link": {"kind": "ros2", "channel": "can0"}},
