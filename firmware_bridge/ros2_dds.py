@@ -44,15 +44,22 @@ def cyclone_config(interface: str = "", peers: tuple[str, ...] = (),
             + "".join(general) + "</General>" + discovery + "</Domain></CycloneDDS>")
 
 
+def require_cyclonedds() -> None:
+    """BridgeConfigError naming the extra to install if the Cyclone DDS binding is missing."""
+    try:
+        import cyclonedds  # noqa: F401
+    except ImportError as exc:
+        raise BridgeConfigError("the ros2 link needs the Cyclone DDS binding: install the "
+                                "extra, pip install 'iem-payload[ros2]'") from exc
+
+
 def participant(domain_id: int, config: str | None):
     """A new DomainParticipant on ``domain_id``, the domain created once per process with
     ``config`` (None: Cyclone's own, from ``CYCLONEDDS_URI``). Another configuration for a
     domain this process already uses is a BridgeConfigError: Cyclone has one per domain."""
-    try:
-        from cyclonedds.domain import Domain, DomainParticipant
-    except ImportError as exc:
-        raise BridgeConfigError("the ros2 link needs the Cyclone DDS binding: install the "
-                                "extra, pip install 'iem-payload[ros2]'") from exc
+    require_cyclonedds()
+    from cyclonedds.domain import Domain, DomainParticipant
+
     if not 0 <= int(domain_id) <= 232:
         raise BridgeConfigError(f"ROS 2 domain id {domain_id} is out of range; valid: 0 to 232")
     with _lock:

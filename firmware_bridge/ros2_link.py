@@ -355,7 +355,9 @@ def open_ros2_link(kind: str, channel: str, *, profile: str | None = None,
     :func:`firmware_bridge.ros2_dds.cyclone_config`)."""
     import os
 
-    from .ros2_dds import cyclone_config
+    from .ros2_dds import cyclone_config, require_cyclonedds
+
+    require_cyclonedds()  # before anything imports it: a clear error naming the extra
 
     if domain_id is None:
         env = os.environ.get("ROS_DOMAIN_ID", "").strip()
