@@ -1,6 +1,7 @@
 """The ROS 2 wire as rmw_cyclonedds_cpp puts it on DDS, for the ``ros2`` link (extra ``ros2``).
 
-Everything here follows ros2/rmw_cyclonedds (``rmw_cyclonedds_cpp/src``, release 3.2.0):
+Everything here follows ros2/rmw_cyclonedds (``rmw_cyclonedds_cpp/src``, release 3.2.0; the
+same on its ``humble`` and ``jazzy`` branches):
 
 - topic names (``namespace_prefix.hpp``, ``make_fqtopic`` in ``rmw_node.cpp``): a topic
   ``/a/b`` is the DDS topic ``rt/a/b``; a service ``/s`` is the request topic
