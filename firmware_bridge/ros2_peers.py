@@ -4,6 +4,11 @@
   ``t0 + i/rate`` exactly (so gaps are countable), with franka_ros2's joint names; run in
   its own process with ``python -m firmware_bridge.ros2_peers publish ...`` (it prints
   ``matched`` when a reader matched, then ``done <n>``).
+- :class:`Ros2ControllerPort`: the simulated controller
+  (:class:`firmware_bridge.sim_controller.SimController`, the MuJoCo plant at 1 kHz) behind
+  ROS 2: its joint states on ``/franka/joint_states``, its loads set through a
+  :class:`SetLoadServer`; ``python -m firmware_bridge.ros2_peers controller ...`` runs it
+  in its own process.
 - :class:`SetLoadServer`: ``/service_server/set_load`` as rmw_cyclonedds_cpp serves it
   (request header echoed, USER_DATA ``serviceid=``), or, with ``layout="fastrtps"``, a
   replier as rmw_fastrtps_cpp's looks to a Cyclone client: no ``serviceid=`` and no header
@@ -18,6 +23,8 @@ tests and the benchmark use ``lo`` with the unicast peer 127.0.0.1 and no multic
 from __future__ import annotations
 
 import argparse
+import json
+import queue
 import sys
 import threading
 import time
@@ -206,6 +213,121 @@ def measure_loopback(rate_cycles: int = 20000, latency_cycles: int = 10000,
             "lost": paced["sent"] - paced["delivered"], "cpu_share": paced["cpu_share"]}
 
 
+REFUSAL = "command not possible in the current mode"
+"""libfranka's CommandException text for setLoad while a motion runs (franka_ros #25)."""
+
+
+class Ros2ControllerPort:
+    """A controller port (``tick``, ``poll_commands``, ``publish``, ``heartbeat``,
+    ``send_ack``, ``close``) over ROS 2, as franka_ros2 shows the robot: JointStates
+    (effort = tau_J) stamped ``t0 + state.t`` on ``topic``, and a SetLoad service on
+    ``service`` whose requests become the controller's load commands; a request is answered
+    once the controller acknowledged it (``success=false`` with an error text if it refused
+    the load), or after ``ack_timeout`` s without one. The first ``refuse_first`` requests
+    are refused as a Franka refuses while a controller runs, with libfranka's text."""
+
+    def __init__(self, participant, topic: str = "/franka/joint_states",
+                 service: str = "/service_server/set_load", *, layout: str = "cyclonedds",
+                 arm: str = "fr3", ack_timeout: float = 1.0, refuse_first: int = 0) -> None:
+        from cyclonedds.pub import DataWriter
+        from cyclonedds.topic import Topic
+
+        from . import ros2_dds
+        from .ros2_types import JointStateMsg, topic_name
+
+        self._writer = DataWriter(participant,
+                                  Topic(participant, topic_name(topic), JointStateMsg),
+                                  qos=ros2_dds.qos(reliable=True, depth=1000))
+        self._names = list(JOINT_SETS[arm])
+        self._commands: queue.Queue = queue.Queue()
+        self._waiting: dict[int, tuple[threading.Event, list]] = {}
+        self._seq = 0
+        self.ack_timeout = float(ack_timeout)
+        self.refuse_first = int(refuse_first)
+        self.t0 = time.time()
+        self.sent = 0
+        self.server = SetLoadServer(participant, service, layout=layout, answer=self._answer)
+
+    def _answer(self, request) -> tuple[bool, str]:
+        from sim.payload import Payload
+
+        from .protocol import LoadCommand
+
+        if self.refuse_first > 0:
+            self.refuse_first -= 1
+            return False, REFUSAL
+        mass, com, inertia = request
+        load = None if mass == 0.0 else Payload.from_set_load(mass, com, inertia)
+        self._seq = self._seq % 255 + 1
+        done, box = threading.Event(), []
+        self._waiting[self._seq] = (done, box)
+        self._commands.put(LoadCommand(seq=self._seq, load=load))
+        if not done.wait(self.ack_timeout):
+            return False, "the controller did not answer"
+        return (True, "") if box[0] else (False, "load refused: not a physically possible body")
+
+    def tick(self, k: int, t: float) -> None:
+        pass
+
+    def poll_commands(self) -> list:
+        out = []
+        while True:
+            try:
+                out.append(self._commands.get_nowait())
+            except queue.Empty:
+                return out
+
+    def publish(self, state) -> None:
+        from .ros2_types import Header, JointStateMsg
+
+        self._writer.write(JointStateMsg(
+            header=Header(stamp=_stamp(self.t0 + state.t), frame_id=""), name=self._names,
+            position=state.q.tolist(), velocity=state.dq.tolist(),
+            effort=state.tau_J.tolist()))
+        self.sent += 1
+
+    def heartbeat(self, heartbeat) -> None:
+        pass  # franka_ros2 has none: the link's silence timeout stands in
+
+    def send_ack(self, ack) -> None:
+        waiting = self._waiting.pop(ack.seq, None)
+        if waiting is not None:
+            waiting[1].append(ack.applied)
+            waiting[0].set()
+
+    def close(self) -> None:
+        self.server.close()
+
+
+def run_controller(args) -> int:
+    """``controller``: the simulated controller behind ROS 2 until ``--duration`` s; its
+    statistics (commands applied or refused, the load in force) to ``--stats-json``."""
+    from sim.paths import load_path_csv
+
+    from .ros2_dds import cyclone_config, participant
+    from .sim_controller import SimController
+
+    dp = participant(args.domain, cyclone_config(args.interface, tuple(args.peer)))
+    port = Ros2ControllerPort(dp, args.topic, args.service, layout=args.layout, arm=args.arm,
+                              refuse_first=args.refuse_first)
+    path = load_path_csv(args.path) if args.path else None
+    controller = SimController(port, path=path, once=args.once, seed=args.seed)
+    print("ready", flush=True)
+    try:
+        controller.run(duration=args.duration)
+    finally:
+        port.close()
+    load = controller.plant.controller_load
+    stats = {**controller.stats(),
+             "applied": [[c.load.mass if c.load else 0.0, ok] for c, ok in controller.commands],
+             "load": None if load is None else {"mass": load.mass, "com": list(load.com)}}
+    if args.stats_json:
+        with open(args.stats_json, "w") as f:
+            json.dump(stats, f)
+    print(json.dumps(stats), file=sys.stderr, flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m firmware_bridge.ros2_peers")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -219,7 +341,24 @@ def main(argv=None) -> int:
     pub.add_argument("--best-effort", action="store_true")
     pub.add_argument("--unpaced", action="store_true", help="as fast as the writer takes them")
     pub.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
+    ctl = sub.add_parser("controller", help="the simulated controller behind ROS 2")
+    ctl.add_argument("--topic", default="/franka/joint_states")
+    ctl.add_argument("--service", default="/service_server/set_load")
+    ctl.add_argument("--layout", choices=["cyclonedds", "fastrtps"], default="cyclonedds")
+    ctl.add_argument("--domain", type=int, default=0)
+    ctl.add_argument("--interface", default="")
+    ctl.add_argument("--peer", action="append", default=[])
+    ctl.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
+    ctl.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
+    ctl.add_argument("--once", action="store_true", help="play the path once, then hold")
+    ctl.add_argument("--duration", type=float, default=10.0, help="s of controller time")
+    ctl.add_argument("--seed", type=int, default=0)
+    ctl.add_argument("--refuse-first", type=int, default=0, metavar="N",
+                     help="refuse the first N set_load requests (as while moving)")
+    ctl.add_argument("--stats-json", metavar="FILE")
     args = parser.parse_args(argv)
+    if args.command == "controller":
+        return run_controller(args)
     from .ros2_dds import cyclone_config
 
     publish_joint_states(args.topic, args.count, rate_hz=args.rate, domain_id=args.domain,

@@ -70,3 +70,57 @@ def test_service_estimates_from_1khz_joint_states_and_publishes(model_file):
         np.testing.assert_allclose([i.m, i.com.x, i.com.y, i.com.z, i.ixx, i.ixy, i.ixz,
                                     i.iyy, i.iyz, i.izz], want, rtol=1e-9, atol=1e-12)
         assert m.header.frame_id == "fr3_link8"
+
+
+@pytest.mark.parametrize("refusals", [0, 2])
+def test_identifies_and_writes_back_through_set_load(model_file, tmp_path, refusals, caplog):
+    """The simulated controller (MuJoCo plant at 1 kHz, new task path once) in another
+    process behind ROS 2: JointStates on /franka/joint_states and a SetLoad service in
+    rmw_cyclonedds's manner; the service identifies the payload and writes it back. With
+    refusals, the first writes are refused as a Franka refuses them while moving
+    (success=false and libfranka's text): counted, logged with the text, retried."""
+    import json
+
+    from firmware_bridge.ros2_peers import REFUSAL
+    from sim.family import default_test_payload
+
+    from .conftest import new_task_csv
+
+    truth = default_test_payload()
+    csv = new_task_csv(tmp_path / "path.csv")
+    stats = tmp_path / "stats.json"
+    doc = cell_config(model_file, {"kind": "ros2", "silence_timeout_s": 0.5},
+                      ros2={"domain_id": 99, "interface": "lo", "peers": ["127.0.0.1"]},
+                      gate={"refusal_retry_s": 0.2, "refusal_retry_max_s": 0.4})
+    service = Service(config_from_dict(doc, where="test")).open()
+    client = service.link.set_load
+    rows = []
+    service.on_cycle.append(lambda r: rows.append(r.smoothed.copy()))
+    proc = subprocess.Popen([sys.executable, "-m", "firmware_bridge.ros2_peers", "controller",
+                             "--domain", "99", "--interface", "lo", "--peer", "127.0.0.1",
+                             "--path", str(csv), "--once", "--duration", "11", "--seed", "1",
+                             "--refuse-first", str(refusals), "--stats-json", str(stats)],
+                            cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        summary = service.run(duration=60.0,
+                              until=lambda: proc.poll() is not None and service.silent)
+    finally:
+        _, err = stop_process(proc)
+        service.close()
+    assert stats.exists(), err
+    controller = json.loads(stats.read_text())
+    final = rows[-1]
+    assert abs(final[0] - truth.mass) < 0.03
+    np.testing.assert_allclose(final[1:4] / final[0], truth.com, atol=0.01)
+    sent, acked = summary["writes"]["sent"], summary["writes"]["acked"]
+    assert sent >= 1 + refusals and acked >= 1
+    assert summary["writes"]["refused_by_controller"] == client.refusals == refusals
+    assert client.successes == acked and client.not_written == 0
+    logged = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert (refusals == 0) == (not logged)
+    assert refusals == 0 or any("set_load" in m and REFUSAL in m for m in logged)
+    applied = [mass for mass, ok in controller["applied"] if ok]
+    assert len(applied) >= acked
+    assert controller["load"] is not None and abs(controller["load"]["mass"] - truth.mass) < 0.03
