@@ -8,6 +8,7 @@ typo never silently falls back to a default.
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path as FsPath
@@ -78,6 +79,39 @@ class LogConfig:
 
 
 @dataclass(frozen=True)
+class Ros2Config:
+    """The ``ros2`` link's ROS 2 side (``[ros2]``; see deploy/cell.toml for every key).
+
+    ``domain_id`` -1: ``ROS_DOMAIN_ID`` from the environment, else 0;
+    ``estimate_std_topic`` "": ``estimate_topic`` + ``_std``; ``joints``: "auto", "fr3",
+    "panda" or 7 names; ``flange_frame`` "": ``<arm>_link8`` of the joints read;
+    ``interface`` "" and ``peers`` (): Cyclone's configuration from ``CYCLONEDDS_URI``."""
+
+    domain_id: int = -1
+    estimate_topic: str = "/iem/payload"
+    estimate_std_topic: str = ""
+    estimate_rate_hz: float = 10.0
+    set_load_service: str = "/service_server/set_load"
+    set_load_timeout_s: float = 2.0
+    joints: str | tuple = "auto"
+    flange_frame: str = ""
+    interface: str = ""
+    peers: tuple = ()
+
+    def link_options(self) -> dict:
+        """The ``ros2`` opener's options (:func:`firmware_bridge.ros2_link.open_ros2_link`)."""
+        return {"domain_id": None if self.domain_id < 0 else self.domain_id,
+                "joints": list(self.joints) if isinstance(self.joints, tuple) else self.joints,
+                "estimate_topic": self.estimate_topic,
+                "estimate_std_topic": self.estimate_std_topic,
+                "estimate_rate_hz": self.estimate_rate_hz,
+                "set_load_service": self.set_load_service,
+                "set_load_timeout_s": self.set_load_timeout_s,
+                "flange_frame": self.flange_frame, "interface": self.interface,
+                "peers": list(self.peers)}
+
+
+@dataclass(frozen=True)
 class CellConfig:
     """Everything ``iem run`` needs."""
 
@@ -86,16 +120,23 @@ class CellConfig:
     estimate: EstimateConfig = field(default_factory=EstimateConfig)
     gate: GateConfig = field(default_factory=GateConfig)
     log: LogConfig = field(default_factory=LogConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
     source: str = "<defaults>"
+
+    def link_options(self) -> dict:
+        """Options of the configured link kind's opener beyond channel, profile and silence
+        timeout: ``[ros2]`` for the ``ros2`` kind, none for the others."""
+        return self.ros2.link_options() if self.link.kind == "ros2" else {}
 
 
 SECTIONS = {"link": LinkConfig, "model": ModelConfig, "estimate": EstimateConfig,
-            "gate": GateConfig, "log": LogConfig}
+            "gate": GateConfig, "log": LogConfig, "ros2": Ros2Config}
 
 # keys with a restricted set of values, and numeric ranges (lo, hi, lo inclusive)
 CHOICES = {("link", "kind"): LINK_KINDS, ("link", "profile"): PROFILES,
            ("model", "kind"): MODEL_KINDS, ("log", "format"): LOG_FORMATS,
-           ("log", "level"): LOG_LEVELS, ("log", "status_line"): STATUS_MODES}
+           ("log", "level"): LOG_LEVELS, ("log", "status_line"): STATUS_MODES,
+           ("ros2", "joints"): ("auto", "fr3", "panda")}
 RANGES = {
     ("link", "silence_timeout_s"): (0.005, 60.0),
     ("model", "checkpoint_period_s"): (1.0, 86400.0),
@@ -119,14 +160,28 @@ RANGES = {
     ("gate", "max_nis"): (1.0, 1e6),
     ("gate", "refusal_retry_s"): (0.1, 3600.0),
     ("gate", "refusal_retry_max_s"): (0.1, 3600.0),
+    ("ros2", "estimate_rate_hz"): (0.1, 1000.0),
+    ("ros2", "set_load_timeout_s"): (0.05, 4.0),  # below the unit's WatchdogSec=5
 }
 INT_RANGES = {
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
+    ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
 }
+MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
+                ("ros2", "interface"), ("estimate", "initial_payload")}
+"""String keys for which "" means "none" (the default the key's comment names)."""
+ROS_NAMES = {("ros2", "estimate_topic"), ("ros2", "estimate_std_topic"),
+             ("ros2", "set_load_service")}
+ROS_NAME = re.compile(r"/[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
+"""A fully qualified ROS 2 topic or service name."""
 
 
-MAY_BE_EMPTY = {("estimate", "initial_payload")}
-"""String keys for which "" means "none"."""
+def _ros_name_error(name: str, value: str) -> str | None:
+    if ROS_NAME.fullmatch(value):
+        return None
+    return (f"{name} = {value!r} is not a fully qualified ROS 2 name; valid: '/' then "
+            "segments of letters, digits and '_' (not starting with a digit) separated by "
+            "'/', e.g. '/franka/joint_states'")
 
 
 def _check(section: str, key: str, value, default, where: str):
@@ -153,11 +208,20 @@ def _check(section: str, key: str, value, default, where: str):
         if not lo <= value <= hi:
             raise ConfigError(f"{name} = {value!r} is out of range; valid is [{lo:g}, {hi:g}]")
         return value
+    if expected is tuple or ((section, key) == ("ros2", "joints") and isinstance(value, list)):
+        n = 7 if (section, key) == ("ros2", "joints") else None
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value) \
+                or (n is not None and (len(value) != n or len(set(value)) != n)):
+            what = f"{n} distinct non-empty strings" if n else "non-empty strings"
+            raise ConfigError(f"{name} = {value!r} must be a list of {what}")
+        return tuple(value)
     if expected is str:
         if isinstance(value, str) and not value and (section, key) in MAY_BE_EMPTY:
             return value
         if not isinstance(value, str) or not value:
             raise ConfigError(f"{name} = {value!r} must be a non-empty string")
+        if (section, key) in ROS_NAMES and (error := _ros_name_error(name, value)):
+            raise ConfigError(error)
         choices = CHOICES.get((section, key))
         if choices and value not in choices:
             raise ConfigError(f"{name} = {value!r} is not valid; valid values are "
@@ -194,6 +258,11 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                           "refusal_retry_max_s >= refusal_retry_s (the longest wait between "
                           "retries after refusals)")
     link = built["link"]
+    if link.kind == "ros2" and "channel" not in doc.get("link", {}):
+        link = built["link"] = replace(link, channel="/franka/joint_states")
+    if link.kind == "ros2" and (error := _ros_name_error(f"{where}: [link] channel",
+                                                         link.channel)):
+        raise ConfigError(error + " (for kind 'ros2' the channel is the JointState topic)")
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
                           "a log file (.blf, .log, .asc or .trc)")

@@ -213,7 +213,8 @@ class Service:
 
             lc = self.config.link
             self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
-                                  silence_timeout=lc.silence_timeout_s)
+                                  silence_timeout=lc.silence_timeout_s,
+                                  **self.config.link_options())  # [ros2] for kind ros2
         est = self.config.estimate
         self.rate_hz = link_rate(self.config)
         self.kinematics = PandaModel()
@@ -248,6 +249,7 @@ class Service:
         cfg = self.config
         link, online, gate = self.link, self.online, self.gate
         sink = self.write and hasattr(link, "send")
+        publish = getattr(link, "publish_estimate", None)
         started = time.monotonic()
         cpu0 = time.thread_time()
         next_checkpoint = started + cfg.model.checkpoint_period_s
@@ -309,6 +311,8 @@ class Service:
                     self._pace(lag, max_lag)
                 raw, smoothed = online.step(state)
                 last_smoothed = smoothed
+                if publish is not None:  # the ros2 link: the estimate on its topics,
+                    publish(raw, smoothed)  # at its own rate
                 latency = time.time() - frame_t if frame_t > 0 else math.nan
                 self.latencies.append(latency)
                 self.cycles += 1

@@ -15,7 +15,10 @@ master in a forked process, python-can's ``slcan`` on the slave in this one):
   so for the virtual bus the benchmark also reports ``pipeline_us``: the same interval with
   sender and reader in one thread (send, then read), the bridge's own cost.
 
-It also prints the bus load of both profiles (:mod:`firmware_bridge.busload`).
+It also prints the bus load of both profiles (:mod:`firmware_bridge.busload`) and, with the
+``ros2`` extra, the ros2 row: JointStates from a reliable writer in another process to the
+``ros2`` link over loopback DDS (:func:`firmware_bridge.ros2_peers.measure_loopback`:
+messages/s of a burst; latency p50/p99, lost and CPU share at 1 kHz; JSON key ``"ros2"``).
 ``--json FILE`` writes ``{"virtual": {"cycles_per_s", "latency_us": {"p50", "p99"},
 "pipeline_us": {"p50", "p99"}}, "slcan_pty": {"cycles_per_s", "latency_us"}, "bus_load":
 {"fd": {...}, "classic": {...}}}``. The figures depend on the machine and its load: this
@@ -240,7 +243,19 @@ def measure(profile: str = "fd", cycles: int = 20000, slcan_cycles: int = 3000) 
         "virtual": measure_virtual(profile, cycles, min(2000, cycles)),
         "slcan_pty": measure_slcan_pty(profile, slcan_cycles, min(1000, slcan_cycles)),
         "bus_load": loads,
+        "ros2": measure_ros2(),
     }
+
+
+def measure_ros2() -> dict:
+    """The ros2 row (:func:`firmware_bridge.ros2_peers.measure_loopback`), or why not."""
+    try:
+        import cyclonedds  # noqa: F401
+    except ImportError:
+        return {"skipped": "install the 'ros2' extra (cyclonedds)"}
+    from .ros2_peers import measure_loopback
+
+    return measure_loopback()
 
 
 def configure(parser) -> None:
@@ -266,6 +281,15 @@ def run(args) -> int:
             p = f["pipeline_us"]
             print(f"{'':17s} in one thread (send, then read): p50 {p['p50']:7.1f} µs  "
                   f"p99 {p['p99']:7.1f} µs")
+    r = fig["ros2"]
+    if "skipped" in r:
+        print(f"ros2 over loopback  skipped: {r['skipped']}")
+    else:
+        lat = r["latency_us"]
+        print(f"ros2 over loopback  {r['cycles_per_s']:9.0f} msgs/s   latency p50 "
+              f"{lat['p50']:7.1f} µs  p99 {lat['p99']:7.1f} µs at 1 kHz, {r['lost']} lost of "
+              f"{r['lost'] + r['delivered']}, CPU share {r['cpu_share']:.2f}   (targets 0 lost, "
+              "p99 <= 1000, CPU <= 0.3)")
     for name, load in fig["bus_load"].items():
         print(f"bus load {name:7s}  {load['bits_per_frame']} bits/frame, "
               f"{load['frames_per_s']:g} frames/s at {load['rate_hz']:g} Hz: "

@@ -223,6 +223,9 @@ LINKS: dict[str, LinkKind] = {
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
                        "0.10; exclusive FCI); channel: the robot's IP", fixed_rate_hz=1000.0),
+    "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
+                     "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
+                     "the JointState topic", fixed_rate_hz=1000.0),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
                        sink=False),

@@ -59,6 +59,8 @@ def assert_same(token: str, default, what: str) -> None:
         assert token == str(default).lower(), what
     elif isinstance(default, str):
         assert token == f'"{default}"', what
+    elif isinstance(default, tuple):
+        assert token == repr(list(default)), what
     else:
         assert float(token) == default, what
 
