@@ -72,6 +72,7 @@ from iem.old_iem import InPlaceEnsemble
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
+from iem.sensor import SensorModel
 from iem.types import GROUPS, PARAMS, JointState
 
 MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS", "IEM+phys")
@@ -280,8 +281,6 @@ def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> 
 def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
               extra_models: dict | None = None) -> dict:
     """All scenarios; writes ``results.json``, ``report.md`` and figures to ``out_dir``."""
-    from sim.plant import SensorModel
-
     started = time.perf_counter()
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
