@@ -28,6 +28,8 @@ COMMANDS: Table = {
     "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
     "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
+    "calibrate": ("deploy.calibrate", "identify the arm's departure from its model from "
+                  "bare-arm traffic: the arm file"),
     "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
     "sim-controller": ("firmware_bridge.sim_controller",
