@@ -50,6 +50,9 @@ class ModelConfig:
     family: str = "paper"
     excitation: str = "builtin"
     seed: int = 0
+    arm: str = ""
+    """The arm file from ``iem calibrate`` (empty: the nominal arm); the model must have
+    been trained for it (``iem train --arm``)."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,7 @@ SECTIONS = {"link": LinkConfig, "model": ModelConfig, "estimate": EstimateConfig
 CHOICES = {("link", "kind"): LINK_KINDS, ("link", "profile"): PROFILES,
            ("model", "kind"): MODEL_KINDS, ("log", "format"): LOG_FORMATS,
            ("log", "level"): LOG_LEVELS, ("log", "status_line"): STATUS_MODES}
+MAY_BE_EMPTY = {("model", "arm")}  # string keys whose empty value means "none"
 RANGES = {
     ("link", "silence_timeout_s"): (0.005, 60.0),
     ("model", "checkpoint_period_s"): (1.0, 86400.0),
@@ -133,6 +137,8 @@ def _check(section: str, key: str, value, default, where: str):
             raise ConfigError(f"{name} = {value!r} is out of range; valid is [{lo:g}, {hi:g}]")
         return value
     if expected is str:
+        if isinstance(value, str) and not value and (section, key) in MAY_BE_EMPTY:
+            return value
         if not isinstance(value, str) or not value:
             raise ConfigError(f"{name} = {value!r} must be a non-empty string")
         choices = CHOICES.get((section, key))
@@ -185,10 +191,12 @@ def load_config(path) -> CellConfig:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
     cfg = config_from_dict(doc, where=str(path))
     model_path = FsPath(cfg.model.path)
-    if not model_path.is_absolute():
+    arm_path = FsPath(cfg.model.arm)
+    if not model_path.is_absolute() or (cfg.model.arm and not arm_path.is_absolute()):
         model = ModelConfig(**{**{f.name: getattr(cfg.model, f.name)
                                   for f in fields(ModelConfig)},
-                               "path": str(path.parent / model_path)})
+                               "path": str(path.parent / model_path),
+                               "arm": str(path.parent / arm_path) if cfg.model.arm else ""})
         cfg = CellConfig(link=cfg.link, model=model, estimate=cfg.estimate, gate=cfg.gate,
                          log=cfg.log, source=cfg.source)
     return cfg
