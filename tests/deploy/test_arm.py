@@ -43,7 +43,7 @@ def test_model_records_its_arm_and_names_it_in_its_physics(files):
     check_arm(model, arm_record(arm, "anywhere/arm.msgpack"))  # same content: accepted
     with pytest.raises(ModelFileError, match="nominal arm"):
         check_arm(model, None)
-    with pytest.raises(ModelFileError, match="other.msgpack"):
+    with pytest.raises(ModelFileError, match=r"other\.msgpack"):
         check_arm(model, arm_record(load_arm(files / "other.msgpack"), files / "other.msgpack"))
 
 
@@ -52,7 +52,7 @@ def test_dynamics_spec_carries_the_arm_file(files):
     f = load_dynamics(arm_spec(files / "arm.msgpack"))
     plain = load_dynamics("sim.robot:panda_dynamics")
     q, dq, ddq = PandaModel().random_state(np.random.default_rng(0))
-    tau, Y, M = f(q, dq, ddq)
+    tau, Y, _ = f(q, dq, ddq)
     np.testing.assert_allclose(tau, PandaModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
     np.testing.assert_allclose(Y, plain(q, dq, ddq)[1], atol=1e-12)  # kinematics only
     assert not np.allclose(tau, plain(q, dq, ddq)[0], atol=1e-3)
