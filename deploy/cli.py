@@ -19,6 +19,8 @@ Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 BENCHES: Table = {
     "sim": ("sim.bench", "RNEA, regressor and tandem speed, plant real-time factor"),
     "paper": ("iem.bench.paper", "the paper's experiments in simulation: results.json, report"),
+    "realistic": ("iem.bench.realistic", "the models on a perturbed arm, with and without "
+                  "calibration: results.json, report"),
     "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
     "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
     "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),

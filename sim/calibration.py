@@ -32,9 +32,13 @@ Steps (:func:`calibrate`):
    MAP problem for all unknowns at once (70 + 21 + 7), until the step is negligible. (The
    exact sigmoid is fitted, not a fixed-shape linearisation: Gaz's ``phi2`` differ by a
    factor of 3 between joints and the simulated arm scales them by up to 30 %.)
-5. **Physical consistency.** Each body's pseudo-inertia must stay positive definite; a body
-   whose correction breaks it is moved back toward its nominal values (a convex set holds
-   both) just far enough (:func:`consistent`).
+5. **Physical consistency.** Each body's pseudo-inertia must be positive definite. The
+   fit is moved to the consistent parameters nearest it in the metric of its own posterior
+   precision (:func:`consistent_map`: the MAP under the pseudo-inertia LMIs, a small
+   semidefinite program solved by Clarabel through cvxpy), so it moves mostly along the
+   directions the data do not see and the torques barely change. Should the solver fail, a
+   body still inconsistent is moved back toward its nominal values (a convex set holds both)
+   just far enough (:func:`consistent`), which the report names.
 6. **Payload check.** A payload on the flange acts like extra mass on body 7: if the fit
    makes body 7 heavier than its prior allows (:data:`PAYLOAD_WARN_SIGMAS` standard
    deviations, at least :data:`PAYLOAD_WARN_KG`), the result carries a warning.
@@ -138,11 +142,46 @@ def _pseudo_min_eig(p: np.ndarray) -> float:
     return float(np.linalg.eigvalsh(pseudo)[0])
 
 
+def consistent_map(theta_map: np.ndarray, precision: np.ndarray, eps: float = 1e-6
+                   ) -> np.ndarray | None:
+    """The physically consistent body parameters nearest the unconstrained MAP ``theta_map``
+    (70) in the metric of its posterior ``precision`` (70 x 70): the constrained MAP, since
+    the torques are linear in the parameters. Each body's pseudo-inertia ``[[Σ, h], [h^T,
+    m]]`` (``Σ = tr(I)/2 E - I``) is kept ``>= eps E``: a semidefinite program (cvxpy, solved
+    by Clarabel). None if the solver fails."""
+    import cvxpy as cp
+
+    theta_map = np.asarray(theta_map, dtype=float).ravel()
+    evals, evecs = np.linalg.eigh(0.5 * (precision + precision.T))
+    root = evecs * np.sqrt(np.maximum(evals, 0.0))  # precision = root @ root.T
+    x = cp.Variable(70)
+    cons = []
+    for j in range(7):
+        p = x[10 * j:10 * j + 10]
+        m, h = p[0], p[1:4]
+        ixx, ixy, iyy, ixz, iyz, izz = (p[k] for k in range(4, 10))
+        tr = 0.5 * (ixx + iyy + izz)
+        pseudo = cp.bmat([[tr - ixx, -ixy, -ixz, h[0]],
+                          [-ixy, tr - iyy, -iyz, h[1]],
+                          [-ixz, -iyz, tr - izz, h[2]],
+                          [h[0], h[1], h[2], m]])
+        cons.append(0.5 * (pseudo + pseudo.T) >> eps * np.eye(4))
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(root.T @ (x - theta_map))), cons)
+    try:
+        problem.solve(solver=cp.CLARABEL)
+    except cp.error.SolverError:
+        return None
+    if x.value is None or problem.status not in ("optimal", "optimal_inaccurate"):
+        return None
+    return np.asarray(x.value).reshape(7, 10)
+
+
 def consistent(params: np.ndarray, nominal: np.ndarray, eps: float = 1e-7
                ) -> tuple[np.ndarray, list[int]]:
     """``params`` (7 x 10) with each body whose pseudo-inertia is not positive definite
     moved back toward ``nominal`` (bisection on the segment, which stays in the convex set
-    of consistent bodies) until it is; returns the bodies and the 1-based joints moved."""
+    of consistent bodies) until it is; returns the bodies and the 1-based joints moved. The
+    last resort, after :func:`consistent_in_null_space`: it changes the torques."""
     out = np.array(params, dtype=float).reshape(7, 10)
     moved = []
     for j in range(7):
@@ -195,10 +234,12 @@ def _regressors(model: pin.Model, q, dq, ddq) -> np.ndarray:
     return out
 
 
-def base_basis(model: pin.Model, samples: int = 300, seed: int = 0) -> np.ndarray:
+def base_basis(model: pin.Model, samples: int = 300, seed: int = 0,
+               null: bool = False) -> np.ndarray:
     """``(70, r)`` orthonormal basis of the parameter combinations that act on the torques
     (the base parameters), from a pivoted QR of the regressor at random states with relative
-    tolerance :data:`QR_TOL`; ``r`` is their number."""
+    tolerance :data:`QR_TOL`; ``r`` is their number. ``null``: the ``(70, 70 - r)`` basis
+    of the combinations that act on no torque instead."""
     kin = PandaModel()
     rng = np.random.default_rng(seed)
     states = [kin.random_state(rng) for _ in range(samples)]
@@ -207,7 +248,7 @@ def base_basis(model: pin.Model, samples: int = 300, seed: int = 0) -> np.ndarra
     d = np.abs(np.diag(R))
     rank = int(np.sum(d > QR_TOL * d[0]))
     _, _, vt = np.linalg.svd(W, full_matrices=False)
-    return vt[:rank].T
+    return vt[rank:].T if null else vt[:rank].T
 
 
 def _direction_names(v: np.ndarray, top: int = 3) -> str:
@@ -343,7 +384,10 @@ def calibrate_segments(parts, settings: CalibrationSettings = CalibrationSetting
         off += step[91:]
         if np.max(np.abs(dz)) < 1e-6:
             break
-    params, moved = consistent(theta.reshape(7, 10), theta0.reshape(7, 10))
+    # the constrained MAP, in the metric of the posterior of theta (friction, offsets fixed)
+    A_theta = Wf * w
+    fixed = consistent_map(theta, A_theta.T @ A_theta + np.diag(1.0 / sd_theta ** 2))
+    params, moved = consistent(theta if fixed is None else fixed, theta0.reshape(7, 10))
     before = tau - (W @ theta0)
     after = tau - (W @ params.ravel()) - gaz_friction(dq, phi) - off
     warnings = []
@@ -361,6 +405,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = CalibrationSetting
         "condition_number": cond,
         "rms_before": np.sqrt(np.mean(before ** 2, axis=0)).tolist(),
         "rms_after": np.sqrt(np.mean(after ** 2, axis=0)).tolist(),
+        "consistency": "lmi" if fixed is not None else "shrink toward nominal",
         "consistency_moved_bodies": moved,
         "warnings": warnings,
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},

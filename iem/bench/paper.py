@@ -170,30 +170,35 @@ class Bench:
         self.fit(models)
         return models
 
-    def fit(self, models: dict) -> None:
-        """Offline training on the planned excitation path (bags and tandem samples)."""
+    def fit(self, models: dict, tandems: dict | None = None) -> None:
+        """Offline training on the planned excitation path (bags and tandem samples);
+        ``tandems`` maps a model's name to its own tandem simulators (default ``tandem``)."""
         path = self.excitation
         F = self.kin.flange_positions(path.q)
-
-        def samples_at(i):
-            return self.tandem.samples(path.q[i], path.dq[i], path.ddq[i])
 
         for name, model in models.items():
             if not hasattr(model, "fit"):
                 continue
+            tandem = (tandems or {}).get(name, self.tandem)
+
+            def samples_at(i, tandem=tandem):
+                return tandem.samples(path.q[i], path.dq[i], path.ddq[i])
+
             t0 = time.perf_counter()
             model.fit(path.q, F, samples_at)
             self.log(f"fit {name}: {model.n_bags} bags ({time.perf_counter() - t0:.1f} s)")
 
     # -- runs ----------------------------------------------------------------------------
-    def run(self, model, rollout, learn: bool, fresh: bool = True) -> Run:
+    def run(self, model, rollout, learn: bool, fresh: bool = True, tandem=None) -> Run:
         """One model along one rollout. ``fresh``: a new task with a payload the model has
         not seen, so a model with ``reset`` first forgets the payload it was estimating (it
         keeps what it learnt); else the payload is the one of the model's last rollout and
-        only the signal stream restarts (:meth:`iem.online.OnlineIdentifier.resume`)."""
+        only the signal stream restarts (:meth:`iem.online.OnlineIdentifier.resume`).
+        ``tandem``: the model's tandem simulators (default ``self.tandem``)."""
         if fresh and hasattr(model, "reset"):
             model.reset()
-        online = OnlineIdentifier(model, self.kin.flange_position, self.tandem.samples,
+        tandem = self.tandem if tandem is None else tandem
+        online = OnlineIdentifier(model, self.kin.flange_position, tandem.samples,
                                   learn=learn, timed=True)
         n = len(rollout)
         smoothed = np.empty((n, 10))
