@@ -4,8 +4,9 @@
 by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus);
 ``iem calibrate --interface I --channel C --duration S --out ARM`` reads a live link
 (:func:`firmware_bridge.links.open_link`) for ``S`` seconds instead. The arm must carry no
-payload and should run the calibration motion (:func:`sim.paths.calibration_path`, 30 s; its
-CSV: ``sim/calibration.csv``). The numerics are :mod:`sim.calibration`; this prints the
+payload and should run the calibration motion (:func:`sim.paths.calibration_path`, 30 s;
+``iem calibrate --write-motion FILE.csv`` writes it as a path CSV for the robot's own
+program). The numerics are :mod:`sim.calibration`; this prints the
 per-joint residual RMS before and after, the condition number of the excitation and any
 warning, and writes the arm file (msgpack, versioned, CRC-checked; :mod:`sim.arm`), which
 ``iem train/run/replay/demo --arm`` and the benchmarks use.
@@ -131,7 +132,9 @@ def print_report(arm, out, log=print) -> None:
 def configure(parser) -> None:
     parser.add_argument("logs", nargs="*", metavar="LOG",
                         help="CAN logs of the bare arm (.blf .log .asc .trc)")
-    parser.add_argument("--out", required=True, metavar="ARM", help="arm file to write")
+    parser.add_argument("--out", metavar="ARM", help="arm file to write")
+    parser.add_argument("--write-motion", metavar="CSV",
+                        help="write the calibration motion as a path CSV (t, q1..q7) and stop")
     parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
                         help="wire profile (default fd)")
     parser.add_argument("--interface", help="live link kind instead of (or besides) logs")
@@ -143,6 +146,15 @@ def configure(parser) -> None:
 def run(args) -> int:
     from sim.arm import save_arm
 
+    if args.write_motion:
+        from sim.paths import calibration_path, save_path_csv
+
+        motion = calibration_path()
+        save_path_csv(motion, args.write_motion)
+        print(f"wrote the calibration motion ({motion.duration:.0f} s) to {args.write_motion}")
+        return 0
+    if not args.out:
+        raise InvalidInputError("--out ARM is required: the arm file to write")
     t0 = time.perf_counter()
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
                             duration=args.duration, profile=args.profile)

@@ -1,6 +1,6 @@
 """``iem bench paper``: the paper's experiments in the simulation, our figures beside theirs.
 
-Set-up (fixed seeds, the default sensor model of :mod:`sim.plant`):
+Set-up (fixed seeds, the default sensor model of :mod:`iem.sensor`):
 
 - The plant carries the default test payload (a configuration outside the 77 training
   payloads) and tracks the excitation path (20 s) and, separately, the new task path (6 s).

@@ -137,9 +137,9 @@ class RealisticBench(Bench):
         }
 
 
-def _score(bench: RealisticBench, run, phi, model, after: int = 0) -> dict:
-    from iem.metrics import groups_of, mae
+def _score(run, phi, model, after: int = 0) -> dict:
     from iem.metrics import coverage as coverage_of
+    from iem.metrics import groups_of, mae
 
     sl = slice(after, None)
     cov = coverage_of(run.raw[sl], run.std[sl], phi)
@@ -158,7 +158,6 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
                   arm_file=None) -> dict:
     """All scenarios; writes ``results.json`` and ``report.md`` to ``out_dir``."""
     from sim.arm import load_arm, save_arm
-    from sim.family import test_payloads
     from sim.robot import PandaModel
     from sim.tandem import TandemSimulators
 
@@ -195,7 +194,7 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
         for model_name in MODEL_ORDER:
             model = copy.deepcopy(models[model_name])
             r = bench.run(model, rollout, learn=True, tandem=tandems.get(model_name))
-            s = _score(bench, r, truth, model, after)
+            s = _score(r, truth, model, after)
             if name == "payload_change" and getattr(model, "detects_changes", False):
                 fired = np.flatnonzero(r.changes[after:])
                 s["detect_s"] = (None if fired.size == 0

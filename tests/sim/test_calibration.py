@@ -135,3 +135,12 @@ def test_cli_calibrates_from_a_can_log(bare, tmp_path, capsys):
     arm = load_arm(out)
     np.testing.assert_allclose(arm.offset, bare[0].arm.offset, atol=0.015)
     assert main(["calibrate", "--out", str(out)]) == 2  # nothing to calibrate from
+
+
+def test_cli_writes_the_calibration_motion(tmp_path):
+    from sim.paths import load_path_csv
+
+    out = tmp_path / "motion.csv"
+    assert main(["calibrate", "--write-motion", str(out)]) == 0
+    back = load_path_csv(out)
+    np.testing.assert_allclose(back.q, calibration_path().q, atol=1e-6)
