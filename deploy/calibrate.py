@@ -34,6 +34,10 @@ def read_states(source, duration: float | None = None, silence_s: float = 1.0):
             s = source.read(silence_s)
         except EndOfStream:
             break
+        except TimeoutError as exc:  # a live link that went silent
+            raise InvalidInputError(f"the link gave no joint state for {silence_s:g} s after "
+                                    f"{len(rows)} states; is the controller running? "
+                                    f"({exc})") from exc
         rows.append((s.t, s.q, s.dq, s.tau_J))
         if duration is not None:
             t_end = s.t + duration if t_end is None else t_end
@@ -78,8 +82,9 @@ _records = itertools.count()
 
 
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
-                      profile: str = "fd"):
-    """The arm calibrated from the ``logs`` and/or a live link (see the module docstring)."""
+                      profile: str = "fd", link=None):
+    """The arm calibrated from the ``logs`` and/or a live link (see the module docstring):
+    ``interface``/``channel`` opened here, or ``link`` already open (closed here)."""
     from firmware_bridge.links import open_link
     from sim.calibration import calibrate_segments, segments
 
@@ -95,11 +100,12 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
                                     f"{profile} profile in it")
         parts += segments(*data)
         names.append(str(log_file))
-    if interface is not None:
+    if interface is not None or link is not None:
         if duration is None or not duration > 0:
             raise InvalidInputError("a live calibration needs --duration S (> 0 s): how long "
                                     "to record the calibration motion")
-        link = open_link(interface, channel or "", profile=profile)
+        if link is None:
+            link = open_link(interface, channel or "", profile=profile)
         try:
             data = read_states(link, duration)
         finally:

@@ -144,3 +144,26 @@ def test_cli_writes_the_calibration_motion(tmp_path):
     assert main(["calibrate", "--write-motion", str(out)]) == 0
     back = load_path_csv(out)
     np.testing.assert_allclose(back.q, calibration_path().q, atol=1e-6)
+
+
+def test_calibrates_from_a_live_link():
+    """The simulated controller (nominal plant: no friction, no offsets) plays the
+    calibration motion on the virtual bus; the live link's joint states calibrate the arm."""
+    from deploy.calibrate import calibrate_sources
+    from firmware_bridge.links import open_link
+    from firmware_bridge.sim_controller import SimController, open_port
+
+    channel = "iem-test-live-calibration"
+    link = open_link("virtual", channel, profile="fd", silence_timeout=5.0)
+    port, _ = open_port("virtual", channel, "fd")
+    controller = SimController(port, path=calibration_path(), realtime=False, once=True)
+    try:
+        controller.start()
+        arm = calibrate_sources(link=link, duration=12.0)
+    finally:
+        controller.stop()
+        port.close()
+    assert arm.report["duration_s"] > 10.0
+    np.testing.assert_allclose(arm.offset, 0.0, atol=0.01)
+    after = np.array(arm.report["rms_after"])
+    assert np.all(after < 0.03)
