@@ -90,11 +90,11 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
 
     parts, names = [], []
     for log_file in logs:
-        link = open_link("replay", str(log_file), profile=profile, pace="fast")
+        replay = open_link("replay", str(log_file), profile=profile, pace="fast")
         try:
-            data = read_states(link)
+            data = read_states(replay)
         finally:
-            link.close()
+            replay.close()
         if data[0].size == 0:
             raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
                                     f"{profile} profile in it")

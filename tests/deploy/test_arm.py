@@ -79,3 +79,17 @@ def test_config_arm_key(tmp_path):
     cfg = tmp_path / "cell.toml"
     cfg.write_text('[model]\narm = "arm.msgpack"\n')
     assert load_config(cfg).model.arm == str(tmp_path / "arm.msgpack")
+
+
+def test_the_arm_record_is_covered_by_the_model_files_crc(tmp_path):
+    from iem.ensemble import IncrementalEnsemble
+    from iem.persistence import dumps, loads
+
+    model = IncrementalEnsemble()
+    model.trained_arm = {"crc32": 1234, "source": "arm.msgpack"}
+    data = dumps(model)
+    assert loads(data).trained_arm == model.trained_arm
+    forged = data.replace(b"arm.msgpack", b"xrm.msgpack")
+    with pytest.raises(ModelFileError, match="corrupt"):
+        loads(forged)
+    assert getattr(loads(dumps(IncrementalEnsemble())), "trained_arm", None) is None

@@ -91,3 +91,13 @@ def test_sensor_model_lives_in_iem():
     from iem.ensemble import SENSOR_NOISE
 
     np.testing.assert_array_equal(SENSOR_NOISE, DEFAULT_SENSOR.sigmas)
+
+
+def test_controller_on_the_real_arm_model_tracks_better():
+    path = excitation_path(3.0)
+    gap = RealityGap(seed=3)
+    nominal = PandaPlant(sensor=SensorModel.noiseless(), gap=gap).follow(path)
+    plant = PandaPlant(sensor=SensorModel.noiseless(), gap=gap)
+    own = PandaPlant(sensor=SensorModel.noiseless(), gap=gap,
+                     controller_arm=plant.arm).follow(path)
+    assert own.tracking_error().max() < 0.1 * nominal.tracking_error().max()
