@@ -148,17 +148,16 @@ class Service:
 
     # -- set-up ----------------------------------------------------------------------------
     def open(self) -> Service:
-        from iem.persistence import check_arm
         from sim.robot import PandaModel
 
-        from .training import load_arm_file, tandem_for
+        from .training import check_model_arm, load_arm_file, tandem_for
 
         arm, arm_record = load_arm_file(self.config.model.arm or None)
         if self.model is None:
             self.model = load_or_train_model(self.config)
         path = FsPath(self.config.model.path)
-        check_arm(self.model, arm_record,
-                  where=f"the model {path}" if path.exists() else "the model")
+        check_model_arm(self.model, arm_record,
+                        where=f"the model {path}" if path.exists() else "the model")
         if self.link is None:
             from firmware_bridge.links import open_link
 

@@ -45,6 +45,32 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
     return new_model(kind, seed=seed, **params)
 
 
+def check_model_arm(model, arm_record, where: str = "the model") -> None:
+    """Refuse ``model`` unless it was trained for the arm ``arm_record``
+    (:func:`iem.persistence.check_arm`) and the arm file its physics names (its dynamics
+    spec, ``sim.arm:arm_dynamics@PATH``) is still there with the same content."""
+    from iem.errors import ModelFileError
+    from iem.persistence import check_arm
+
+    check_arm(model, arm_record, where)
+    spec = getattr(model, "dynamics", None)
+    if not isinstance(spec, str) or not spec.startswith("sim.arm:arm_dynamics@"):
+        return
+    from sim.arm import load_arm
+
+    named = spec.partition("@")[2]
+    try:
+        crc = load_arm(named).crc32
+    except ModelFileError as exc:
+        raise ModelFileError(f"{where}: its physics names the arm file {named}, which cannot "
+                             f"be used ({exc}); put the arm file back there or retrain with "
+                             f"'iem train --arm ARM --out MODEL'") from exc
+    if arm_record is None or crc != arm_record["crc32"]:
+        raise ModelFileError(f"{where}: its physics names the arm file {named}, whose content "
+                             f"differs from the arm the model was trained for; retrain with "
+                             f"'iem train --arm ARM --out MODEL'")
+
+
 def load_arm_file(arm_file):
     """The arm of ``arm_file`` and its record for model files (``(None, None)``: nominal)."""
     if arm_file is None:

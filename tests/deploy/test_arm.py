@@ -93,3 +93,20 @@ def test_the_arm_record_is_covered_by_the_model_files_crc(tmp_path):
     with pytest.raises(ModelFileError, match="corrupt"):
         loads(forged)
     assert getattr(loads(dumps(IncrementalEnsemble())), "trained_arm", None) is None
+
+
+def test_a_model_whose_arm_file_moved_is_refused_before_it_runs(files, tmp_path):
+    import shutil
+
+    from deploy.training import check_model_arm
+
+    arm_file = tmp_path / "arm.msgpack"
+    shutil.copy(files / "arm.msgpack", arm_file)
+    assert main(["train", "--kind", "IEM+phys", "--arm", str(arm_file),
+                 "--out", str(tmp_path / "model.msgpack")]) == 0
+    model = load_model(tmp_path / "model.msgpack")
+    record = arm_record(load_arm(arm_file), arm_file)
+    check_model_arm(model, record)
+    arm_file.unlink()
+    with pytest.raises(ModelFileError, match="names the arm file"):
+        check_model_arm(model, record)
