@@ -37,6 +37,8 @@ Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 BENCHES: Table = {
     "sim": ("sim.bench", "RNEA, regressor and tandem speed, plant real-time factor"),
     "paper": ("iem.bench.paper", "the paper's experiments in simulation: results.json, report"),
+    "realistic": ("iem.bench.realistic", "the models on a perturbed arm, with and without "
+                  "calibration: results.json, report"),
     "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
     "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
     "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
@@ -48,6 +50,8 @@ COMMANDS: Table = {
     "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
     "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
+    "calibrate": ("deploy.calibrate", "identify the arm's departure from its model from "
+                  "bare-arm traffic: the arm file"),
     "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
     "identify": ("deploy.identify", "identify a payload offline from a loaded and a bare log"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),

@@ -52,6 +52,9 @@ class ModelConfig:
     family: str = "paper"
     excitation: str = "builtin"
     seed: int = 0
+    arm: str = ""
+    """The arm file from ``iem calibrate`` (empty: the nominal arm); the model must have
+    been trained for it (``iem train --arm``)."""
 
 
 @dataclass(frozen=True)
@@ -168,7 +171,7 @@ INT_RANGES = {
     ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
 }
 MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
-                ("ros2", "interface"), ("estimate", "initial_payload")}
+                ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm")}
 """String keys for which "" means "none" (the default the key's comment names)."""
 ROS_NAMES = {("ros2", "estimate_topic"), ("ros2", "estimate_std_topic"),
              ("ros2", "set_load_service")}
@@ -288,10 +291,12 @@ def load_config(path) -> CellConfig:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
     cfg = config_from_dict(doc, where=str(path))
     model_path = FsPath(cfg.model.path)
-    if not model_path.is_absolute():
+    arm_path = FsPath(cfg.model.arm)
+    if not model_path.is_absolute() or (cfg.model.arm and not arm_path.is_absolute()):
         model = ModelConfig(**{**{f.name: getattr(cfg.model, f.name)
                                   for f in fields(ModelConfig)},
-                               "path": str(path.parent / model_path)})
+                               "path": str(path.parent / model_path),
+                               "arm": str(path.parent / arm_path) if cfg.model.arm else ""})
         cfg = replace(cfg, model=model)
     initial = cfg.estimate.initial_payload
     if initial and not FsPath(initial).is_absolute():

@@ -41,7 +41,10 @@ def demo_path():
 
 
 def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
-             status: bool = True, log=print) -> dict:
+             status: bool = True, log=print, arm_file=None) -> dict:
+    """The demo (see the module docstring); ``arm_file``: the plug-in runs on this arm file
+    (``iem calibrate``; its model is trained for it). The simulated controller's plant is
+    the nominal arm either way."""
     from iem.metrics import mae_groups
     from sim.family import default_test_payload
 
@@ -61,7 +64,7 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     config = config_from_dict({
         "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
         "model": {"path": str(model_file), "kind": kind, "seed": seed,
-                  "checkpoint_period_s": 10.0},
+                  "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
         "log": {"status_line": "on" if status else "off"},
     }, where="demo")
     log(f"iem demo: payload {payload.name} ({payload.mass:.3f} kg), path {path.duration:.0f} s "
@@ -188,6 +191,8 @@ def configure(parser) -> None:
                         help="model kind (default: the best available)")
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise and learner seed")
     parser.add_argument("--no-status", action="store_true", help="no live status line")
+    parser.add_argument("--arm", metavar="ARM", help="arm file for the plug-in (from "
+                        "'iem calibrate'; default: the nominal arm)")
 
 
 def run(args) -> int:
@@ -195,5 +200,5 @@ def run(args) -> int:
 
     setup_logging("warning", "text")
     run_demo(args.out, seed=args.seed, kind=args.model, json_path=args.json,
-             status=not args.no_status)
+             status=not args.no_status, arm_file=args.arm)
     return 0

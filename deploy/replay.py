@@ -85,7 +85,7 @@ def _write(path, text: str) -> None:
 
 
 def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_to=None,
-           status: bool = False, log=print) -> tuple[dict, Estimates]:
+           status: bool = False, log=print, arm_file=None) -> tuple[dict, Estimates]:
     """Run the plug-in over ``log_file`` as fast as possible, writes off.
 
     Args:
@@ -97,6 +97,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         save_model_to: save the model learnt during the replay to this file (atomic).
         status: show the live status line on stderr.
         log: where progress lines go.
+        arm_file: the arm file of the arm that was recorded (``iem calibrate``); the model
+            must have been trained for it. None: the nominal arm.
 
     Returns:
         ``(summary, estimates)``: the summary dict (the keys of the demo's summary where
@@ -115,14 +117,16 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     link = open_link("replay", str(log_file), profile=profile, pace="fast")
     try:
         if model is None:
-            model = train_initial_model(DEFAULT_KIND, "paper", "builtin", 0, log=log)
+            model = train_initial_model(DEFAULT_KIND, "paper", "builtin", 0, log=log,
+                                        arm_file=arm_file)
         else:
             model = copy.deepcopy(model)
         config = config_from_dict({
             "link": {"kind": "replay", "channel": str(log_file), "profile": profile},
             # the model path is only written by --save-model; no periodic checkpoints
             "model": {"path": str(save_model_to or "replay-model.msgpack"),
-                      "train_if_missing": False, "checkpoint_period_s": 86400.0},
+                      "train_if_missing": False, "checkpoint_period_s": 86400.0,
+                      "arm": str(arm_file or "")},
             "log": {"status_line": "on" if status else "off"},
         }, where="iem replay")
         # the gate decides on the recorded clock, so a fast replay decides as the cell did
@@ -208,6 +212,8 @@ def configure(parser) -> None:
                         "the smoothed estimates against it")
     parser.add_argument("--out", metavar="CSV", help="write every estimate (raw and smoothed)")
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    parser.add_argument("--arm", metavar="ARM", help="arm file of the recorded arm (from "
+                        "'iem calibrate'; the model must have been trained for it)")
     parser.add_argument("--save-model", metavar="FILE",
                         help="save the model learnt during the replay here")
     parser.add_argument("--no-status", action="store_true", help="no live status line")
@@ -228,7 +234,8 @@ def run(args) -> int:
 
     summary, estimates = replay(args.file, profile=args.profile, model=model, truth=truth,
                                 save_model_to=args.save_model,
-                                status=not args.no_status and sys.stderr.isatty(), log=log)
+                                status=not args.no_status and sys.stderr.isatty(), log=log,
+                                arm_file=args.arm)
     if args.out:
         estimates.write_csv(args.out)
     if args.json:

@@ -116,7 +116,7 @@ def load_or_train_model(config: CellConfig):
 
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
                                 log=lambda msg: log.info(msg, extra={"event": "trained"}),
-                                rate_hz=rate)
+                                rate_hz=rate, arm_file=mc.arm or None)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})
@@ -202,10 +202,14 @@ class Service:
     def open(self) -> Service:
         from sim.robot import PandaModel
 
-        from .training import tandem_for
+        from .training import check_model_arm, load_arm_file, tandem_for
 
+        arm, arm_record = load_arm_file(self.config.model.arm or None)
         if self.model is None:
             self.model = load_or_train_model(self.config)
+        path = FsPath(self.config.model.path)
+        check_model_arm(self.model, arm_record,
+                        where=f"the model {path}" if path.exists() else "the model")
         if self.config.estimate.initial_payload:
             start_from_file(self.model, self.config.estimate.initial_payload)
         if self.link is None:
@@ -218,7 +222,7 @@ class Service:
         est = self.config.estimate
         self.rate_hz = link_rate(self.config)
         self.kinematics = PandaModel()
-        self.tandem = tandem_for(self.config.model.family)
+        self.tandem = tandem_for(self.config.model.family, arm)
         self.online = OnlineIdentifier(
             self.model, self.kinematics.flange_position, self.tandem.samples,
             learn=est.learn,

@@ -4,6 +4,12 @@ The tandem simulators of the configured training family (``paper``: the 77 paylo
 the samples at every state of the planned excitation path (the built-in one, or a path CSV);
 the model's ``fit`` forms the initial bags and trains their learners. The model kinds are
 those of :data:`iem.persistence.MODELS` that can learn online (``IEM``, ``IEM+phys``).
+
+With an arm file (``--arm ARM``, from ``iem calibrate``) the tandem simulators are the
+calibrated arm (:class:`sim.robot.PandaModel` with ``arm=``: its bodies, friction and
+offsets), so the learners' samples are the real arm's; IEM+phys's regression names the same
+arm by its dynamics spec (:func:`sim.arm.arm_spec`); and the model file records the arm's
+CRC, so that it refuses to run with another (:func:`iem.persistence.check_arm`).
 """
 
 from __future__ import annotations
@@ -21,15 +27,58 @@ def best_model_kind() -> str:
     return DEFAULT_MODEL if DEFAULT_MODEL in TRAINABLE else "IEM"
 
 
-def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, **params):
-    """A fresh model of ``kind`` for joint states at ``rate_hz``; ``params`` go to its IEM."""
+def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
+               **params):
+    """A fresh model of ``kind`` for joint states at ``rate_hz``; ``params`` go to its IEM;
+    ``arm_file``: the arm file its physics uses (None: the nominal arm)."""
     if kind not in TRAINABLE or kind not in MODELS:
         valid = [k for k in TRAINABLE if k in MODELS]
         raise InvalidInputError(f"model kind {kind!r} cannot be trained here; valid kinds are "
                                 f"{', '.join(valid)}")
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
-        return new_model(kind, ensemble={"seed": seed, **params}, rate_hz=rate_hz)
+        extra = {}
+        if arm_file is not None:
+            from sim.arm import arm_spec
+
+            extra["dynamics"] = arm_spec(arm_file)
+        return new_model(kind, ensemble={"seed": seed, **params}, rate_hz=rate_hz, **extra)
     return new_model(kind, seed=seed, **params)
+
+
+def check_model_arm(model, arm_record, where: str = "the model") -> None:
+    """Refuse ``model`` unless it was trained for the arm ``arm_record``
+    (:func:`iem.persistence.check_arm`) and the arm file its physics names (its dynamics
+    spec, ``sim.arm:arm_dynamics@PATH``) is still there with the same content."""
+    from iem.errors import ModelFileError
+    from iem.persistence import check_arm
+
+    check_arm(model, arm_record, where)
+    spec = getattr(model, "dynamics", None)
+    if not isinstance(spec, str) or not spec.startswith("sim.arm:arm_dynamics@"):
+        return
+    from sim.arm import load_arm
+
+    named = spec.partition("@")[2]
+    try:
+        crc = load_arm(named).crc32
+    except ModelFileError as exc:
+        raise ModelFileError(f"{where}: its physics names the arm file {named}, which cannot "
+                             f"be used ({exc}); put the arm file back there or retrain with "
+                             f"'iem train --arm ARM --out MODEL'") from exc
+    if arm_record is None or crc != arm_record["crc32"]:
+        raise ModelFileError(f"{where}: its physics names the arm file {named}, whose content "
+                             f"differs from the arm the model was trained for; retrain with "
+                             f"'iem train --arm ARM --out MODEL'")
+
+
+def load_arm_file(arm_file):
+    """The arm of ``arm_file`` and its record for model files (``(None, None)``: nominal)."""
+    if arm_file is None:
+        return None, None
+    from sim.arm import arm_record, load_arm
+
+    arm = load_arm(arm_file)
+    return arm, arm_record(arm, arm_file)
 
 
 def excitation(spec: str = "builtin"):
@@ -39,27 +88,35 @@ def excitation(spec: str = "builtin"):
     return excitation_path() if spec == "builtin" else load_path_csv(spec)
 
 
-def tandem_for(family: str):
+def tandem_for(family: str, arm=None):
+    """The tandem simulators of ``family`` on the arm ``arm`` (:class:`sim.arm.ArmParams`;
+    None: the nominal arm)."""
     from sim.family import family as family_payloads
+    from sim.robot import PandaModel
     from sim.tandem import TandemSimulators
 
-    return TandemSimulators(family_payloads(family))
+    return TandemSimulators(family_payloads(family), model=PandaModel(arm=arm))
 
 
 def train_initial_model(kind: str = "IEM", family: str = "paper", excitation_spec="builtin",
-                        seed: int = 0, log=print, rate_hz: float = 1000.0, **params):
+                        seed: int = 0, log=print, rate_hz: float = 1000.0, arm_file=None,
+                        **params):
     """A new model of ``kind`` trained on the excitation path with ``family``'s payloads,
-    for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic)."""
+    for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic), on
+    the arm of ``arm_file`` (None: the nominal arm)."""
     from sim.robot import PandaModel
 
-    model = make_model(kind, seed, rate_hz, **params)
+    arm, record = load_arm_file(arm_file)
+    model = make_model(kind, seed, rate_hz, arm_file=arm_file, **params)
+    model.trained_arm = record
     path = excitation(excitation_spec)
-    tandem = tandem_for(family)
+    tandem = tandem_for(family, arm)
     t0 = time.perf_counter()
     model.fit(path.q, PandaModel().flange_positions(path.q),
               lambda i: tandem.samples(path.q[i], path.dq[i], path.ddq[i]))
     log(f"trained {kind} on {path.name!r} ({path.duration:.0f} s, {len(tandem)} training "
-        f"payloads): {model.n_bags} bags in {time.perf_counter() - t0:.1f} s")
+        f"payloads{'' if arm_file is None else f', arm {arm_file}'}): {model.n_bags} bags "
+        f"in {time.perf_counter() - t0:.1f} s")
     return model
 
 
@@ -73,12 +130,14 @@ def configure(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the learners")
     parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ",
                         help="joint states per second the link delivers (fd 1000, classic 500)")
+    parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
+                        "the nominal arm)")
 
 
 def run(args) -> int:
     kind = args.kind or best_model_kind()
     model = train_initial_model(kind, args.family, args.excitation, args.seed,
-                                rate_hz=args.rate)
+                                rate_hz=args.rate, arm_file=args.arm)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

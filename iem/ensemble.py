@@ -36,10 +36,12 @@ from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
 from .reservoir import Reservoir
 from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
+from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
 
-SENSOR_NOISE = np.repeat([1e-4, 2e-3, 0.05], 7)
-"""The sensor model's standard deviations ``[q (rad), dq (rad/s), tau (N·m)]`` x 7."""
+SENSOR_NOISE = DEFAULT_SENSOR.sigmas
+"""The sensor model's standard deviations ``[q (rad), dq (rad/s), tau (N·m)]`` x 7
+(:data:`iem.sensor.DEFAULT_SENSOR`)."""
 
 
 class IncrementalEnsemble:

@@ -6,9 +6,16 @@ A model file is one msgpack map::
      "crc32": <zlib.crc32 of state>, "state": <msgpack bytes of model.to_state()>}
 
 The state is packed on its own so that its CRC can be checked before anything in it is
-trusted. ``kind`` is the estimator's ``name``, looked up in :data:`MODELS` (name ->
-``"module:Class"``, imported only when a file of that kind is loaded, as python-can does with
-its interfaces); the class rebuilds itself with ``Class.from_state(state)``.
+trusted. A model trained for a calibrated arm (``iem train --arm``) also carries
+``"arm": {"crc32": <the arm file's state CRC>, "source": <its file name>}``, covered by the
+file's CRC (``crc32(arm map, crc32(state))``); it is the model's ``trained_arm`` attribute
+(None for the nominal arm), and :func:`check_arm` refuses to run the model with another arm.
+The arm file (:mod:`sim.arm`) is written and read by the same functions under its own schema
+(``schema=``, ``label=``).
+
+``kind`` is the estimator's ``name``, looked up in :data:`MODELS` (name -> ``"module:Class"``,
+imported only when a file of that kind is loaded, as python-can does with its interfaces);
+the class rebuilds itself with ``Class.from_state(state)``.
 
 Writing goes to a temporary file in the target's directory, which is flushed, fsynced and
 then renamed over the target (``os.replace``), and the directory is fsynced: a crash or an
@@ -95,8 +102,27 @@ def new_model(kind: str = DEFAULT_MODEL, **params):
 
 
 # -- encoding ----------------------------------------------------------------------------
-def dumps(model) -> bytes:
-    """The bytes of a model file for ``model`` (see the module docstring).
+def _arm_crc(arm: dict | None, crc: int) -> int:
+    """The file CRC: the state's, continued over the arm record if there is one."""
+    if arm is None:
+        return crc
+    return zlib.crc32(msgpack.packb(arm, use_bin_type=True), crc)
+
+
+def _arm_record(model) -> dict | None:
+    arm = getattr(model, "trained_arm", None)
+    if arm is None:
+        return None
+    if not (isinstance(arm, dict) and isinstance(arm.get("crc32"), int)
+            and isinstance(arm.get("source"), str)):
+        raise ModelFileError(f"model's trained_arm {arm!r} is not "
+                             "{'crc32': int, 'source': str}")
+    return {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
+
+
+def dumps(model, schema: str = SCHEMA) -> bytes:
+    """The bytes of a model file for ``model`` (see the module docstring); ``schema``
+    names the kind of file (another schema for the arm file).
 
     Raises:
         ModelFileError: the model's state holds something msgpack cannot pack.
@@ -111,8 +137,32 @@ def dumps(model) -> bytes:
     except (TypeError, ValueError, OverflowError) as exc:
         raise ModelFileError(f"cannot save {kind} model: its state is not plain data "
                              f"(lists, floats, ints, str, None, dicts): {exc}") from exc
-    return msgpack.packb({"schema": SCHEMA, "version": VERSION, "kind": kind,
-                          "crc32": zlib.crc32(state), "state": state}, use_bin_type=True)
+    arm = _arm_record(model)
+    head = {"schema": schema, "version": VERSION, "kind": kind,
+            "crc32": _arm_crc(arm, zlib.crc32(state)), "state": state}
+    if arm is not None:
+        head["arm"] = arm
+    return msgpack.packb(head, use_bin_type=True)
+
+
+def check_arm(model, arm_record: dict | None, where: str = "model") -> None:
+    """Refuse ``model`` unless it was trained for the arm ``arm_record`` (``{"crc32",
+    "source"}`` of an arm file, :func:`sim.arm.arm_record`; None: the nominal arm).
+
+    Raises:
+        ModelFileError: the model was trained for another arm (or for none).
+    """
+    have = getattr(model, "trained_arm", None)
+    if (have or {}).get("crc32") == (arm_record or {}).get("crc32"):
+        return
+
+    def say(r):
+        return ("the nominal arm (no arm file)" if r is None
+                else f"arm file {r['source']} (CRC32 {r['crc32'] & 0xFFFFFFFF:#010x})")
+
+    raise ModelFileError(f"{where} was trained for {say(have)} but is run with {say(arm_record)}; "
+                         f"use the arm it was trained with, or make a model for this arm with "
+                         f"'iem train --arm ARM --out MODEL'")
 
 
 def _unpack(data: bytes, failure: str):
@@ -123,13 +173,15 @@ def _unpack(data: bytes, failure: str):
         raise ModelFileError(f"{failure}: {type(exc).__name__}: {exc}") from exc
 
 
-def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>"):
-    """The model in the bytes of a model file; ``source`` names them in error messages.
+def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>",
+          schema: str = SCHEMA, label: str = "model"):
+    """The model in the bytes of a model file; ``source`` names them in error messages,
+    ``schema`` is the schema expected and ``label`` what the file is called in them.
 
     Raises:
         ModelFileError: the bytes are not a valid model file of a registered kind.
     """
-    where = f"model file {source}"
+    where = f"{label} file {source}"
     if not data:
         raise ModelFileError(f"{where} is empty")
     head = _unpack(data, f"{where} is not a msgpack model file (truncated or corrupt)")
@@ -140,8 +192,8 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
         if key not in head:
             raise ModelFileError(f"{where} lacks the field {key!r}, so it is not a model "
                                  f"file (a model file has {sorted(_FIELDS)})")
-    if head["schema"] != SCHEMA:
-        raise ModelFileError(f"{where} has schema {head['schema']!r}, expected {SCHEMA!r}")
+    if head["schema"] != schema:
+        raise ModelFileError(f"{where} has schema {head['schema']!r}, expected {schema!r}")
     version = head["version"]
     if type(version) is not int or version not in SUPPORTED_VERSIONS:
         raise ModelFileError(f"{where} has version {version!r}; this build reads versions "
@@ -154,8 +206,13 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
         if not isinstance(value, typ) or isinstance(value, bool):
             raise ModelFileError(f"{where}: field {key!r} is a {type(value).__name__}, "
                                  f"expected {typ.__name__}")
+    arm = head.get("arm")
+    if arm is not None and not (isinstance(arm, dict) and isinstance(arm.get("crc32"), int)
+                                and isinstance(arm.get("source"), str)):
+        raise ModelFileError(f"{where}: field 'arm' is {arm!r}, expected "
+                             "{'crc32': int, 'source': str}")
     state_bytes = head["state"]
-    crc = zlib.crc32(state_bytes)
+    crc = _arm_crc(arm, zlib.crc32(state_bytes))
     if crc != head["crc32"]:
         raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
@@ -164,10 +221,13 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
     try:
-        return cls.from_state(state)
+        model = cls.from_state(state)
     except Exception as exc:  # any failure to rebuild from the file is a bad file
         raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
-                             f"model: {type(exc).__name__}: {exc}") from exc
+                             f"{label}: {type(exc).__name__}: {exc}") from exc
+    if arm is not None:
+        model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
+    return model
 
 
 def _model_class(kind: str, registry: Mapping[str, str], where: str):
@@ -184,8 +244,9 @@ def _model_class(kind: str, registry: Mapping[str, str], where: str):
 
 
 # -- files -------------------------------------------------------------------------------
-def save_model(model, path) -> None:
-    """Write ``model`` to ``path`` atomically (the previous file survives any failure).
+def save_model(model, path, schema: str = SCHEMA, label: str = "model") -> None:
+    """Write ``model`` to ``path`` atomically (the previous file survives any failure);
+    ``schema`` and ``label`` as for :func:`loads`.
 
     Raises:
         ModelFileError: the state cannot be packed, or the file cannot be written; the
@@ -193,9 +254,9 @@ def save_model(model, path) -> None:
     """
     path = Path(path)
     try:
-        data = dumps(model)
+        data = dumps(model, schema)
     except ModelFileError as exc:
-        raise ModelFileError(f"cannot save model to {path}: {exc}") from exc
+        raise ModelFileError(f"cannot save {label} to {path}: {exc}") from exc
     directory = path.parent
     tmp = directory / _temporary_name(path.name, os.getpid(), secrets.token_hex(4))
     try:
@@ -216,7 +277,7 @@ def save_model(model, path) -> None:
                 os.unlink(tmp)
             raise
     except OSError as exc:
-        raise ModelFileError(f"cannot save model to {path}: {exc.strerror or exc} "
+        raise ModelFileError(f"cannot save {label} to {path}: {exc.strerror or exc} "
                              f"(the previous file, if any, is unchanged)") from exc
     _fsync_dir(directory, path)
 
@@ -280,13 +341,15 @@ def _fsync_dir(directory: Path, path: Path) -> None:
         os.close(fd)
 
 
-def load_model(path, registry: Mapping[str, str] | None = None):
+def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SCHEMA,
+               label: str = "model"):
     """The model saved at ``path``.
 
     Args:
         path: the model file.
         registry: ``kind -> "module:Class"`` to resolve the model's kind (default
             :data:`MODELS`).
+        schema, label: as for :func:`loads` (the arm file has its own).
 
     Raises:
         ModelFileError: the file is missing, unreadable, empty, truncated, corrupt, of an
@@ -296,7 +359,8 @@ def load_model(path, registry: Mapping[str, str] | None = None):
     try:
         data = path.read_bytes()
     except FileNotFoundError as exc:
-        raise ModelFileError(f"model file {path} does not exist") from exc
+        raise ModelFileError(f"{label} file {path} does not exist") from exc
     except OSError as exc:
-        raise ModelFileError(f"model file {path} cannot be read: {exc.strerror or exc}") from exc
-    return loads(data, registry=registry, source=str(path))
+        raise ModelFileError(f"{label} file {path} cannot be read: "
+                             f"{exc.strerror or exc}") from exc
+    return loads(data, registry=registry, source=str(path), schema=schema, label=label)

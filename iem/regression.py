@@ -94,13 +94,19 @@ def correlation_weight(cutoff_hz: float, rate_hz: float, every: int = 1) -> floa
 
 
 def load_dynamics(spec: str):
-    """Resolve ``"module:function"`` and call the factory: the dynamics callable."""
+    """Resolve ``"module:function"`` and call the factory: the dynamics callable.
+
+    ``"module:function@ARG"`` calls ``function(ARG)`` instead: e.g.
+    ``"sim.arm:arm_dynamics@/path/arm.msgpack"``, the calibrated arm of an arm file.
+    """
+    target, at, arg = spec.partition("@")
     try:
-        module, _, attr = spec.partition(":")
-        return getattr(importlib.import_module(module), attr)()
+        module, _, attr = target.partition(":")
+        factory = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError, ValueError) as exc:
-        raise InvalidInputError(f"dynamics {spec!r} is not 'module:function' naming a "
+        raise InvalidInputError(f"dynamics {spec!r} is not 'module:function[@ARG]' naming a "
                                 f"factory: {exc}") from exc
+    return factory(arg) if at else factory()
 
 
 class PayloadRegression:

@@ -353,6 +353,22 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
     return Path(name=name, t=t, q=Q0 + f, dq=df, ddq=ddf).check_limits(m)
 
 
+CALIBRATION_SEED = 11
+"""Seed of the calibration motion's Fourier coefficients (not the excitation's)."""
+CALIBRATION_AMPLITUDE = np.array([1.2, 0.7, 1.2, 0.75, 1.5, 1.0, 1.8])
+"""Target peak offset from ``Q0`` per joint of the calibration motion, rad (the joint range
+and 75 % of the velocity and acceleration limits cap it)."""
+CALIBRATION_AMPLITUDE.flags.writeable = False
+
+
+def calibration_path(duration: float = 30.0, seed: int = CALIBRATION_SEED) -> Path:
+    """The bare-arm calibration motion ``iem calibrate`` is meant for: the excitation's
+    Fourier series (:func:`excitation_path`) with a wide amplitude on every joint, so that
+    gravity, inertia and friction of each joint are seen over much of its range and at
+    velocities of both signs (three 10 s periods, 30 s by default)."""
+    return excitation_path(duration, seed, amplitude=CALIBRATION_AMPLITUDE, name="calibration")
+
+
 def linear_path(q_start, q_end, duration: float, name: str = "linear") -> Path:
     """Every joint from ``q_start`` to ``q_end`` (rad) in ``duration`` s (> 0) with the
     quintic time scaling ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, ``τ = t / duration``: a straight line

@@ -6,21 +6,27 @@ the collision geoms never touch each other) with the payload as a body on the fl
 (``panda_link8``). The payload's mass, CoM and inertia can be changed between two steps
 without rebuilding the model.
 
-Each 1 ms step a computed-torque controller, running on the *nominal* Pinocchio model with
-the load the controller has been told about (``set_controller_load``, libfranka's
-``setLoad``), computes ``tau = M(q)(ddq_d + Kp e + Kd de) + h(q, dq)`` from the arm's own
-joint state (its encoders, finer than the measurement model below: feeding the noisy
-measurement back through a stiff loop would shake the arm with about 1 rad/s² of
+Each 1 ms step a computed-torque controller, running on the controller's arm model (the
+nominal Pinocchio model, or a calibrated arm: ``controller_arm``) with the load the
+controller has been told about (``set_controller_load``, libfranka's ``setLoad``), computes
+``tau = M(q)(ddq_d + Kp e + Kd de) + h(q, dq)`` (plus the friction that arm model knows) from
+the arm's own joint state (its encoders, finer than the measurement model below: feeding the
+noisy measurement back through a stiff loop would shake the arm with about 1 rad/s² of
 acceleration noise), applies it, and MuJoCo integrates (semi-implicit Euler). The step
-reports what a Franka reports: measured ``q``, ``dq`` and the link-side torque ``tau_J``
-(the applied joint torque), each with the sensor noise of :class:`SensorModel`.
+reports what a Franka reports: measured ``q``, ``dq`` and the link-side torque ``tau_J``,
+each with the sensor noise of :class:`iem.sensor.SensorModel` (re-exported here).
 
 Sensor model (defaults; later work measures against them): independent white Gaussian noise
 per joint and sample, ``sigma_q = 1e-4 rad``, ``sigma_dq = 2e-3 rad/s``,
 ``sigma_tau = 0.05 N·m``. Seeded: the same seed gives the same noise.
 
-Reality gap (optional, :class:`RealityGap`): the plant's link masses, CoMs and inertias differ
-from the nominal model that the controller, the tandem simulators and the estimators use.
+Reality gap (optional, :class:`RealityGap`): the one description of how the simulated real
+arm departs from the nominal model that the controller, the tandem simulators and the
+estimators use: its link masses, CoMs and inertias, Gaz's joint friction and torque-sensor
+offsets, all drawn from one seed (:meth:`RealityGap.realise` gives the arm as
+:class:`sim.arm.ArmParams`). MuJoCo integrates the perturbed links under the applied torque
+minus the friction; the measured ``tau_J`` is the applied torque plus the offset, so that
+``tau_J = RNEA_arm(q, dq, ddq) + tau_f(dq) + offset`` (``PandaModel(arm=...).rnea``).
 """
 
 from __future__ import annotations
@@ -31,8 +37,10 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from iem.sensor import SensorModel
 from iem.types import JointState
 
+from .arm import GAZ_PHI, ArmParams, gaz_friction
 from .payload import Payload
 from .robot import PandaModel, panda_urdf
 
@@ -42,50 +50,80 @@ DT = 1e-3
 PAYLOAD_BODY = "payload"
 LINK_BODIES = tuple(f"panda_link{i}" for i in range(1, 8))
 
-
-@dataclass(frozen=True)
-class SensorModel:
-    """White Gaussian measurement noise, independent per joint and per sample.
-
-    Attributes:
-        sigma_q: joint position noise, rad.
-        sigma_dq: joint velocity noise, rad/s.
-        sigma_tau: joint torque noise, N·m.
-    """
-
-    sigma_q: float = 1e-4
-    sigma_dq: float = 2e-3
-    sigma_tau: float = 0.05
-
-    @classmethod
-    def noiseless(cls) -> SensorModel:
-        return cls(0.0, 0.0, 0.0)
-
-    @property
-    def sigmas(self) -> np.ndarray:
-        """The 21 standard deviations in the order ``[q, dq, tau]``."""
-        return np.repeat([self.sigma_q, self.sigma_dq, self.sigma_tau], 7)
+__all__ = ["DT", "Gains", "PandaPlant", "RealityGap", "Rollout", "SensorModel"]
 
 
 @dataclass(frozen=True)
 class RealityGap:
-    """How far the plant's links differ from the nominal model.
+    """How the plant's arm departs from the nominal model, drawn from ``seed``.
 
-    Each link's mass is scaled by ``1 + mass_rel * u``, its principal moments by
-    ``1 + inertia_rel * u``, and its CoM moved by ``com_abs * u`` per axis, with
-    ``u ~ U(-1, 1)`` drawn from ``seed``.
+    Per link body (``panda_link1..7``, each in its own frame): the mass is scaled by
+    ``1 + mass_rel u``, the principal moments about the CoM by ``1 + inertia_rel u`` (each,
+    principal axes kept), the CoM moved by ``com_abs u`` per axis, ``u ~ U(-1, 1)``. Per
+    joint: Gaz's friction (:data:`sim.arm.GAZ_PHI`) with each of ``phi1, phi2, phi3``
+    multiplied by a factor drawn in ``friction_factor`` (``None``: no friction), and a
+    torque-sensor offset ``~ N(0, offset_std²)``.
 
     Attributes:
-        mass_rel: relative mass error bound (-).
-        inertia_rel: relative inertia error bound (-).
-        com_abs: CoM error bound per axis, m.
-        seed: random seed of the perturbation.
+        mass_rel: relative mass error bound (-, default 0.05).
+        inertia_rel: relative inertia error bound (-, default 0.10).
+        com_abs: CoM error bound per axis, m (default 0.005).
+        friction_factor: ``(low, high)`` of the factor on Gaz's values (default 0.7-1.3),
+            or None.
+        offset_std: standard deviation of the torque offsets, N·m (default 0.1).
+        seed: random seed of the whole departure.
     """
 
     mass_rel: float = 0.05
     inertia_rel: float = 0.10
     com_abs: float = 0.005
+    friction_factor: tuple[float, float] | None = (0.7, 1.3)
+    offset_std: float = 0.1
     seed: int = 0
+
+    def bodies(self, model: mujoco.MjModel) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The perturbed link bodies ``(mass, com (3,), principal moments (3,))`` in their
+        frames (principal axes unchanged), from the nominal bodies of ``model`` (a fresh
+        plant model)."""
+        rng = np.random.default_rng(self.seed)
+        out = []
+        for name in LINK_BODIES:
+            b = model.body(name)
+            mass = float(b.mass[0]) * (1.0 + self.mass_rel * rng.uniform(-1, 1))
+            moments = b.inertia * (1.0 + self.inertia_rel * rng.uniform(-1, 1, 3))
+            com = b.ipos + self.com_abs * rng.uniform(-1, 1, 3)
+            out.append((mass, com, moments))
+        return out
+
+    def joints(self) -> tuple[np.ndarray, np.ndarray]:
+        """The friction ``(7, 3)`` and the offsets ``(7,)`` (drawn after the bodies)."""
+        rng = np.random.default_rng([self.seed, 1])
+        if self.friction_factor is None:
+            friction = np.zeros((7, 3))
+        else:
+            lo, hi = self.friction_factor
+            friction = GAZ_PHI * rng.uniform(lo, hi, (7, 3))
+        return friction, self.offset_std * rng.standard_normal(7)
+
+    def realise(self, model: mujoco.MjModel | None = None) -> ArmParams:
+        """The arm this gap describes, as the arm model uses it (Pinocchio joint bodies:
+        the nominal ones with each link's perturbation added; body 7 keeps the hand)."""
+        from .robot import nominal_link_params
+
+        model = build_mujoco_model() if model is None else model
+        params = nominal_link_params()
+        for j, (name, (mass, com, moments)) in enumerate(
+                zip(LINK_BODIES, self.bodies(model), strict=True)):
+            b = model.body(name)
+            rot = np.empty(9)
+            mujoco.mju_quat2Mat(rot, b.iquat)
+            rot = rot.reshape(3, 3)
+            nominal = pin.Inertia(float(b.mass[0]), b.ipos.copy(),
+                                  rot @ np.diag(b.inertia) @ rot.T)
+            real = pin.Inertia(mass, com, rot @ np.diag(moments) @ rot.T)
+            params[j] += real.toDynamicParameters() - nominal.toDynamicParameters()
+        friction, offset = self.joints()
+        return ArmParams(params, friction, offset, {"source": f"reality gap {self}"})
 
 
 @dataclass(frozen=True)
@@ -144,16 +182,22 @@ class PandaPlant:
     Args:
         payload: the payload on the flange (None: nothing mounted).
         sensor: measurement noise; ``SensorModel.noiseless()`` for exact readings.
-        gap: optional reality gap of the plant's links against the nominal model.
+        gap: optional reality gap: how the plant's arm departs from the nominal model
+            (links, friction, offsets); ``arm`` is then that arm as an
+            :class:`sim.arm.ArmParams` (None without a gap).
         seed: seed of the sensor noise.
         gains: tracking controller gains.
         controller_load: the load the controller believes is mounted (libfranka's
             ``setLoad``); None: no load.
+        controller_arm: the arm model the controller computes its torques with
+            (:class:`sim.arm.ArmParams`, e.g. a calibrated one; its friction is compensated,
+            its offsets are the sensors' and play no part); None: the nominal model.
     """
 
     def __init__(self, payload: Payload | None = None, sensor: SensorModel | None = None,
                  gap: RealityGap | None = None, seed: int = 0, gains: Gains | None = None,
-                 controller_load: Payload | None = None) -> None:
+                 controller_load: Payload | None = None,
+                 controller_arm: ArmParams | None = None) -> None:
         self.sensor = SensorModel() if sensor is None else sensor
         self.gap = gap
         self.seed = seed
@@ -162,12 +206,18 @@ class PandaPlant:
         self.data = mujoco.MjData(self.model)
         self._scratch = mujoco.MjData(self.model)
         self._payload_id = self.model.body(PAYLOAD_BODY).id
+        self.arm: ArmParams | None = None
+        self._friction = self._offset = None
         if gap is not None:
             self._apply_gap(gap)
         self._rng = np.random.default_rng(seed)
         self._sigmas = self.sensor.sigmas
         self._noisy = bool(np.any(self._sigmas > 0))
-        self._ctrl = PandaModel()
+        self.controller_arm = controller_arm
+        self._ctrl_friction = (None if controller_arm is None
+                               or not np.any(controller_arm.friction[:, 0])
+                               else controller_arm.friction)
+        self._ctrl = PandaModel(arm=controller_arm)
         self._ctrl_model = self._ctrl.model.copy()
         self._ctrl_data = self._ctrl_model.createData()
         self._ctrl_link7 = self._ctrl_model.inertias[self._ctrl.last_joint].copy()
@@ -181,14 +231,17 @@ class PandaPlant:
 
     # -- configuration ---------------------------------------------------------------------
     def _apply_gap(self, gap: RealityGap) -> None:
-        rng = np.random.default_rng(gap.seed)
+        self.arm = gap.realise(self.model)
         m = self.model
-        for name in LINK_BODIES:
+        for name, (mass, com, moments) in zip(LINK_BODIES, gap.bodies(self.model),
+                                              strict=True):
             b = m.body(name).id
-            m.body_mass[b] *= 1.0 + gap.mass_rel * rng.uniform(-1, 1)
-            m.body_inertia[b] *= 1.0 + gap.inertia_rel * rng.uniform(-1, 1, 3)
-            m.body_ipos[b] += gap.com_abs * rng.uniform(-1, 1, 3)
+            m.body_mass[b] = mass
+            m.body_inertia[b] = moments
+            m.body_ipos[b] = com
         self._set_const()
+        self._friction = self.arm.friction if np.any(self.arm.friction[:, 0]) else None
+        self._offset = self.arm.offset
 
     def _set_const(self) -> None:
         # mj_setConst works at qpos0 and would overwrite the state: give it scratch data.
@@ -249,8 +302,10 @@ class PandaPlant:
         """One 1 ms control cycle toward the reference; returns the measured joint state.
 
         The returned state holds the measurement taken at the start of the cycle and the
-        torque applied during it; ``last_ddq`` is the true acceleration of that cycle, so
-        that ``RNEA(q_true, dq_true, last_ddq) == last_tau`` with the mounted payload.
+        torque applied during it (plus the sensor's offset); ``last_ddq`` is the true
+        acceleration of that cycle, so that ``RNEA(q_true, dq_true, last_ddq) == last_tau``
+        with the mounted payload, ``RNEA`` of the plant's arm (``PandaModel(arm=plant.arm)``:
+        its links, friction and offsets).
         """
         d = self.data
         t = float(d.time)
@@ -267,10 +322,15 @@ class PandaPlant:
         # the joint loop runs on the arm's own encoders (the true state here); the sensor
         # model is what the measurement reported over the bus carries
         ddq_cmd = ddq_d + g.kp * (q_d - q_true) + g.kd * (dq_d - dq_true)
-        tau = pin.rnea(self._ctrl_model, self._ctrl_data, q_true, dq_true, ddq_cmd)
-        d.qfrc_applied[:] = tau
+        tau = np.array(pin.rnea(self._ctrl_model, self._ctrl_data, q_true, dq_true, ddq_cmd))
+        if self._ctrl_friction is not None:
+            tau += gaz_friction(dq_true, self._ctrl_friction)
+        # the links move under the applied torque less the joint friction; the torque
+        # sensor reads the applied torque plus its offset
+        d.qfrc_applied[:] = (tau if self._friction is None
+                             else tau - gaz_friction(dq_true, self._friction))
         mujoco.mj_step(self.model, d)
-        self.last_tau = np.array(tau)
+        self.last_tau = tau if self._offset is None else tau + self._offset
         self.last_ddq = d.qacc.copy()
         self.last_q = q_true
         self.last_dq = dq_true
@@ -309,7 +369,8 @@ class Rollout:
 
     Attributes:
         t: s; q, dq, tau: measured (rad, rad/s, N·m); q_true, dq_true, ddq_true, tau_true:
-        the true state, acceleration and applied torque; q_ref: the reference, rad.
+        the true state, acceleration and torque (applied plus offset, noise-free); q_ref:
+        the reference, rad.
     """
 
     t: np.ndarray

@@ -65,18 +65,41 @@ def phi_from_pin(params: np.ndarray) -> np.ndarray:
     return np.asarray(params)[..., PAPER_TO_PIN]
 
 
+def _nominal_model() -> pin.Model:
+    full = pin.buildModelFromUrdf(str(panda_urdf()))
+    locked = [full.getJointId(n) for n in ("panda_finger_joint1", "panda_finger_joint2")]
+    return pin.buildReducedModel(full, locked, pin.neutral(full))
+
+
+def nominal_link_params() -> np.ndarray:
+    """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7."""
+    model = _nominal_model()
+    return np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
+
+
 class PandaModel:
     """Pinocchio model of the 7-DoF Panda (fingers locked, hand rigid) with the flange frame.
+
+    Args:
+        arm: the arm's own bodies, friction and offsets (:class:`sim.arm.ArmParams`); None:
+            the nominal arm (the URDF's bodies, no friction, no offsets). With an arm, every
+            torque this model gives (``rnea``, ``rnea_with_payload``,
+            ``rnea_and_regressor``) is the measured ``tau_J`` of that arm: its bodies' RNEA
+            plus friction plus offsets; the payload regressor depends only on kinematics.
 
     Not thread-safe: it owns one Pinocchio ``Data``. Make one per thread.
     """
 
     nq = 7
 
-    def __init__(self) -> None:
-        full = pin.buildModelFromUrdf(str(panda_urdf()))
-        locked = [full.getJointId(n) for n in ("panda_finger_joint1", "panda_finger_joint2")]
-        self.model = pin.buildReducedModel(full, locked, pin.neutral(full))
+    def __init__(self, arm=None) -> None:
+        self.model = _nominal_model()
+        self.arm = arm
+        if arm is not None:
+            for j in range(1, 8):
+                self.model.inertias[j] = pin.Inertia.FromDynamicParameters(
+                    np.asarray(arm.link_params[j - 1], dtype=float))
+        self._extra = None if arm is None else arm.joint_torque
         self.data = self.model.createData()
         self.flange_id = self.model.getFrameId(FLANGE_FRAME)
         self.tcp_id = self.model.getFrameId(TCP_FRAME)
@@ -115,8 +138,9 @@ class PandaModel:
     # -- dynamics --------------------------------------------------------------------------
     def rnea(self, q, dq, ddq) -> np.ndarray:
         """Joint torques of the arm without payload, N·m."""
-        return pin.rnea(self.model, self.data, np.asarray(q, float), np.asarray(dq, float),
-                        np.asarray(ddq, float)).copy()
+        tau = pin.rnea(self.model, self.data, np.asarray(q, float), np.asarray(dq, float),
+                       np.asarray(ddq, float)).copy()
+        return tau if self._extra is None else tau + self._extra(dq)
 
     def payload_inertia_in_joint(self, phi) -> pin.Inertia:
         """The payload (paper phi at the flange) as a Pinocchio inertia in the joint-7 frame."""
@@ -129,8 +153,9 @@ class PandaModel:
             self._pl_model.inertias[self.last_joint] = (
                 self._link7 + self.payload_inertia_in_joint(phi))
             self._pl_phi = phi.copy()
-        return pin.rnea(self._pl_model, self._pl_data, np.asarray(q, float),
-                        np.asarray(dq, float), np.asarray(ddq, float)).copy()
+        tau = pin.rnea(self._pl_model, self._pl_data, np.asarray(q, float),
+                       np.asarray(dq, float), np.asarray(ddq, float)).copy()
+        return tau if self._extra is None else tau + self._extra(dq)
 
     def payload_regressor(self, q, dq, ddq) -> np.ndarray:
         """``Y`` (7x10) with ``tau_payload = Y @ phi``, phi in the paper's order.
@@ -147,6 +172,8 @@ class PandaModel:
                        np.asarray(ddq, float)).copy()
         body = pin.frameBodyRegressor(self.model, self.data, self.flange_id)
         jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
+        if self._extra is not None:
+            tau += self._extra(dq)
         return tau, (jac.T @ body)[:, PAPER_TO_PIN]
 
     def rnea_regressor_mass(self, q, dq, ddq):

@@ -1,6 +1,6 @@
 """``iem bench paper``: the paper's experiments in the simulation, our figures beside theirs.
 
-Set-up (fixed seeds, the default sensor model of :mod:`sim.plant`):
+Set-up (fixed seeds, the default sensor model of :mod:`iem.sensor`):
 
 - The plant carries the default test payload (a configuration outside the 77 training
   payloads) and tracks the excitation path (20 s) and, separately, the new task path (6 s).
@@ -72,6 +72,7 @@ from iem.old_iem import InPlaceEnsemble
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
+from iem.sensor import SensorModel
 from iem.types import GROUPS, PARAMS, JointState
 
 MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS", "IEM+phys")
@@ -169,30 +170,35 @@ class Bench:
         self.fit(models)
         return models
 
-    def fit(self, models: dict) -> None:
-        """Offline training on the planned excitation path (bags and tandem samples)."""
+    def fit(self, models: dict, tandems: dict | None = None) -> None:
+        """Offline training on the planned excitation path (bags and tandem samples);
+        ``tandems`` maps a model's name to its own tandem simulators (default ``tandem``)."""
         path = self.excitation
         F = self.kin.flange_positions(path.q)
-
-        def samples_at(i):
-            return self.tandem.samples(path.q[i], path.dq[i], path.ddq[i])
 
         for name, model in models.items():
             if not hasattr(model, "fit"):
                 continue
+            tandem = (tandems or {}).get(name, self.tandem)
+
+            def samples_at(i, tandem=tandem):
+                return tandem.samples(path.q[i], path.dq[i], path.ddq[i])
+
             t0 = time.perf_counter()
             model.fit(path.q, F, samples_at)
             self.log(f"fit {name}: {model.n_bags} bags ({time.perf_counter() - t0:.1f} s)")
 
     # -- runs ----------------------------------------------------------------------------
-    def run(self, model, rollout, learn: bool, fresh: bool = True) -> Run:
+    def run(self, model, rollout, learn: bool, fresh: bool = True, tandem=None) -> Run:
         """One model along one rollout. ``fresh``: a new task with a payload the model has
         not seen, so a model with ``reset`` first forgets the payload it was estimating (it
         keeps what it learnt); else the payload is the one of the model's last rollout and
-        only the signal stream restarts (:meth:`iem.online.OnlineIdentifier.resume`)."""
+        only the signal stream restarts (:meth:`iem.online.OnlineIdentifier.resume`).
+        ``tandem``: the model's tandem simulators (default ``self.tandem``)."""
         if fresh and hasattr(model, "reset"):
             model.reset()
-        online = OnlineIdentifier(model, self.kin.flange_position, self.tandem.samples,
+        tandem = self.tandem if tandem is None else tandem
+        online = OnlineIdentifier(model, self.kin.flange_position, tandem.samples,
                                   learn=learn, timed=True)
         n = len(rollout)
         smoothed = np.empty((n, 10))
@@ -280,8 +286,6 @@ def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> 
 def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
               extra_models: dict | None = None) -> dict:
     """All scenarios; writes ``results.json``, ``report.md`` and figures to ``out_dir``."""
-    from sim.plant import SensorModel
-
     started = time.perf_counter()
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

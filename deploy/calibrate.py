@@ -1,0 +1,170 @@
+"""``iem calibrate``: the arm's departure from its nominal model, from bare-arm traffic.
+
+``iem calibrate LOG... --out ARM`` reads recorded CAN logs (``.blf .log .asc .trc``, decoded
+by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus);
+``iem calibrate --interface I --channel C --duration S --out ARM`` reads a live link
+(:func:`firmware_bridge.links.open_link`) for ``S`` seconds instead. The arm must carry no
+payload and should run the calibration motion (:func:`sim.paths.calibration_path`, 30 s;
+``iem calibrate --write-motion FILE.csv`` writes it as a path CSV for the robot's own
+program). The numerics are :mod:`sim.calibration`; this prints the
+per-joint residual RMS before and after, the condition number of the excitation and any
+warning, and writes the arm file (msgpack, versioned, CRC-checked; :mod:`sim.arm`), which
+``iem train/run/replay/demo --arm`` and the benchmarks use.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import numpy as np
+
+from iem.errors import InvalidInputError
+
+
+def read_states(source, duration: float | None = None, silence_s: float = 1.0):
+    """``(t, q, dq, tau)`` arrays of every joint state ``source`` gives (until its end, or
+    ``duration`` s of controller time)."""
+    from firmware_bridge.errors import EndOfStream
+
+    rows = []
+    t_end = None
+    while True:
+        try:
+            s = source.read(silence_s)
+        except EndOfStream:
+            break
+        except TimeoutError as exc:  # a live link that went silent
+            raise InvalidInputError(f"the link gave no joint state for {silence_s:g} s after "
+                                    f"{len(rows)} states; is the controller running? "
+                                    f"({exc})") from exc
+        rows.append((s.t, s.q, s.dq, s.tau_J))
+        if duration is not None:
+            t_end = s.t + duration if t_end is None else t_end
+            if s.t >= t_end:
+                break
+    if not rows:
+        return np.zeros(0), *(np.zeros((0, 7)) for _ in range(3))
+    t = np.array([r[0] for r in rows])
+    return t, *(np.array([r[i] for r in rows]) for i in (1, 2, 3))
+
+
+def record_rollout(rollout, out, profile: str = "fd") -> None:
+    """Write a plant rollout's measured joint states (:class:`sim.plant.Rollout`) as a CAN
+    log ``out`` (``.blf .log .asc``), framed as the controller sends them (for tests and
+    demonstrations of ``iem calibrate`` without a robot)."""
+    import can
+
+    from firmware_bridge.can_link import open_bus
+    from firmware_bridge.sim_controller import open_port
+    from iem.types import JointState
+
+    channel = f"iem-calibrate-record-{id(rollout)}-{next(_records)}"
+    recorder = open_bus("virtual", channel, profile)
+    port, _ = open_port("virtual", channel, profile)
+    writer = can.Logger(str(out))
+    try:
+        for k in range(len(rollout)):
+            t = float(rollout.t[k])
+            port.tick(k, t)
+            port.publish(JointState(t=t, q=rollout.q[k], dq=rollout.dq[k],
+                                    tau_J=rollout.tau[k], cycle=k))
+            for msg in itertools.takewhile(lambda m: m is not None,
+                                           iter(lambda: recorder.recv(0), None)):
+                writer.on_message_received(msg)
+    finally:
+        writer.stop()
+        port.close()
+        recorder.shutdown()
+
+
+_records = itertools.count()
+
+
+def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
+                      profile: str = "fd", link=None):
+    """The arm calibrated from the ``logs`` and/or a live link (see the module docstring):
+    ``interface``/``channel`` opened here, or ``link`` already open (closed here)."""
+    from firmware_bridge.links import open_link
+    from sim.calibration import calibrate_segments, segments
+
+    parts, names = [], []
+    for log_file in logs:
+        replay = open_link("replay", str(log_file), profile=profile, pace="fast")
+        try:
+            data = read_states(replay)
+        finally:
+            replay.close()
+        if data[0].size == 0:
+            raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
+                                    f"{profile} profile in it")
+        parts += segments(*data)
+        names.append(str(log_file))
+    if interface is not None or link is not None:
+        if duration is None or not duration > 0:
+            raise InvalidInputError("a live calibration needs --duration S (> 0 s): how long "
+                                    "to record the calibration motion")
+        if link is None:
+            link = open_link(interface, channel or "", profile=profile)
+        try:
+            data = read_states(link, duration)
+        finally:
+            link.close()
+        parts += segments(*data)
+        names.append(f"{interface}:{channel} for {duration:g} s")
+    if not names:
+        raise InvalidInputError("give at least one LOG, or --interface/--channel/--duration")
+    return calibrate_segments(parts, source=", ".join(names))
+
+
+def print_report(arm, out, log=print) -> None:
+    r = arm.report
+    log(f"calibrated the arm from {r['source']}: {r['duration_s']:.1f} s in "
+        f"{r['segments']} segment(s), {r['base_parameters']} base parameters, condition "
+        f"number of the excitation {r['condition_number']:.0f}")
+    log("residual torque RMS per joint (N·m), nominal model -> calibrated:")
+    for j, (b, a) in enumerate(zip(r["rms_before"], r["rms_after"], strict=True)):
+        log(f"  joint {j + 1}: {b:.4f} -> {a:.4f}")
+    log("friction phi1 (N·m) " + " ".join(f"{v:.3f}" for v in arm.friction[:, 0]))
+    log("offsets (N·m)       " + " ".join(f"{v:+.3f}" for v in arm.offset))
+    if r["consistency_moved_bodies"]:
+        log(f"bodies moved toward nominal to stay physically consistent: "
+            f"{r['consistency_moved_bodies']}")
+    for w in r["warnings"]:
+        log(f"warning: {w}")
+    log(f"wrote {out} (CRC32 {arm.crc32:#010x})")
+
+
+def configure(parser) -> None:
+    parser.add_argument("logs", nargs="*", metavar="LOG",
+                        help="CAN logs of the bare arm (.blf .log .asc .trc)")
+    parser.add_argument("--out", metavar="ARM", help="arm file to write")
+    parser.add_argument("--write-motion", metavar="CSV",
+                        help="write the calibration motion as a path CSV (t, q1..q7) and stop")
+    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+                        help="wire profile (default fd)")
+    parser.add_argument("--interface", help="live link kind instead of (or besides) logs")
+    parser.add_argument("--channel", help="live link channel")
+    parser.add_argument("--duration", type=float, metavar="S",
+                        help="seconds of live traffic to record")
+
+
+def run(args) -> int:
+    from sim.arm import save_arm
+
+    if args.write_motion:
+        from sim.paths import calibration_path, save_path_csv
+
+        motion = calibration_path()
+        save_path_csv(motion, args.write_motion)
+        print(f"wrote the calibration motion ({motion.duration:.0f} s) to {args.write_motion}")
+        return 0
+    if not args.out:
+        raise InvalidInputError("--out ARM is required: the arm file to write")
+    t0 = time.perf_counter()
+    arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
+                            duration=args.duration, profile=args.profile)
+    save_arm(arm, args.out)
+    print_report(arm, args.out)
+    print(f"({time.perf_counter() - t0:.1f} s)")
+    return 0

@@ -1,0 +1,112 @@
+"""The arm file wherever the arm model is used: training, the physics' dynamics spec,
+replay and the service refuse a model trained for another arm."""
+
+import numpy as np
+import pytest
+
+from deploy.calibrate import record_rollout
+from deploy.cli import main
+from deploy.config import config_from_dict, load_config
+from deploy.replay import CSV_HEADER
+from iem.errors import ModelFileError
+from iem.persistence import check_arm, load_model
+from iem.regression import load_dynamics
+from sim.arm import ArmParams, arm_record, arm_spec, load_arm, save_arm
+from sim.family import default_test_payload
+from sim.paths import calibration_path, new_task_path
+from sim.plant import PandaPlant, RealityGap
+from sim.robot import PandaModel
+
+GAP = RealityGap(seed=3)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("arm")
+    record_rollout(PandaPlant(gap=GAP, seed=21).follow(calibration_path()), d / "bare.blf")
+    p = default_test_payload()
+    loaded = PandaPlant(gap=GAP, seed=22, payload=p, controller_load=p).follow(
+        new_task_path().slice(0, 2.0))
+    record_rollout(loaded, d / "loaded.blf")
+    assert main(["calibrate", str(d / "bare.blf"), "--out", str(d / "arm.msgpack")]) == 0
+    assert main(["train", "--kind", "IEM+phys", "--arm", str(d / "arm.msgpack"),
+                 "--out", str(d / "model.msgpack")]) == 0
+    save_arm(ArmParams.nominal(), d / "other.msgpack")
+    return d
+
+
+def test_model_records_its_arm_and_names_it_in_its_physics(files):
+    model = load_model(files / "model.msgpack")
+    arm = load_arm(files / "arm.msgpack")
+    assert model.trained_arm == arm_record(arm, files / "arm.msgpack")
+    assert model.dynamics == arm_spec(files / "arm.msgpack")
+    check_arm(model, arm_record(arm, "anywhere/arm.msgpack"))  # same content: accepted
+    with pytest.raises(ModelFileError, match="nominal arm"):
+        check_arm(model, None)
+    with pytest.raises(ModelFileError, match=r"other\.msgpack"):
+        check_arm(model, arm_record(load_arm(files / "other.msgpack"), files / "other.msgpack"))
+
+
+def test_dynamics_spec_carries_the_arm_file(files):
+    arm = load_arm(files / "arm.msgpack")
+    f = load_dynamics(arm_spec(files / "arm.msgpack"))
+    plain = load_dynamics("sim.robot:panda_dynamics")
+    q, dq, ddq = PandaModel().random_state(np.random.default_rng(0))
+    tau, Y, _ = f(q, dq, ddq)
+    np.testing.assert_allclose(tau, PandaModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
+    np.testing.assert_allclose(Y, plain(q, dq, ddq)[1], atol=1e-12)  # kinematics only
+    assert not np.allclose(tau, plain(q, dq, ddq)[0], atol=1e-3)
+    with pytest.raises(ModelFileError, match="does not exist"):
+        load_dynamics("sim.arm:arm_dynamics@" + str(files / "missing.msgpack"))
+
+
+def test_replay_with_the_arm_and_refusal_with_another(files, capsys):
+    csv, js = files / "e.csv", files / "s.json"
+    args = ["replay", str(files / "loaded.blf"), "--model", str(files / "model.msgpack"),
+            "--truth", "sim/payloads/test-3w.toml", "--json", str(js), "--out", str(csv),
+            "--no-status"]
+    assert main([*args, "--arm", str(files / "arm.msgpack")]) == 0
+    assert csv.read_text().splitlines()[0] == ",".join(CSV_HEADER)
+    capsys.readouterr()
+    assert main(args) == 2
+    assert "trained for arm file arm.msgpack" in capsys.readouterr().err
+    assert main([*args, "--arm", str(files / "other.msgpack")]) == 2
+    assert "other.msgpack" in capsys.readouterr().err
+
+
+def test_config_arm_key(tmp_path):
+    assert config_from_dict({}).model.arm == ""
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text('[model]\narm = "arm.msgpack"\n')
+    assert load_config(cfg).model.arm == str(tmp_path / "arm.msgpack")
+
+
+def test_the_arm_record_is_covered_by_the_model_files_crc(tmp_path):
+    from iem.ensemble import IncrementalEnsemble
+    from iem.persistence import dumps, loads
+
+    model = IncrementalEnsemble()
+    model.trained_arm = {"crc32": 1234, "source": "arm.msgpack"}
+    data = dumps(model)
+    assert loads(data).trained_arm == model.trained_arm
+    forged = data.replace(b"arm.msgpack", b"xrm.msgpack")
+    with pytest.raises(ModelFileError, match="corrupt"):
+        loads(forged)
+    assert getattr(loads(dumps(IncrementalEnsemble())), "trained_arm", None) is None
+
+
+def test_a_model_whose_arm_file_moved_is_refused_before_it_runs(files, tmp_path):
+    import shutil
+
+    from deploy.training import check_model_arm
+
+    arm_file = tmp_path / "arm.msgpack"
+    shutil.copy(files / "arm.msgpack", arm_file)
+    assert main(["train", "--kind", "IEM+phys", "--arm", str(arm_file),
+                 "--out", str(tmp_path / "model.msgpack")]) == 0
+    model = load_model(tmp_path / "model.msgpack")
+    record = arm_record(load_arm(arm_file), arm_file)
+    check_model_arm(model, record)
+    arm_file.unlink()
+    with pytest.raises(ModelFileError, match="names the arm file"):
+        check_model_arm(model, record)
