@@ -28,6 +28,7 @@ import numpy as np
 from .base import Samples
 from .errors import InvalidInputError
 from .regression import PayloadRegression, impulse_response, load_dynamics, noise_gains
+from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
 
 __all__ = ["DEFAULT_PRIOR_STD", "RecursiveLeastSquares", "impulse_response", "load_dynamics",
@@ -51,8 +52,10 @@ class RecursiveLeastSquares:
 
     name = "LS"
 
-    def __init__(self, dynamics: str = "sim.robot:panda_dynamics", sigma_tau: float = 0.05,
-                 sigma_dq: float = 2e-3, cutoff_hz: float = 20.0, rate_hz: float = 1000.0,
+    def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
+                 sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
+                 sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
+                 rate_hz: float = 1000.0,
                  decimate: int = 0, prior_std=DEFAULT_PRIOR_STD) -> None:
         self.dynamics = dynamics
         self.sigma_tau = float(sigma_tau)

@@ -68,6 +68,7 @@ from .least_squares import DEFAULT_PRIOR_STD
 from .posterior import EquationWindow, Posterior, combine, prior_inflation
 from .prior_summary import BagCalibration, PriorSummary
 from .regression import PayloadRegression
+from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
 
 __all__ = ["DETECT_AFTER", "NIS_WINDOW", "PRIOR_FLOOR", "PhysicsInformedEnsemble",
@@ -107,8 +108,10 @@ class PhysicsInformedEnsemble:
     """Its estimates report payload changes (``extra["change"]``)."""
 
     def __init__(self, ensemble: dict | None = None,
-                 dynamics: str = "sim.robot:panda_dynamics", sigma_tau: float = 0.05,
-                 sigma_dq: float = 2e-3, cutoff_hz: float = 4.0, rate_hz: float = 1000.0,
+                 dynamics: str = "sim.robot:panda_dynamics",
+                 sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
+                 sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 4.0,
+                 rate_hz: float = 1000.0,
                  update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
                  threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS,
                  refresh_every: int = 5) -> None:

@@ -39,6 +39,7 @@ import numpy as np
 from .errors import InvalidInputError
 from .filters import LowPass2, butterworth2
 from .gaps import RESTART, SKIP
+from .sensor import DEFAULT_SENSOR
 
 
 def impulse_response(cutoff_hz: float, rate_hz: float, n: int = 4000) -> np.ndarray:
@@ -130,8 +131,10 @@ class PayloadRegression:
             of white noise are white, with ``1 / decimate`` of its variance.
     """
 
-    def __init__(self, dynamics: str = "sim.robot:panda_dynamics", sigma_tau: float = 0.05,
-                 sigma_dq: float = 2e-3, cutoff_hz: float = 20.0, rate_hz: float = 1000.0,
+    def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
+                 sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
+                 sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
+                 rate_hz: float = 1000.0,
                  every: int = 1, settle: int = 0, payload_inertia: bool = False,
                  decimate: int = 1) -> None:
         if int(every) < 1 or int(decimate) < 1:
