@@ -378,7 +378,8 @@ def _check_excitation(H: np.ndarray, tol: dict) -> None:
 
 def _load_arm(arm):
     """The calibrated arm model: an object with ``rnea(q, dq, ddq) -> tau`` (N·m, friction
-    and offsets included), or a file name for ``sim.arm.load_arm``."""
+    and offsets included), a :class:`sim.arm.ArmParams`, or the path of an arm file
+    (``sim.arm.load_arm``, ``iem calibrate``'s)."""
     if hasattr(arm, "rnea"):
         return arm
     import importlib
@@ -391,7 +392,11 @@ def _load_arm(arm):
             f"--arm {arm}: an arm file from 'iem calibrate' is not available in this build "
             "(no sim.arm.load_arm); identify with --bare, a bare recording of the same "
             "motion") from None
-    return loader(arm)
+    params = arm if not isinstance(arm, str | bytes) and hasattr(arm, "link_params") \
+        else loader(arm)
+    from sim.robot import PandaModel
+
+    return PandaModel(arm=params)  # rnea: the arm's links, friction and offsets
 
 
 def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,

@@ -179,15 +179,26 @@ def test_bad_command_lines_and_files_say_what_is_valid(short_logs, tmp_path, cap
     assert "classic profile" in capsys.readouterr().err
 
 
-def test_an_arm_file_is_refused_in_a_build_without_calibration(short_logs, tmp_path, capsys):
-    import importlib.util
+def test_an_arm_file_identifies_without_a_bare_log(short_logs, tmp_path, capsys):
+    """``--arm``: the arm's own model (here the plant's true arm written as an arm file, as a
+    perfect ``iem calibrate`` would) stands in for the bare recording; a missing file is a
+    clear error."""
+    from sim.arm import save_arm
 
-    if importlib.util.find_spec("sim.arm") is not None:
-        pytest.skip("this build has sim.arm")
     loaded, _ = short_logs
-    assert main(["identify", "--loaded", str(loaded), "--arm", str(tmp_path / "arm.msgpack"),
-                 "--out", str(tmp_path / "p.toml")]) == 2
-    assert "not available in this build" in capsys.readouterr().err
+    arm = tmp_path / "arm.msgpack"
+    save_arm(RealityGap(seed=11).realise(), arm)
+    out = tmp_path / "p.toml"
+    assert main(["identify", "--loaded", str(loaded), "--arm", str(arm), "--out", str(out),
+                 "--json", str(tmp_path / "s.json")]) == 0
+    truth = default_test_payload()
+    got = load_payload(out)
+    assert abs(got.mass - truth.mass) < 0.005
+    assert np.linalg.norm(np.subtract(got.com, truth.com)) * truth.mass < 0.003
+    capsys.readouterr()
+    assert main(["identify", "--loaded", str(loaded), "--arm", str(tmp_path / "none.msgpack"),
+                 "--out", str(out)]) == 2
+    assert "none.msgpack" in capsys.readouterr().err
 
 
 def test_the_classic_profile_in_a_trc_log(tmp_path):
