@@ -6,7 +6,7 @@ import json
 import pytest
 
 from deploy.cli import main
-from iem.bench.realistic import MODEL_ORDER, SCENARIOS
+from iem.bench.realistic import BATCH_MODELS, MODEL_ORDER, SCENARIOS
 
 GROUP_KEYS = {"mass", "com", "inertia"}
 
@@ -24,7 +24,7 @@ def results(out):
 
 
 def test_schema(results):
-    assert results["models"] == list(MODEL_ORDER)
+    assert results["models"] == [*MODEL_ORDER, *BATCH_MODELS]
     assert set(results["scenarios"]) == set(SCENARIOS)
     for scenario in SCENARIOS:
         for model in MODEL_ORDER:
@@ -39,6 +39,17 @@ def test_schema(results):
                 assert isinstance(s["false_alarms"], int)
             else:
                 assert s["false_alarms"] is None
+    for scenario in SCENARIOS:  # the offline identification beside the online models
+        for model in BATCH_MODELS:
+            s = results["scenarios"][scenario][model]
+            if s["mae_groups"] is None:
+                assert s["refused"]  # e.g. bare_arm: no payload between the recordings
+                continue
+            assert set(s["mae_groups"]) == GROUP_KEYS and s["false_alarms"] is None
+            assert set(s["coverage_2sigma_groups"]) == GROUP_KEYS
+    assert results["scenarios"]["bare_arm"]["batch+bare"]["refused"]
+    batch = results["scenarios"]["new_path"]["batch+bare"]["mae_groups"]
+    assert batch["mass"] < 0.005  # a bare recording of the same motion cancels the arm
     assert results["setup"]["gap"]["seed"] == 1000  # never a tuning seed
     assert results["setup"]["calibration_noise_seed"] == 500
 
@@ -66,5 +77,5 @@ def test_report(out, results):
     text = (out / "report.md").read_text()
     for scenario in SCENARIOS:
         assert f"## {scenario}" in text
-    assert "## Targets (issue 11)" in text and "held out" in text
+    assert "## Targets (issues 11 and 16)" in text and "held out" in text
     assert (out / "arm.msgpack").is_file()
