@@ -45,10 +45,34 @@ def test_the_paper_story_holds_even_in_the_quick_run(results):
     assert forget["old_IEM"]["after"]["mass"] >= 2 * forget["old_IEM"]["before"]["mass"]
 
 
+def test_checks_that_can_fail(results):
+    """Forgetting by the weights (the old IEM's change, the IEM's stay bit-identical, even
+    after learning inside the excitation bags on the revisit), raw beside smoothed for every
+    scenario, and hold-out payloads drawn at random outside the 77."""
+    _, r = results
+    sc = r["scenarios"]
+    assert sc["forgetting"]["IEM"]["weights_identical"] is True
+    assert sc["forgetting"]["IEM+phys"]["weights_identical"] is True
+    assert sc["forgetting"]["old_IEM"]["weights_identical"] is False
+    assert sc["revisit"]["IEM"]["weights_identical"] is True
+    assert sc["revisit"]["old_IEM"]["weights_identical"] is False
+    for scenario in ("excitation", "new_path"):
+        for model in r["models"]:
+            assert set(sc[scenario][model]["mae_groups_raw"]) == GROUPS
+    from iem.bench.honesty import holdout_payloads
+    from sim.family import training_payloads
+
+    names = [p.name for p in holdout_payloads(0, 2)]
+    assert set(sc["holdout"]["IEM+phys"]) >= set(names)
+    assert {"mean_mae_groups", "max_mae_groups_raw"} <= set(sc["holdout"]["IEM"])
+    trained = {tuple(p.to_phi().round(12)) for p in training_payloads()}
+    assert not any(tuple(p.to_phi().round(12)) in trained for p in holdout_payloads(0, 4))
+
+
 def test_report_and_figures(results):
     out, _ = results
     text = (out / "report.md").read_text()
-    for heading in ("Table 2", "Table 4", "Forgetting", "Timing", "uncertainty",
+    for heading in ("Table 2", "Table 4", "Forgetting", "Timing", "uncertainty", "hold-out",
                     "payload carried over", "payload change"):
         assert heading in text
     for fig in ("fig5_forgetting.png", "fig6_new_path_error.png", "bags.png",
