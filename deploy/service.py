@@ -202,7 +202,7 @@ class Service:
     def open(self) -> Service:
         from sim.robot import PandaModel
 
-        from .training import check_model_arm, load_arm_file, tandem_for
+        from .training import check_model_arm, check_model_family, load_arm_file, tandem_for
 
         arm, arm_record = load_arm_file(self.config.model.arm or None)
         if self.model is None:
@@ -210,6 +210,8 @@ class Service:
         path = FsPath(self.config.model.path)
         check_model_arm(self.model, arm_record,
                         where=f"the model {path}" if path.exists() else "the model")
+        check_model_family(self.model, self.config.model.family,
+                           where=f"the model {path}" if path.exists() else "the model")
         if self.config.estimate.initial_payload:
             start_from_file(self.model, self.config.estimate.initial_payload)
         if self.link is None:

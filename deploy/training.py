@@ -45,6 +45,21 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
     return new_model(kind, seed=seed, **params)
 
 
+def check_model_family(model, family: str, where: str = "the model") -> None:
+    """Refuse ``model`` if it was trained on another payload family than ``family`` (its new
+    bags would be trained on one family's simulators, its old ones on another's)."""
+    from iem.persistence import DEFAULT_FAMILY
+
+    from .config import ConfigError
+
+    have = getattr(model, "trained_family", None) or DEFAULT_FAMILY
+    if have != family:
+        raise ConfigError(f"{where} was trained on the payload family {have!r}, the "
+                          f"configuration's [model] family is {family!r}; set family = "
+                          f"{have!r}, or make a model with 'iem train --family {family} --out "
+                          f"MODEL'")
+
+
 def check_model_arm(model, arm_record, where: str = "the model") -> None:
     """Refuse ``model`` unless it was trained for the arm ``arm_record``
     (:func:`iem.persistence.check_arm`) and the arm file its physics names (its dynamics
@@ -109,6 +124,7 @@ def train_initial_model(kind: str = "IEM", family: str = "paper", excitation_spe
     arm, record = load_arm_file(arm_file)
     model = make_model(kind, seed, rate_hz, arm_file=arm_file, **params)
     model.trained_arm = record
+    model.trained_family = family
     path = excitation(excitation_spec)
     tandem = tandem_for(family, arm)
     t0 = time.perf_counter()

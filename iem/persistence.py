@@ -10,6 +10,9 @@ trusted. A model trained for a calibrated arm (``iem train --arm``) also carries
 ``"arm": {"crc32": <the arm file's state CRC>, "source": <its file name>}``, covered by the
 file's CRC (``crc32(arm map, crc32(state))``); it is the model's ``trained_arm`` attribute
 (None for the nominal arm), and :func:`check_arm` refuses to run the model with another arm.
+A model trained on another payload family than the paper's (``iem train --family generic``)
+records it as ``"family"`` (also covered by the CRC; its ``trained_family`` attribute), so the
+service can refuse to train new bags of it with another family's simulators.
 The arm file (:mod:`sim.arm`) is written and read by the same functions under its own schema
 (``schema=``, ``label=``).
 
@@ -102,11 +105,29 @@ def new_model(kind: str = DEFAULT_MODEL, **params):
 
 
 # -- encoding ----------------------------------------------------------------------------
-def _arm_crc(arm: dict | None, crc: int) -> int:
-    """The file CRC: the state's, continued over the arm record if there is one."""
-    if arm is None:
-        return crc
-    return zlib.crc32(msgpack.packb(arm, use_bin_type=True), crc)
+def _arm_crc(arm: dict | None, crc: int, family: str | None = None) -> int:
+    """The file CRC: the state's, continued over the arm record and the training family if
+    there are any."""
+    if arm is not None:
+        crc = zlib.crc32(msgpack.packb(arm, use_bin_type=True), crc)
+    if family is not None:
+        crc = zlib.crc32(family.encode("utf-8"), crc)
+    return crc
+
+
+def _family_record(model) -> str | None:
+    """The training family a model records: None for the paper's (files from before the
+    record, and every model trained on it), else its name (``trained_family``)."""
+    family = getattr(model, "trained_family", None)
+    if family in (None, DEFAULT_FAMILY):
+        return None
+    if not isinstance(family, str):
+        raise ModelFileError(f"model's trained_family {family!r} is not a family name")
+    return family
+
+
+DEFAULT_FAMILY = "paper"
+"""The training family of a model file that records none."""
 
 
 def _arm_record(model) -> dict | None:
@@ -138,10 +159,13 @@ def dumps(model, schema: str = SCHEMA) -> bytes:
         raise ModelFileError(f"cannot save {kind} model: its state is not plain data "
                              f"(lists, floats, ints, str, None, dicts): {exc}") from exc
     arm = _arm_record(model)
+    family = _family_record(model)
     head = {"schema": schema, "version": VERSION, "kind": kind,
-            "crc32": _arm_crc(arm, zlib.crc32(state)), "state": state}
+            "crc32": _arm_crc(arm, zlib.crc32(state), family), "state": state}
     if arm is not None:
         head["arm"] = arm
+    if family is not None:
+        head["family"] = family
     return msgpack.packb(head, use_bin_type=True)
 
 
@@ -211,8 +235,11 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
                                 and isinstance(arm.get("source"), str)):
         raise ModelFileError(f"{where}: field 'arm' is {arm!r}, expected "
                              "{'crc32': int, 'source': str}")
+    family = head.get("family")
+    if family is not None and not isinstance(family, str):
+        raise ModelFileError(f"{where}: field 'family' is {family!r}, expected a family name")
     state_bytes = head["state"]
-    crc = _arm_crc(arm, zlib.crc32(state_bytes))
+    crc = _arm_crc(arm, zlib.crc32(state_bytes), family)
     if crc != head["crc32"]:
         raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
@@ -227,6 +254,8 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
                              f"{label}: {type(exc).__name__}: {exc}") from exc
     if arm is not None:
         model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
+    if family is not None:
+        model.trained_family = family
     return model
 
 

@@ -46,3 +46,28 @@ def test_a_model_trains_on_it():
     model = train_initial_model("IEM", family="generic", log=lambda *a: None, fit_epochs=2,
                                 fit_stride=50)
     assert model.n_bags >= 1
+
+
+def test_a_model_file_records_its_family_and_the_service_refuses_another(tmp_path):
+    import pytest
+
+    from deploy.config import ConfigError
+    from deploy.training import check_model_family, train_initial_model
+    from iem.persistence import dumps, load_model, loads, save_model
+
+    model = train_initial_model("IEM", family="generic", log=lambda *a: None, fit_epochs=1,
+                                fit_stride=100)
+    path = tmp_path / "m.msgpack"
+    save_model(model, path)
+    back = load_model(path)
+    assert back.trained_family == "generic"
+    check_model_family(back, "generic")
+    with pytest.raises(ConfigError, match=r"family 'generic'.*family = 'generic'"):
+        check_model_family(back, "paper")
+    data = bytearray(dumps(model))
+    data[data.index(b"generic")] ^= 1  # the record is covered by the file's CRC
+    with pytest.raises(Exception, match="corrupt"):
+        loads(bytes(data))
+    paper = train_initial_model("IEM", log=lambda *a: None, fit_epochs=1, fit_stride=100)
+    check_model_family(loads(dumps(paper)), "paper")  # the default: no record at all
+    assert b"family" not in dumps(paper)
