@@ -49,7 +49,7 @@ class ModelConfig:
     kind: str = "IEM+phys"
     checkpoint_period_s: float = 60.0
     train_if_missing: bool = True
-    family: str = "paper"
+    family: str = "cell"
     excitation: str = "builtin"
     seed: int = 0
     arm: str = ""

@@ -106,7 +106,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     """
     from firmware_bridge.links import open_link
     from iem.metrics import mae_groups
-    from iem.persistence import save_model
+    from iem.persistence import DEFAULT_FAMILY, save_model
+    from sim.family import DEPLOY_FAMILY
 
     from .config import config_from_dict
     from .sdnotify import Notifier
@@ -117,7 +118,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     link = open_link("replay", str(log_file), profile=profile, pace="fast")
     try:
         if model is None:
-            model = train_initial_model(DEFAULT_KIND, "paper", "builtin", 0, log=log,
+            model = train_initial_model(DEFAULT_KIND, DEPLOY_FAMILY, "builtin", 0, log=log,
                                         arm_file=arm_file)
         else:
             model = copy.deepcopy(model)
@@ -126,7 +127,9 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
             # the model path is only written by --save-model; no periodic checkpoints
             "model": {"path": str(save_model_to or "replay-model.msgpack"),
                       "train_if_missing": False, "checkpoint_period_s": 86400.0,
-                      "arm": str(arm_file or "")},
+                      "arm": str(arm_file or ""),
+                      # the model's own family: new bags learn from the simulators it knew
+                      "family": getattr(model, "trained_family", None) or DEFAULT_FAMILY},
             "log": {"status_line": "on" if status else "off"},
         }, where="iem replay")
         # the gate decides on the recorded clock, so a fast replay decides as the cell did

@@ -1,6 +1,7 @@
 """Making the initial model: bags and learners from the excitation path (``iem train``).
 
-The tandem simulators of the configured training family (``paper``: the 77 payloads) give
+The tandem simulators of the configured training family (``cell`` by default: the paper's 77
+container configurations and 77 random tools, :data:`sim.family.DEPLOY_FAMILY`) give
 the samples at every state of the planned excitation path (the built-in one, or a path CSV);
 the model's ``fit`` forms the initial bags and trains their learners. The model kinds are
 those of :data:`iem.persistence.MODELS` that can learn online (``IEM``, ``IEM+phys``).
@@ -18,6 +19,7 @@ import time
 
 from iem.errors import InvalidInputError
 from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
+from sim.family import DEPLOY_FAMILY, FAMILIES
 
 TRAINABLE = ("IEM", "IEM+phys")
 
@@ -48,12 +50,10 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
 def check_model_family(model, family: str, where: str = "the model") -> None:
     """Refuse ``model`` if it was trained on another payload family than ``family`` (its new
     bags would be trained on one family's simulators, its old ones on another's)."""
-    from iem.persistence import DEFAULT_FAMILY
-
     from .config import ConfigError
 
-    have = getattr(model, "trained_family", None) or DEFAULT_FAMILY
-    if have != family:
+    have = getattr(model, "trained_family", None)
+    if have is not None and have != family:  # None: a model of unknown making (in memory)
         raise ConfigError(f"{where} was trained on the payload family {have!r}, the "
                           f"configuration's [model] family is {family!r}; set family = "
                           f"{have!r}, or make a model with 'iem train --family {family} --out "
@@ -113,7 +113,8 @@ def tandem_for(family: str, arm=None):
     return TandemSimulators(family_payloads(family), model=PandaModel(arm=arm))
 
 
-def train_initial_model(kind: str = "IEM", family: str = "paper", excitation_spec="builtin",
+def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
+                        excitation_spec="builtin",
                         seed: int = 0, log=print, rate_hz: float = 1000.0, arm_file=None,
                         **params):
     """A new model of ``kind`` trained on the excitation path with ``family``'s payloads,
@@ -140,7 +141,9 @@ def configure(parser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE", help="model file to write")
     parser.add_argument("--kind", default=None, choices=list(TRAINABLE),
                         help="model kind (default: the best available)")
-    parser.add_argument("--family", default="paper", help="training payload family")
+    parser.add_argument("--family", default=DEPLOY_FAMILY, choices=sorted(FAMILIES),
+                        help=f"training payload family (default {DEPLOY_FAMILY}: the paper's "
+                             "container configurations and 77 random tools)")
     parser.add_argument("--excitation", default="builtin", metavar="CSV",
                         help="excitation path CSV (default: the built-in 20 s path)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the learners")

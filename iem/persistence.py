@@ -254,8 +254,8 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
                              f"{label}: {type(exc).__name__}: {exc}") from exc
     if arm is not None:
         model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
-    if family is not None:
-        model.trained_family = family
+    if schema == SCHEMA:  # a model file without the record was trained on the paper's
+        model.trained_family = family if family is not None else DEFAULT_FAMILY
     return model
 
 

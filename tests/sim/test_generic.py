@@ -68,6 +68,7 @@ def test_a_model_file_records_its_family_and_the_service_refuses_another(tmp_pat
     data[data.index(b"generic")] ^= 1  # the record is covered by the file's CRC
     with pytest.raises(Exception, match="corrupt"):
         loads(bytes(data))
-    paper = train_initial_model("IEM", log=lambda *a: None, fit_epochs=1, fit_stride=100)
+    paper = train_initial_model("IEM", family="paper", log=lambda *a: None, fit_epochs=1,
+                                fit_stride=100)
     check_model_family(loads(dumps(paper)), "paper")  # the default: no record at all
     assert b"family" not in dumps(paper)
