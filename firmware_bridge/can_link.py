@@ -40,7 +40,7 @@ from sim.payload import Payload
 
 from .errors import BridgeConfigError, DecodeError, LinkError
 from .faults import FaultSpec
-from .framed import FramedControllerPort, FramedLink
+from .framed import FramedControllerPort, FramedLink, heartbeat_text
 from .links import LinkCounters, bus_kinds, link_kind
 from .protocol import (
     ACK_ERRORS,
@@ -225,12 +225,7 @@ class CanDecoder:
             hint = (f" (the {other} profile's IDs: is the controller running --profile {other}?)"
                     if theirs & set(self.foreign_ids) else "")
             parts.append(f"frames with other IDs seen: {ids}{hint}")
-        hb = self.last_heartbeat
-        if hb is None:
-            parts.append("no heartbeat yet")
-        else:
-            parts.append(f"last heartbeat {time.perf_counter() - hb.t:.2f} s ago "
-                         f"(controller {hb.state}, cycle {hb.cycle})")
+        parts.append(heartbeat_text(self.last_heartbeat))
         return "; ".join(parts)
 
 

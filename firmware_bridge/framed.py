@@ -142,6 +142,14 @@ class FramedLink:
         self.close()
 
 
+def heartbeat_text(hb) -> str:
+    """The last heartbeat in words, for the links' silence diagnoses."""
+    if hb is None:
+        return "no heartbeat yet"
+    return (f"last heartbeat {time.perf_counter() - hb.t:.2f} s ago "
+            f"(controller {hb.state}, cycle {hb.cycle})")
+
+
 class FramedControllerPort:
     """Base of the controller's ends: faults, silence and send counters.
 

@@ -38,7 +38,7 @@ from sim.payload import Payload
 
 from .errors import DecodeError, LinkError
 from .faults import FaultSpec
-from .framed import FramedControllerPort, FramedLink
+from .framed import FramedControllerPort, FramedLink, heartbeat_text
 from .links import LinkCounters
 from .protocol import Heartbeat, LoadAck, LoadCommand
 from .reassembly import CYCLE_MOD, Sequencer
@@ -307,12 +307,7 @@ class SerialDecoder:
         parts = [self.counters.summary()]
         if self.last_error is not None:
             parts.append(f"last bad message: {self.last_error}")
-        hb = self.last_heartbeat
-        if hb is None:
-            parts.append("no heartbeat yet")
-        else:
-            parts.append(f"last heartbeat {time.perf_counter() - hb.t:.2f} s ago "
-                         f"(controller {hb.state}, cycle {hb.cycle})")
+        parts.append(heartbeat_text(self.last_heartbeat))
         return "; ".join(parts)
 
 

@@ -26,14 +26,15 @@ SECONDS = 1.5
 _channels = itertools.count()
 
 
-def record_sim(out, profile: str) -> int:
-    """Record SECONDS of the new task path to ``out``; return the complete cycles published."""
+def record_sim(out, profile: str, path=None, seed: int = 0) -> int:
+    """Record ``path`` (default: SECONDS of the new task path) to ``out``, sensor-noise seed
+    ``seed``; return the complete cycles published."""
     channel = f"replay-test-{next(_channels)}"
-    path = new_task_path().slice(0, SECONDS)
+    path = new_task_path().slice(0, SECONDS) if path is None else path
     recorder = open_bus("virtual", channel, profile)
     port, _ = open_port("virtual", channel, profile)
     try:
-        controller = SimController(port, path=path, realtime=False, once=True)
+        controller = SimController(port, path=path, realtime=False, once=True, seed=seed)
         controller.run(cycles=len(path))
         writer = can.Logger(str(out))
         try:

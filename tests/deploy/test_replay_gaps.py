@@ -4,39 +4,16 @@ own reader and writer making the lossy copy."""
 
 from __future__ import annotations
 
-import itertools
-
 import can
 import numpy as np
 import pytest
 
 from deploy.replay import replay
-from firmware_bridge.can_link import open_bus
 from firmware_bridge.protocol import profile as get_profile
-from firmware_bridge.sim_controller import SimController, open_port
 from sim.family import default_test_payload
 from sim.paths import excitation_path
 
-_channels = itertools.count()
-
-
-def _record(out, seconds: float) -> None:
-    channel = f"replay-gaps-{next(_channels)}"
-    path = excitation_path().slice(0, seconds)
-    recorder = open_bus("virtual", channel, "fd")
-    port, _ = open_port("virtual", channel, "fd")
-    try:
-        controller = SimController(port, path=path, realtime=False, once=True, seed=3)
-        controller.run(cycles=len(path))
-        writer = can.Logger(str(out))
-        try:
-            while (msg := recorder.recv(0)) is not None:
-                writer.on_message_received(msg)
-        finally:
-            writer.stop()
-    finally:
-        port.close()
-        recorder.shutdown()
+from .test_replay import record_sim
 
 
 def _thin(src, dst, fraction: float, seed: int) -> int:
@@ -66,7 +43,7 @@ def phys_model():
 
 def test_a_recording_with_lost_frames_estimates_as_well_as_the_whole(tmp_path, phys_model):
     whole, thinned = tmp_path / "whole.blf", tmp_path / "thinned.blf"
-    _record(whole, 6.0)
+    record_sim(whole, "fd", path=excitation_path().slice(0, 6.0), seed=3)
     removed = _thin(whole, thinned, 0.05, seed=8)
     truth = default_test_payload()
     clean, _ = replay(whole, model=phys_model, truth=truth, log=lambda _: None)
