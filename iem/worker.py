@@ -1,0 +1,107 @@
+"""Learning off the estimate path: a worker thread that runs the ensemble's training jobs.
+
+The ensemble's cycle (:meth:`iem.ensemble.IncrementalEnsemble.learn_one`) only routes,
+appends a copied learner for a new bag and submits the training: the warm-up of a new bag,
+the steps on each point that joins the open bag, the refit when a bag closes. A job is a
+zero-argument callable; the worker runs the jobs one at a time in the order they were
+submitted, so what each job computes does not depend on when it runs (each learner draws its
+noise from its own seeded generator): only *when* a trained learner lands in the ensemble
+does. A job publishes its result itself, by one assignment under the ensemble's lock (the
+swap is atomic: a cycle predicts with the old learner or with the new one, never with a
+learner half trained).
+
+``synchronous=True`` runs every job at once in the caller's thread (no thread at all):
+seeded runs then reproduce bit for bit, as tests and benchmarks need. :meth:`drain` waits for
+every submitted job; :meth:`close` drains and stops the thread. A job that raises stops
+nothing else: the error is kept and raised by the next :meth:`drain` (so it is not lost).
+
+Copies: a deep copy or a pickle of a worker is a new idle worker of the same mode (a thread
+cannot be copied); :class:`~iem.ensemble.IncrementalEnsemble` drains before it is copied.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable
+
+from .errors import IemError
+
+
+class LearningError(IemError):
+    """A training job in the worker failed."""
+
+
+class LearningWorker:
+    """Runs training jobs in order, in one background thread (or inline if synchronous).
+
+    Args:
+        synchronous: run each job at once in the submitting thread.
+    """
+
+    def __init__(self, synchronous: bool = False) -> None:
+        self.synchronous = bool(synchronous)
+        self._queue: queue.Queue | None = None
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.jobs_done = 0
+
+    def submit(self, job: Callable[[], None]) -> None:
+        """Queue ``job`` (run it now if synchronous)."""
+        if self.synchronous:
+            job()
+            self.jobs_done += 1
+            return
+        if self._thread is None or not self._thread.is_alive():
+            self._queue = queue.Queue()
+            self._thread = threading.Thread(target=self._loop, name="iem-learning",
+                                            daemon=True)
+            self._thread.start()
+        self._queue.put(job)
+
+    def _loop(self) -> None:
+        q = self._queue
+        while True:
+            job = q.get()
+            try:
+                if job is None:
+                    return
+                job()
+                self.jobs_done += 1
+            except BaseException as exc:  # kept for drain(); the worker goes on
+                self._error = exc
+            finally:
+                q.task_done()
+
+    @property
+    def pending(self) -> int:
+        """Jobs submitted and not finished (0 if synchronous)."""
+        return 0 if self._queue is None else self._queue.unfinished_tasks
+
+    def drain(self) -> None:
+        """Wait until every submitted job has run; raise a job's failure if one failed."""
+        if self._queue is not None:
+            self._queue.join()
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise LearningError(f"a training job failed: {exc!r}") from exc
+
+    def close(self) -> None:
+        """Drain, then stop the thread (a later submit starts a new one)."""
+        try:
+            self.drain()
+        finally:
+            if self._thread is not None and self._thread.is_alive():
+                self._queue.put(None)
+                self._thread.join()
+            self._thread = None
+            self._queue = None
+
+    def __deepcopy__(self, memo) -> LearningWorker:
+        return LearningWorker(self.synchronous)
+
+    def __getstate__(self) -> dict:
+        return {"synchronous": self.synchronous}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["synchronous"])
