@@ -48,6 +48,7 @@
 from __future__ import annotations
 
 import copy
+import importlib
 import math
 import threading
 
@@ -90,6 +91,13 @@ class IncrementalEnsemble:
         budget_bags: largest number of bags (None: unbounded); beyond it the least-used
             closed bag's slot is reused.
         ood_threshold: the out-of-distribution threshold of :meth:`ood_score`.
+        coverage: ``"module:function"`` of a factory of ``f(q, phi (K, 10), rng) -> X (K,
+            21)``, the training family's samples at pose ``q`` with another velocity and
+            acceleration (``"sim.coverage:other_velocities"``), or None: each bag's learner
+            is then also trained (at fit and at close) on ``coverage_draws`` such states
+            per kept point, so it covers motions through its poses other than those that
+            formed it.
+        coverage_draws: other states per point.
     """
 
     name = "IEM"
@@ -99,7 +107,8 @@ class IncrementalEnsemble:
                  fit_epochs: int = 10, fit_lr: float = 0.1, fit_stride: int = 10,
                  reservoir: int = 100, close_epochs: int | None = None,
                  seed: int = 0, background: bool = False, budget_bags: int | None = None,
-                 ood_threshold: float = OOD_THRESHOLD) -> None:
+                 ood_threshold: float = OOD_THRESHOLD, coverage: str | None = None,
+                 coverage_draws: int = 1) -> None:
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -119,6 +128,9 @@ class IncrementalEnsemble:
         self.ood_threshold = float(ood_threshold)
         if not self.ood_threshold > 0:
             raise InvalidInputError(f"ood_threshold must be > 0, got {ood_threshold}")
+        self.coverage = None if coverage is None else str(coverage)
+        self.coverage_draws = int(coverage_draws)
+        self._cover = None  # the coverage sampler, built when first needed
         self._router = BagRouter(self.delta, self.rho)
         self._learners: list[WeakLearner] = []
         self._gen: list[int] = []  # per slot: how many times it was reused
@@ -140,7 +152,8 @@ class IncrementalEnsemble:
                 "fit_stride": self.fit_stride, "reservoir": self.reservoir,
                 "close_epochs": self.close_epochs, "seed": self.seed,
                 "background": self.background, "budget_bags": self.budget_bags,
-                "ood_threshold": self.ood_threshold}
+                "ood_threshold": self.ood_threshold, "coverage": self.coverage,
+                "coverage_draws": self.coverage_draws}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -201,22 +214,42 @@ class IncrementalEnsemble:
         new = type(self).__new__(type(self))
         memo[id(self)] = new
         for key, value in self.__dict__.items():
-            if key not in ("_lock", "_worker"):
+            if key not in ("_lock", "_worker", "_cover"):
                 setattr(new, key, copy.deepcopy(value, memo))
+        new._cover = None
         new._lock = threading.Lock()
         new._worker = LearningWorker(synchronous=not self.background)
         return new
 
     def __getstate__(self) -> dict:
         self.drain()
-        return {k: v for k, v in self.__dict__.items() if k not in ("_lock", "_worker")}
+        return {k: v for k, v in self.__dict__.items()
+                if k not in ("_lock", "_worker", "_cover")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
+        self._cover = None
         self._lock = threading.Lock()
         self._worker = LearningWorker(synchronous=not self.background)
 
     # -- training ------------------------------------------------------------------------
+    def _covered(self, X: np.ndarray, Y: np.ndarray, batch: int, seed) -> tuple:
+        """``(X, Y)`` plus, if ``coverage``, ``coverage_draws`` other states at each point's
+        pose (``batch`` samples per point, in order)."""
+        if self.coverage is None or self.coverage_draws <= 0:
+            return X, Y
+        if self._cover is None:
+            module, _, attr = self.coverage.partition(":")
+            self._cover = getattr(importlib.import_module(module), attr)()
+        rng = np.random.default_rng(seed)
+        xs, ys = [X], [Y]
+        for s in range(0, X.shape[0], batch):
+            q, phi = X[s, :7], Y[s:s + batch]
+            for _ in range(self.coverage_draws):
+                xs.append(self._cover(q, phi, rng))
+                ys.append(phi)
+        return np.vstack(xs), np.vstack(ys)
+
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
         if self._out is None:
             self._out = output_range(Y)
@@ -254,9 +287,11 @@ class IncrementalEnsemble:
             Y = np.vstack([p[1] for p in pairs])
             if self._out is None:
                 self._out = output_range(Y)
+            batch = Y.shape[0] // len(idx)
+            X, Y = self._covered(X, Y, batch, [self.seed, bag, 5])
             self._learners.append(WeakLearner.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
-                seed=[self.seed, bag], epochs=self.fit_epochs, batch=Y.shape[0] // len(idx),
+                seed=[self.seed, bag], epochs=self.fit_epochs, batch=batch,
                 fit_lr=self.fit_lr))
             self._gen.append(0)
         self._open = -1
@@ -362,7 +397,7 @@ class IncrementalEnsemble:
         def refit():
             if len(kept) < 2:
                 return
-            X, Y = kept.stacked()
+            X, Y = self._covered(*kept.stacked(), kept.batch(), [*seed, 5])
             learner = WeakLearner.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise, seed=seed,
                 epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr)
