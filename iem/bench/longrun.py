@@ -15,9 +15,10 @@ Set-up (everything seeded by ``--seed``):
 
 Per 30 s window and model: ``bags``, ``nbytes``, the process's ``rss_mb`` (both models and
 the plant live in it), ``route_us`` (p50/p99 of the model's :meth:`BagRouter.route` on
-every 10th sample, timed apart from the estimator), ``estimate_us`` (p50/p99 of
-``predict_one``), ``learn_ms`` (median, max and total of the ``learn_one`` calls that learnt
-from a point, and how many) and ``mae`` per group (mass, com, inertia) of the smoothed
+every 10th sample, timed apart from the estimator; ``route_cpu_us`` the same in this
+thread's CPU time, which leaves out the time the machine ran other work), ``estimate_us``
+(p50/p99 of ``predict_one``), ``learn_ms`` (median, max and total of the ``learn_one`` calls
+that learnt from a point, and how many) and ``mae`` per group (mass, com, inertia) of the smoothed
 estimate against the true payload; ``changes``: payload changes reported (false alarms:
 the payload never changes).
 
@@ -25,6 +26,12 @@ Then the first minute of the motion is driven backwards (every segment reversed,
 order: the same poses, every velocity reversed) by a fresh plant, and each model, as it is
 at the end of the run, estimates along it with learning off (IEM+phys forgets the payload
 first, as for a new task): ``reverse_mae``.
+
+The models run with :data:`LONGRUN_PARAMS` (coverage training and a bag budget, ``--budget``)
+unless ``--plain`` (the ensemble's defaults, the paper's rule). Last, ``at_budget``: a model
+of ``--budget`` bags (the trained IEM's learners copied onto random poses within the limits)
+saved and loaded: ``load_s``, ``file_mb``, ``route_us`` (p50/p99 over 2,000 random queries)
+and the RSS it adds.
 
 JSON keys: ``windows`` (a list), ``max_window_mae`` {model: {mass, com, inertia}},
 ``reverse_mae`` {model: {...}}, ``false_alarms`` {model: n} (None: no detector),
@@ -55,6 +62,9 @@ MIN_SEGMENT_S = 0.5
 REVERSE_S = 60.0
 ROUTE_EVERY = 10
 """Every how many samples the route time is measured."""
+DEFAULT_BUDGET = 2000
+LONGRUN_PARAMS = {"coverage": "sim.coverage:other_velocities", "coverage_draws": 1}
+"""The ensemble's parameters for long runs (plus ``budget_bags``)."""
 
 _QUINTIC_DS = 1.875
 _QUINTIC_DDS = 10.0 / math.sqrt(3.0)
@@ -127,6 +137,7 @@ class _Feed:
     def _new_window(self) -> None:
         self.smoothed: list[np.ndarray] = []
         self.route_s: list[float] = []
+        self.route_cpu_s: list[float] = []
         self.changes = 0
         self.online.learn_times.clear()
         self.online.predict_times.clear()
@@ -145,9 +156,10 @@ class _Feed:
         if k % ROUTE_EVERY == 0:
             flange = self.kin.flange_position(state.q)
             router = self.router
-            t0 = time.perf_counter()
+            c0, t0 = time.thread_time(), time.perf_counter()
             router.route(state.q, flange)
             self.route_s.append(time.perf_counter() - t0)
+            self.route_cpu_s.append(time.thread_time() - c0)
 
     def window(self, phi) -> dict:
         o = self.online
@@ -158,7 +170,9 @@ class _Feed:
         out = {
             "bags": int(self.model.n_bags), "nbytes": int(self.model.nbytes()),
             "rss_mb": rss_mb(),
-            "route_us": _pct(route_us), "estimate_us": _pct(est_us),
+            "route_us": _pct(route_us),
+            "route_cpu_us": _pct(np.array(self.route_cpu_s) * 1e6),
+            "estimate_us": _pct(est_us),
             "learn_ms": {"median": float(np.median(learn_ms)) if learn_ms.size else None,
                          "max": float(learn_ms.max()) if learn_ms.size else None,
                          "total": float(learn_ms.sum()), "points": int(learn_ms.size)},
@@ -251,6 +265,9 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         reverse_mae[name] = groups_of(mae(out, phi))
         log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
 
+    at_budget = budget_figures(models["IEM"], (params or {}).get("budget_bags") or DEFAULT_BUDGET,
+                               kin, seed)
+    log(f"at the budget: {at_budget}")
     results = {
         "windows": windows,
         "max_window_mae": {name: {g: max(w[name]["mae"][g] for w in windows)
@@ -262,6 +279,9 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         "bags_end": {name: int(m.n_bags) for name, m in models.items()},
         "rss_mb_end": rss_mb(),
         "route_us_p99_end": {name: windows[-1][name]["route_us"]["p99"] for name in models},
+        "route_cpu_us_p99_end": {name: windows[-1][name]["route_cpu_us"]["p99"]
+                                 for name in models},
+        "at_budget": at_budget,
         "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
                   "segments": segments, "samples": k, "reverse_s": reverse.duration,
                   "params": params or {}, "wall_s": time.perf_counter() - started},
@@ -272,6 +292,51 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         f"RSS {results['rss_mb_end']:.0f} MB  route p99 {results['route_us_p99_end']} µs  "
         f"({results['setup']['wall_s']:.0f} s)")
     return results
+
+
+def budget_figures(model, n: int, kin, seed: int, queries: int = 2000) -> dict:
+    """A model of ``n`` bags (``model``'s learners copied onto random poses): its file's
+    size and load time, the RSS the loaded model adds, and route p50/p99 among its bags."""
+    import gc
+    import tempfile
+
+    from iem.ensemble import IncrementalEnsemble
+    from iem.persistence import load_model, save_model
+    from iem.router import BagRouter
+
+    rng = np.random.default_rng([seed, 2000])
+    Q = rng.uniform(kin.q_min, kin.q_max, size=(n, 7))
+    big = IncrementalEnsemble.from_state(model.to_state())
+    big._router = BagRouter.from_means(Q, kin.flange_positions(Q), big.delta, big.rho)
+    src = [model.learner(b) for b in range(model.n_bags)]
+    big._learners = [src[i % len(src)].copy_for(src[i % len(src)].center, seed=[seed, i])
+                     for i in range(n)]
+    big._gen = [0] * n
+    big._open, big._kept, big._training = -1, None, None
+    with tempfile.TemporaryDirectory() as tmp:
+        path = FsPath(tmp) / "budget.iem"
+        save_model(big, path)
+        size = path.stat().st_size
+        del big
+        gc.collect()
+        rss0 = rss_mb()
+        t0 = time.perf_counter()
+        loaded = load_model(path)
+        load_s = time.perf_counter() - t0
+        rss1 = rss_mb()
+    probe = rng.uniform(kin.q_min, kin.q_max, size=(queries, 7))
+    flange = kin.flange_positions(probe)
+    times = np.empty(queries)
+    cpu = np.empty(queries)
+    router = loaded.router
+    for i in range(queries):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        router.route(probe[i], flange[i])
+        times[i] = time.perf_counter() - t0
+        cpu[i] = time.thread_time() - c0
+    return {"bags": n, "file_mb": size / 1e6, "load_s": load_s, "rss_added_mb": rss1 - rss0,
+            "nbytes_mb": loaded.nbytes() / 1e6, "route_us": _pct(times * 1e6),
+            "route_cpu_us": _pct(cpu * 1e6)}
 
 
 def _fmt(groups: dict) -> str:
@@ -295,6 +360,10 @@ def configure(parser) -> None:
     parser.add_argument("--minutes", type=float, default=10.0, help="length of the motion")
     parser.add_argument("--seed", type=int, default=0, help="seed of motion, noise, learners")
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="BAGS",
+                        help="bag budget of the ensemble (default 2000)")
+    parser.add_argument("--plain", action="store_true",
+                        help="the ensemble's defaults: no coverage training, no budget")
 
 
 def run(args) -> int:
@@ -302,7 +371,10 @@ def run(args) -> int:
 
     if not args.minutes > 0:
         raise InvalidInputError(f"--minutes must be > 0, got {args.minutes}")
-    results = run_longrun(args.minutes, args.seed)
+    if args.budget < 2:
+        raise InvalidInputError(f"--budget must be >= 2 bags, got {args.budget}")
+    params = {} if args.plain else {**LONGRUN_PARAMS, "budget_bags": args.budget}
+    results = run_longrun(args.minutes, args.seed, params=params)
     if args.json:
         FsPath(args.json).write_text(json.dumps(results, indent=2) + "\n")
         print(f"wrote {args.json}")
