@@ -20,7 +20,8 @@ thread's CPU time, which leaves out the time the machine ran other work), ``esti
 (p50/p99 of ``predict_one``), ``learn_ms`` (median, max and total of the ``learn_one`` calls
 that learnt from a point, and how many) and ``mae`` per group (mass, com, inertia) of the smoothed
 estimate against the true payload; ``changes``: payload changes reported (false alarms:
-the payload never changes).
+the payload never changes); ``ood_share``: the share of estimates flagged out of
+distribution (``extra["ood"]``; the IEM's own estimates carry it).
 
 Then the first minute of the motion is driven backwards (every segment reversed, in reverse
 order: the same poses, every velocity reversed) by a fresh plant, and each model, as it is
@@ -139,6 +140,7 @@ class _Feed:
         self.route_s: list[float] = []
         self.route_cpu_s: list[float] = []
         self.changes = 0
+        self.ood = 0
         self.online.learn_times.clear()
         self.online.predict_times.clear()
         self.online.learnt.clear()
@@ -153,6 +155,7 @@ class _Feed:
         self.smoothed.append(smoothed)
         if est.extra.get("change"):
             self.changes += 1
+        self.ood += bool(est.extra.get("ood"))
         if k % ROUTE_EVERY == 0:
             flange = self.kin.flange_position(state.q)
             router = self.router
@@ -178,6 +181,7 @@ class _Feed:
                          "total": float(learn_ms.sum()), "points": int(learn_ms.size)},
             "mae": groups_of(mae(np.array(self.smoothed), phi)),
             "changes": self.changes,
+            "ood_share": self.ood / max(1, len(self.smoothed)),
         }
         self.changes_total += self.changes
         self._new_window()
