@@ -35,7 +35,9 @@
 - Out of distribution: each learner standardises its inputs (``center``, ``scale``: the
   mean and standard deviation of its training inputs). :meth:`ood_score` is the largest
   ``|x - center| / scale`` over the 21 inputs; above ``ood_threshold`` (default
-  :data:`OOD_THRESHOLD`) the estimate carries ``extra["ood"] = True``; every estimate carries
+  :data:`OOD_THRESHOLD`) an estimate of a closed bag carries ``extra["ood"] = True``. The open
+  bag's estimates are never flagged: its learner trains on the very point (its copied
+  scale is another bag's, so its score says little). Every estimate carries
   ``extra["ood_score"]``.
 - Bounded growth (``budget_bags``): once the ensemble holds that many bags, a point that fits
   no bag does not add a bag: the least-used closed bag (fewest points joined; the oldest of
@@ -422,9 +424,10 @@ class IncrementalEnsemble:
     def _estimate(self, x: np.ndarray, bag: int, t: float) -> PayloadEstimate:
         learner = self._learners[bag]  # one read: the learner published now
         score = float(np.abs((x - learner.center) * learner._inv_scale).max())
-        return PayloadEstimate(t=t, phi=learner.predict_one(x), bag=bag,
-                               learning=bag == self._open,
-                               extra={"ood": score > self.ood_threshold, "ood_score": score})
+        learning = bag == self._open  # the open bag trains on this very point: not flagged
+        return PayloadEstimate(t=t, phi=learner.predict_one(x), bag=bag, learning=learning,
+                               extra={"ood": not learning and score > self.ood_threshold,
+                                      "ood_score": score})
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)

@@ -166,8 +166,14 @@ def test_training_inputs_are_in_distribution_and_reversed_velocities_are_not():
     assert est.extra["ood"] is False
 
 
-def test_ood_threshold_is_a_hyper_parameter():
-    assert fitted(ood_threshold=1e-9).predict_one(DATA.X[0], DATA.F[0]).extra["ood"]
+def test_ood_threshold_is_a_hyper_parameter_and_the_open_bag_is_never_flagged():
+    model = fitted(ood_threshold=1e-9)
+    assert model.predict_one(DATA.X[0], DATA.F[0]).extra["ood"]
+    i = next(j for j in DATA.further_points()
+             if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
+    model.learn_one(DATA.X[i], DATA.F[i], lambda: DATA.samples_at(i))
+    est = model.predict_one(DATA.X[i] + 1.0, DATA.F[i])
+    assert est.learning and est.extra["ood_score"] > 1e-9 and est.extra["ood"] is False
     with pytest.raises(InvalidInputError, match="ood_threshold"):
         IncrementalEnsemble(ood_threshold=0.0)
 
