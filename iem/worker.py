@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import weakref
 from collections.abc import Callable
 
 from .errors import IemError
@@ -43,35 +44,27 @@ class LearningWorker:
         self.synchronous = bool(synchronous)
         self._queue: queue.Queue | None = None
         self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
-        self.jobs_done = 0
+        self._status = {"error": None, "done": 0}  # shared with the thread, not self
+
+    @property
+    def jobs_done(self) -> int:
+        """Jobs run so far."""
+        return self._status["done"]
 
     def submit(self, job: Callable[[], None]) -> None:
         """Queue ``job`` (run it now if synchronous)."""
         if self.synchronous:
             job()
-            self.jobs_done += 1
+            self._status["done"] += 1
             return
         if self._thread is None or not self._thread.is_alive():
             self._queue = queue.Queue()
-            self._thread = threading.Thread(target=self._loop, name="iem-learning",
-                                            daemon=True)
+            self._thread = threading.Thread(target=_loop, args=(self._queue, self._status),
+                                            name="iem-learning", daemon=True)
             self._thread.start()
+            # a worker dropped without close() still ends its thread
+            weakref.finalize(self, self._queue.put, None)
         self._queue.put(job)
-
-    def _loop(self) -> None:
-        q = self._queue
-        while True:
-            job = q.get()
-            try:
-                if job is None:
-                    return
-                job()
-                self.jobs_done += 1
-            except BaseException as exc:  # kept for drain(); the worker goes on
-                self._error = exc
-            finally:
-                q.task_done()
 
     @property
     def pending(self) -> int:
@@ -82,8 +75,9 @@ class LearningWorker:
         """Wait until every submitted job has run; raise a job's failure if one failed."""
         if self._queue is not None:
             self._queue.join()
-        if self._error is not None:
-            exc, self._error = self._error, None
+        exc = self._status["error"]
+        if exc is not None:
+            self._status["error"] = None
             raise LearningError(f"a training job failed: {exc!r}") from exc
 
     def close(self) -> None:
@@ -105,3 +99,19 @@ class LearningWorker:
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(state["synchronous"])
+
+
+def _loop(q: queue.Queue, status: dict) -> None:
+    """The worker thread: run jobs until ``None``; a failure is kept in ``status``."""
+    while True:
+        job = q.get()
+        try:
+            if job is None:
+                return
+            job()
+            status["done"] += 1
+        except BaseException as exc:  # kept for drain(); the worker goes on
+            status["error"] = exc
+        finally:
+            job = None  # holds nothing (the ensemble) while idle
+            q.task_done()

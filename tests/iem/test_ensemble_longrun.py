@@ -9,6 +9,7 @@ import threading
 import numpy as np
 import pytest
 
+from iem import checks
 from iem.ensemble import OOD_THRESHOLD, IncrementalEnsemble
 from iem.errors import InvalidInputError
 from iem.persistence import dumps, loads
@@ -246,3 +247,33 @@ def test_router_after_replacements_routes_as_a_fresh_router_of_its_means(n):
                                   fresh.route_many(probes_q, probes_f))
     with pytest.raises(InvalidInputError, match="does not exist"):
         router.replace(n, Q[0], F[0])
+
+
+class Drained(IncrementalEnsemble):
+    """A background ensemble that waits for its training after every point (so the shared
+    checks, which compare predictions point by point, see a deterministic model)."""
+
+    def learn_one(self, x, flange, samples) -> None:
+        super().learn_one(x, flange, samples)
+        self.drain()
+
+
+@pytest.mark.parametrize("check", [c for c in checks.CHECKS if c is not checks.check_save_load],
+                         ids=lambda c: c.__name__)
+def test_background_ensemble_passes_the_shared_checks(check):
+    check(lambda: Drained(seed=0, fit_epochs=2, warmup_iters=10, iters=2, background=True),
+          DATA)
+
+
+def test_a_dropped_background_ensemble_ends_its_thread():
+    import gc
+
+    model = fitted(background=True)
+    learn(model, DATA.further_points()[:5])
+    model.drain()
+    thread = model._worker._thread
+    assert thread.is_alive()
+    del model
+    gc.collect()
+    thread.join(10)
+    assert not thread.is_alive()
