@@ -28,7 +28,9 @@
   (warm-up, the steps of each point that joins the open bag, the refit at close) to a
   :class:`iem.worker.LearningWorker` thread, which runs the jobs in order and swaps each
   trained learner in atomically (one assignment under a lock; a learner once published is
-  never changed). A closed bag's learner is never trained again. ``background=False`` (the
+  never changed). A closed bag's learner is never trained again. While more than
+  :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
+  in ``skipped_points``): a worker that falls behind holds bounded memory. ``background=False`` (the
   default) runs the same jobs at once in the caller's thread: seeded runs reproduce bit for
   bit. :meth:`drain` waits for pending work; saving (:meth:`to_state`) and copying drain
   first, so a saved model has no pending work (it is finished, never dropped).
@@ -53,6 +55,7 @@ import copy
 import importlib
 import math
 import threading
+import time
 
 import numpy as np
 
@@ -67,9 +70,18 @@ from .worker import LearningWorker
 SENSOR_NOISE = np.repeat([1e-4, 2e-3, 0.05], 7)
 """The sensor model's standard deviations ``[q (rad), dq (rad/s), tau (N·m)]`` x 7."""
 
+MAX_PENDING = 256
+"""Most training jobs a background ensemble lets wait: beyond, the steps of points that join
+the open bag are skipped (counted in ``skipped_points``); new bags and refits always go."""
+
 OOD_THRESHOLD = 4.0
 """Default largest ``|x - center| / scale`` of an input (in its learner's standard
 deviations) that is in distribution; tuned in ``iem bench longrun`` (see the README)."""
+
+
+def _yield() -> None:
+    """Let another thread (the estimate path) take the interpreter, if one waits."""
+    time.sleep(0)
 
 
 class IncrementalEnsemble:
@@ -142,6 +154,8 @@ class IncrementalEnsemble:
         self._out: tuple[np.ndarray, np.ndarray] | None = None
         self.retired = 0
         """Bags retired to stay within the budget."""
+        self.skipped_points = 0
+        """Points of the open bag not learnt from because the worker was too far behind."""
         self._lock = threading.Lock()
         self._worker = LearningWorker(synchronous=not self.background)
 
@@ -314,6 +328,9 @@ class IncrementalEnsemble:
             return self._start_bag(q, flange, nearest, X, Y)
         self._router.join(bag, q, flange)
         if bag == self._open:
+            if self.background and self._worker.pending > MAX_PENDING:
+                self.skipped_points += 1  # the worker is behind: memory stays bounded
+                return bag
             X, Y = resolve(samples)
             training, kept, iters = self._training, self._kept, self.iters
             gen = self._gen[bag]
@@ -402,7 +419,8 @@ class IncrementalEnsemble:
             X, Y = self._covered(*kept.stacked(), kept.batch(), [*seed, 5])
             learner = WeakLearner.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise, seed=seed,
-                epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr)
+                epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr,
+                pause=_yield if self.background else None)
             self._publish(bag, gen, learner)
 
         self._worker.submit(refit)

@@ -17,12 +17,19 @@ nothing else: the error is kept and raised by the next :meth:`drain` (so it is n
 
 Copies: a deep copy or a pickle of a worker is a new idle worker of the same mode (a thread
 cannot be copied); :class:`~iem.ensemble.IncrementalEnsemble` drains before it is copied.
+
+The interpreter lock: a Python thread runs numpy's small products holding it, and by default
+holds it up to 5 ms before another thread may take it. So the worker gives it up between jobs
+and between the mini-batches of a refit (``time.sleep(0)``): an estimate waits at most one
+mini-batch step (about 0.1 ms), not a switch interval. It does not make the worker run in
+parallel with the estimate path: on a loaded machine it lags (see the README).
 """
 
 from __future__ import annotations
 
 import queue
 import threading
+import time
 import weakref
 from collections.abc import Callable
 
@@ -115,3 +122,4 @@ def _loop(q: queue.Queue, status: dict) -> None:
         finally:
             job = None  # holds nothing (the ensemble) while idle
             q.task_done()
+        time.sleep(0)  # a waiting estimate takes the interpreter between jobs

@@ -277,3 +277,19 @@ def test_a_dropped_background_ensemble_ends_its_thread():
     gc.collect()
     thread.join(10)
     assert not thread.is_alive()
+
+
+def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch):
+    import iem.ensemble as ensemble
+
+    monkeypatch.setattr(ensemble, "MAX_PENDING", 5)
+    model = fitted(background=True)
+    gate = Gate()
+    model._worker.submit(gate)
+    assert gate.started.wait(30)
+    learn(model, DATA.further_points())
+    assert model.skipped_points > 0
+    assert model.pending <= 5 + 1 + model.n_bags  # new bags and closes always go
+    gate.release.set()
+    model.drain()
+    model.stop()
