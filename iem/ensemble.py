@@ -32,8 +32,10 @@
   :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
   in ``skipped_points``): a worker that falls behind holds bounded memory. ``background=False`` (the
   default) runs the same jobs at once in the caller's thread: seeded runs reproduce bit for
-  bit. :meth:`drain` waits for pending work; saving (:meth:`to_state`) and copying drain
-  first, so a saved model has no pending work (it is finished, never dropped).
+  bit. :meth:`drain` waits for pending work; saving (:meth:`to_state`) drains first, so a
+  saved model has no pending work (it is finished, never dropped). A deep copy of a
+  background ensemble (a checkpoint taken in the cycle) does not wait: it holds the
+  published learners, with the open bag closed without its refit.
 - Out of distribution: each learner standardises its inputs (``center``, ``scale``: the
   mean and standard deviation of its training inputs). :meth:`ood_score` is the largest
   ``|x - center| / scale`` over the 21 inputs; above ``ood_threshold`` (default
@@ -226,12 +228,22 @@ class IncrementalEnsemble:
                 self._learners[bag] = learner if not self.background else learner.copy()
 
     def __deepcopy__(self, memo):
-        self.drain()
+        """A copy. Of a background ensemble: its published state, taken without waiting for
+        the worker (a checkpoint from the cycle must not wait): the learners as they are now,
+        the open bag closed without its refit; the pending work stays with the original."""
         new = type(self).__new__(type(self))
         memo[id(self)] = new
+        skip = ("_lock", "_worker", "_cover")
+        if self.background:
+            skip += ("_learners", "_kept", "_training", "_open")
+            with self._lock:
+                published = list(self._learners)
         for key, value in self.__dict__.items():
-            if key not in ("_lock", "_worker", "_cover"):
+            if key not in skip:
                 setattr(new, key, copy.deepcopy(value, memo))
+        if self.background:
+            new._learners = [copy.deepcopy(lr, memo) for lr in published]
+            new._open, new._kept, new._training = -1, None, None
         new._cover = None
         new._lock = threading.Lock()
         new._worker = LearningWorker(synchronous=not self.background)

@@ -125,10 +125,28 @@ def test_saving_and_copying_finish_pending_work():
     loaded = loads(dumps(model))
     assert same(weights(loaded), weights(sync))
     assert state["open"] == sync.open_bag
-    twin = copy.deepcopy(model)
-    learn(twin, DATA.further_points()[40:])
+    model.stop()
+
+
+def test_a_copy_of_a_background_ensemble_does_not_wait_and_holds_the_published_state():
+    model = fitted(background=True)
+    learn(model, DATA.further_points()[:20])
+    model.close()
+    model.drain()
+    closed = model.n_bags  # every bag so far is closed and trained
+    gate = Gate()
+    model._worker.submit(gate)
+    assert gate.started.wait(30)
+    learn(model, DATA.further_points()[20:60])
+    assert model.pending > 0
+    published = weights(model)
+    twin = copy.deepcopy(model)  # the gate still holds the worker: a wait would hang here
+    assert same(weights(twin), published) and twin.open_bag == -1 and twin.pending == 0
+    gate.release.set()
+    model.drain()
+    learn(twin, DATA.further_points()[60:])
     twin.drain()
-    assert same(weights(model), weights(sync))  # the copy learnt on its own
+    assert same(weights(model)[:closed], published[:closed])  # closed bags: untouched
     model.stop()
     twin.stop()
 
