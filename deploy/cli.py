@@ -44,6 +44,7 @@ BENCHES: Table = {
     "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
     "faults": ("deploy.bench_faults",
                "the plug-in on a lossy, late, corrupt stream with a silence, against a clean run"),
+    "longrun": ("iem.bench.longrun", "IEM and IEM+phys over a long random motion, per 30 s"),
 }
 
 COMMANDS: Table = {

@@ -23,11 +23,41 @@
   bag formed are unchanged; ``reservoir = 0`` turns this off (the paper's rule alone).
 - Estimate (Eq. 1-2): the output is that of the learner of the bag the point falls in, or,
   outside every bag, of the nearest bag (``n_s = 1`` for that bag, 0 for the others).
+- Learning off the cycle (``background=True``): the cycle only routes, appends the copied
+  learner of a new bag (which estimates until its training lands) and submits the training
+  (warm-up, the steps of each point that joins the open bag, the refit at close) to a
+  :class:`iem.worker.LearningWorker` thread, which runs the jobs in order and swaps each
+  trained learner in atomically (one assignment under a lock; a learner once published is
+  never changed). A closed bag's learner is never trained again. While more than
+  :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
+  in ``skipped_points``): a worker that falls behind holds bounded memory. ``background=False`` (the
+  default) runs the same jobs at once in the caller's thread: seeded runs reproduce bit for
+  bit. :meth:`drain` waits for pending work; saving (:meth:`to_state`) drains first, so a
+  saved model has no pending work (it is finished, never dropped). A deep copy of a
+  background ensemble (a checkpoint taken in the cycle) does not wait: it holds the
+  published learners, with the open bag closed without its refit.
+- Out of distribution: each learner standardises its inputs (``center``, ``scale``: the
+  mean and standard deviation of its training inputs). :meth:`ood_score` is the largest
+  ``|x - center| / scale`` over the 21 inputs; above ``ood_threshold`` (default
+  :data:`OOD_THRESHOLD`) an estimate of a closed bag carries ``extra["ood"] = True``. The open
+  bag's estimates are never flagged: its learner trains on the very point (its copied
+  scale is another bag's, so its score says little). Every estimate carries
+  ``extra["ood_score"]``.
+- Bounded growth (``budget_bags``): once the ensemble holds that many bags, a point that fits
+  no bag does not add a bag: the least-used closed bag (fewest points joined; the oldest of
+  equals) is retired and its slot starts the new bag (see :meth:`_retire_for`). What is lost
+  is the retired bag's learner; a later visit there routes to the nearest remaining bag
+  (flagged out of distribution when far) or forms a bag again. Bag indices stay stable; a
+  reused slot's :meth:`slot_generation` goes up by one.
 """
 
 from __future__ import annotations
 
+import copy
+import importlib
 import math
+import threading
+import time
 
 import numpy as np
 
@@ -38,10 +68,24 @@ from .reservoir import Reservoir
 from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
 from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
+from .worker import LearningWorker
 
 SENSOR_NOISE = DEFAULT_SENSOR.sigmas
 """The sensor model's standard deviations ``[q (rad), dq (rad/s), tau (N·m)]`` x 7
 (:data:`iem.sensor.DEFAULT_SENSOR`)."""
+
+MAX_PENDING = 256
+"""Most training jobs a background ensemble lets wait: beyond, the steps of points that join
+the open bag are skipped (counted in ``skipped_points``); new bags and refits always go."""
+
+OOD_THRESHOLD = 4.0
+"""Default largest ``|x - center| / scale`` of an input (in its learner's standard
+deviations) that is in distribution; tuned in ``iem bench longrun`` (see the README)."""
+
+
+def _yield() -> None:
+    """Let another thread (the estimate path) take the interpreter, if one waits."""
+    time.sleep(0)
 
 
 class IncrementalEnsemble:
@@ -60,6 +104,18 @@ class IncrementalEnsemble:
         reservoir: points of the open bag kept for its training at close (0: none).
         close_epochs: epochs of that training (None: ``fit_epochs``).
         seed: seed of everything random (the noise of each learner).
+        background: train in a worker thread, off the estimate path (see the module
+            docstring); False: at once, in the caller's thread (deterministic).
+        budget_bags: largest number of bags (None: unbounded); beyond it the least-used
+            closed bag's slot is reused.
+        ood_threshold: the out-of-distribution threshold of :meth:`ood_score`.
+        coverage: ``"module:function"`` of a factory of ``f(q, phi (K, 10), rng) -> X (K,
+            21)``, the training family's samples at pose ``q`` with another velocity and
+            acceleration (``"sim.coverage:other_velocities"``), or None: each bag's learner
+            is then also trained (at fit and at close) on ``coverage_draws`` such states
+            per kept point, so it covers motions through its poses other than those that
+            formed it.
+        coverage_draws: other states per point.
     """
 
     name = "IEM"
@@ -68,7 +124,9 @@ class IncrementalEnsemble:
                  iters: int = 5, warmup_iters: int = 100, input_noise=SENSOR_NOISE,
                  fit_epochs: int = 10, fit_lr: float = 0.1, fit_stride: int = 10,
                  reservoir: int = 100, close_epochs: int | None = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, background: bool = False, budget_bags: int | None = None,
+                 ood_threshold: float = OOD_THRESHOLD, coverage: str | None = None,
+                 coverage_draws: int = 1) -> None:
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -81,11 +139,29 @@ class IncrementalEnsemble:
         self.reservoir = int(reservoir)
         self.close_epochs = None if close_epochs is None else int(close_epochs)
         self.seed = int(seed)
+        self.background = bool(background)
+        self.budget_bags = None if budget_bags is None else int(budget_bags)
+        if self.budget_bags is not None and self.budget_bags < 2:
+            raise InvalidInputError(f"budget_bags must be None or >= 2, got {budget_bags}")
+        self.ood_threshold = float(ood_threshold)
+        if not self.ood_threshold > 0:
+            raise InvalidInputError(f"ood_threshold must be > 0, got {ood_threshold}")
+        self.coverage = None if coverage is None else str(coverage)
+        self.coverage_draws = int(coverage_draws)
+        self._cover = None  # the coverage sampler, built when first needed
         self._router = BagRouter(self.delta, self.rho)
         self._learners: list[WeakLearner] = []
+        self._gen: list[int] = []  # per slot: how many times it was reused
         self._open = -1
         self._kept: Reservoir | None = None
+        self._training: WeakLearner | None = None  # the open bag's learner, the jobs' own
         self._out: tuple[np.ndarray, np.ndarray] | None = None
+        self.retired = 0
+        """Bags retired to stay within the budget."""
+        self.skipped_points = 0
+        """Points of the open bag not learnt from because the worker was too far behind."""
+        self._lock = threading.Lock()
+        self._worker = LearningWorker(synchronous=not self.background)
 
     def params(self) -> dict:
         """The hyper-parameters as given (``type(self)(**self.params())`` is a fresh clone)."""
@@ -94,7 +170,10 @@ class IncrementalEnsemble:
                 "input_noise": None if self.input_noise is None else self.input_noise.tolist(),
                 "fit_epochs": self.fit_epochs, "fit_lr": self.fit_lr,
                 "fit_stride": self.fit_stride, "reservoir": self.reservoir,
-                "close_epochs": self.close_epochs, "seed": self.seed}
+                "close_epochs": self.close_epochs, "seed": self.seed,
+                "background": self.background, "budget_bags": self.budget_bags,
+                "ood_threshold": self.ood_threshold, "coverage": self.coverage,
+                "coverage_draws": self.coverage_draws}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -115,13 +194,92 @@ class IncrementalEnsemble:
         return self._open
 
     def learner(self, bag: int) -> WeakLearner:
+        """The learner bag ``bag`` estimates with now (published learners never change)."""
         return self._learners[bag]
+
+    def slot_generation(self, bag: int) -> int:
+        """How many times slot ``bag`` was reused for a new bag (budget): anything kept per
+        bag index (e.g. IEM+phys's error covariances) is stale when this changes."""
+        return self._gen[bag]
 
     def nbytes(self) -> int:
         kept = 0 if self._kept is None else self._kept.nbytes()
-        return self._router.nbytes() + sum(lr.nbytes() for lr in self._learners) + kept
+        training = (self._training.nbytes() if self._training is not None
+                    and self.background else 0)
+        return (self._router.nbytes() + sum(lr.nbytes() for lr in self._learners) + kept
+                + training)
+
+    # -- the worker ----------------------------------------------------------------------
+    @property
+    def pending(self) -> int:
+        """Training jobs submitted and not finished (always 0 unless ``background``)."""
+        return self._worker.pending
+
+    def drain(self) -> None:
+        """Wait until every submitted training job has landed."""
+        self._worker.drain()
+
+    def stop(self) -> None:
+        """Drain and stop the worker thread (a later learn starts it again)."""
+        self._worker.close()
+
+    def _publish(self, bag: int, gen: int, learner: WeakLearner) -> None:
+        """Swap a trained learner in (unless its slot was reused since): one assignment."""
+        with self._lock:
+            if self._gen[bag] == gen:
+                self._learners[bag] = learner if not self.background else learner.copy()
+
+    def __deepcopy__(self, memo):
+        """A copy. Of a background ensemble: its published state, taken without waiting for
+        the worker (a checkpoint from the cycle must not wait): the learners as they are now,
+        the open bag closed without its refit; the pending work stays with the original."""
+        new = type(self).__new__(type(self))
+        memo[id(self)] = new
+        skip = ("_lock", "_worker", "_cover")
+        if self.background:
+            skip += ("_learners", "_kept", "_training", "_open")
+            with self._lock:
+                published = list(self._learners)
+        for key, value in self.__dict__.items():
+            if key not in skip:
+                setattr(new, key, copy.deepcopy(value, memo))
+        if self.background:
+            new._learners = [copy.deepcopy(lr, memo) for lr in published]
+            new._open, new._kept, new._training = -1, None, None
+        new._cover = None
+        new._lock = threading.Lock()
+        new._worker = LearningWorker(synchronous=not self.background)
+        return new
+
+    def __getstate__(self) -> dict:
+        self.drain()
+        return {k: v for k, v in self.__dict__.items()
+                if k not in ("_lock", "_worker", "_cover")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._cover = None
+        self._lock = threading.Lock()
+        self._worker = LearningWorker(synchronous=not self.background)
 
     # -- training ------------------------------------------------------------------------
+    def _covered(self, X: np.ndarray, Y: np.ndarray, batch: int, seed) -> tuple:
+        """``(X, Y)`` plus, if ``coverage``, ``coverage_draws`` other states at each point's
+        pose (``batch`` samples per point, in order)."""
+        if self.coverage is None or self.coverage_draws <= 0:
+            return X, Y
+        if self._cover is None:
+            module, _, attr = self.coverage.partition(":")
+            self._cover = getattr(importlib.import_module(module), attr)()
+        rng = np.random.default_rng(seed)
+        xs, ys = [X], [Y]
+        for s in range(0, X.shape[0], batch):
+            q, phi = X[s, :7], Y[s:s + batch]
+            for _ in range(self.coverage_draws):
+                xs.append(self._cover(q, phi, rng))
+                ys.append(phi)
+        return np.vstack(xs), np.vstack(ys)
+
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
         if self._out is None:
             self._out = output_range(Y)
@@ -141,6 +299,7 @@ class IncrementalEnsemble:
             samples_at: ``samples_at(i) -> (X (K, 21), Y (K, 10))``, the tandem samples at
                 point ``i``.
         """
+        self.drain()
         Q = np.asarray(Q, dtype=float)
         F = np.asarray(F, dtype=float)
         if Q.ndim != 2 or Q.shape[1] != 7 or F.shape != (Q.shape[0], 3) or len(Q) == 0:
@@ -158,10 +317,13 @@ class IncrementalEnsemble:
             Y = np.vstack([p[1] for p in pairs])
             if self._out is None:
                 self._out = output_range(Y)
+            batch = Y.shape[0] // len(idx)
+            X, Y = self._covered(X, Y, batch, [self.seed, bag, 5])
             self._learners.append(WeakLearner.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
-                seed=[self.seed, bag], epochs=self.fit_epochs, batch=Y.shape[0] // len(idx),
+                seed=[self.seed, bag], epochs=self.fit_epochs, batch=batch,
                 fit_lr=self.fit_lr))
+            self._gen.append(0)
         self._open = -1
         return self
 
@@ -172,25 +334,75 @@ class IncrementalEnsemble:
     def _learn_one(self, x, flange, samples: Samples) -> int | None:
         """:meth:`learn_one`; returns the bag the point is in now."""
         q = np.asarray(x, dtype=float)[:7]
-        bag, created, nearest = self._router.add(q, flange)
-        if created:
+        flange = np.asarray(flange, dtype=float)
+        bag, nearest = self._router.route(q, flange)
+        if bag < 0:
             self.close()  # the path left the open bag
             X, Y = resolve(samples)
-            learner = self._new_learner(X, Y, bag, nearest)
-            learner.learn(X, Y, self.warmup_iters)
-            self._learners.append(learner)
-            self._open = bag
-            if self.reservoir > 0:
-                self._kept = Reservoir(self.reservoir, [self.seed, bag, 2])
-                self._kept.add(X, Y)
-        elif bag == self._open:
+            return self._start_bag(q, flange, nearest, X, Y)
+        self._router.join(bag, q, flange)
+        if bag == self._open:
+            if self.background and self._worker.pending > MAX_PENDING:
+                self.skipped_points += 1  # the worker is behind: memory stays bounded
+                return bag
             X, Y = resolve(samples)
-            self._learners[bag].learn(X, Y, self.iters)
-            if self._kept is not None:
-                self._kept.add(X, Y)
+            training, kept, iters = self._training, self._kept, self.iters
+            gen = self._gen[bag]
+
+            def step():
+                training.learn(X, Y, iters)
+                if kept is not None:
+                    kept.add(X, Y)
+                self._publish(bag, gen, training)
+
+            self._worker.submit(step)
         else:
             self.close()  # the path left the open bag: it is closed for good
         return bag
+
+    def _start_bag(self, q, flange, nearest: int, X, Y) -> int:
+        """A new open bag at the point: its learner is a copy of the nearest bag's (it
+        estimates with that copy until the warm-up lands)."""
+        if self.budget_bags is not None and len(self._router) >= self.budget_bags:
+            bag = self._retire_for(nearest)
+            learner = self._new_learner(X, Y, bag, nearest)
+            with self._lock:
+                self._gen[bag] += 1
+                self._router.replace(bag, q, flange)
+                self._learners[bag] = learner
+            self.retired += 1
+        else:
+            bag = len(self._router)
+            learner = self._new_learner(X, Y, bag, nearest)
+            with self._lock:
+                self._router.new_bag(q, flange)
+                self._learners.append(learner)
+                self._gen.append(0)
+        gen = self._gen[bag]
+        if gen:  # a reused slot: its own noise, not the retired bag's
+            learner._rng = np.random.default_rng([self.seed, bag, 4, gen])
+        training = learner.copy() if self.background else learner
+        kept = (Reservoir(self.reservoir, [self.seed, bag, 2] + ([gen] if gen else []))
+                if self.reservoir > 0 else None)
+        self._open, self._kept, self._training = bag, kept, training
+        warmup = self.warmup_iters
+
+        def start():
+            training.learn(X, Y, warmup)
+            if kept is not None:
+                kept.add(X, Y)
+            self._publish(bag, gen, training)
+
+        self._worker.submit(start)
+        return bag
+
+    def _retire_for(self, nearest: int) -> int:
+        """The slot a new bag takes at the budget: the least-used closed bag (fewest points
+        joined, the lowest index of equals), never the open one."""
+        counts = self._router._counts[: len(self._router)].astype(float)
+        if self._open >= 0:
+            counts[self._open] = np.inf
+        return int(np.argmin(counts))
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
         """:meth:`learn_one` then :meth:`predict_one` with one routing instead of two.
@@ -201,29 +413,53 @@ class IncrementalEnsemble:
         bag = self._learn_one(x, flange, samples)
         if bag is None:
             return self.predict_one(x, flange, t)
-        x = np.asarray(x, dtype=float)
-        return PayloadEstimate(t=t, phi=self._learners[bag].predict_one(x), bag=bag,
-                               learning=bag == self._open)
+        return self._estimate(np.asarray(x, dtype=float), bag, t)
 
     def close(self) -> None:
-        """Close the open bag (the path left it, or a task ended): train its learner once
-        more on the bag's kept points, then it is final."""
+        """Close the open bag (the path left it, or a task ended): its learner is trained
+        once more on the bag's kept points (in the worker if ``background``), then it is
+        final."""
         bag, kept = self._open, self._kept
-        self._open, self._kept = -1, None
-        if bag < 0 or kept is None or len(kept) < 2:
+        self._open, self._kept, self._training = -1, None, None
+        if bag < 0 or kept is None:
             return
-        X, Y = kept.stacked()
-        self._learners[bag] = WeakLearner.fit(
-            X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
-            seed=[self.seed, bag, 3],
-            epochs=self.fit_epochs if self.close_epochs is None else self.close_epochs,
-            batch=kept.batch(),
-            fit_lr=self.fit_lr)
+        gen = self._gen[bag]
+        epochs = self.fit_epochs if self.close_epochs is None else self.close_epochs
+        seed = [self.seed, bag, 3] + ([gen] if gen else [])
+
+        def refit():
+            if len(kept) < 2:
+                return
+            X, Y = self._covered(*kept.stacked(), kept.batch(), [*seed, 5])
+            learner = WeakLearner.fit(
+                X, Y, *self._out, lr=self.lr, input_noise=self.input_noise, seed=seed,
+                epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr,
+                pause=_yield if self.background else None)
+            self._publish(bag, gen, learner)
+
+        self._worker.submit(refit)
 
     # -- estimation ----------------------------------------------------------------------
     def _bag_for(self, q: np.ndarray, flange) -> int:
         bag, nearest = self._router.route(q, flange)
         return bag if bag >= 0 else nearest
+
+    def ood_score(self, x, bag: int) -> float:
+        """How far input ``x = [q, dq, tau]`` lies outside the training distribution of bag
+        ``bag``'s learner: the largest ``|x - center| / scale`` over the 21 inputs (its
+        training inputs' standard deviations). Above :attr:`ood_threshold` it is out of
+        distribution."""
+        learner = self._learners[bag]
+        z = (np.asarray(x, dtype=float) - learner.center) * learner._inv_scale
+        return float(np.abs(z).max())
+
+    def _estimate(self, x: np.ndarray, bag: int, t: float) -> PayloadEstimate:
+        learner = self._learners[bag]  # one read: the learner published now
+        score = float(np.abs((x - learner.center) * learner._inv_scale).max())
+        learning = bag == self._open  # the open bag trains on this very point: not flagged
+        return PayloadEstimate(t=t, phi=learner.predict_one(x), bag=bag, learning=learning,
+                               extra={"ood": not learning and score > self.ood_threshold,
+                                      "ood_score": score})
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)
@@ -232,8 +468,7 @@ class IncrementalEnsemble:
         bag = self._bag_for(x[:7], flange)
         if bag < 0:
             return PayloadEstimate(t=t, phi=np.full(10, math.nan), bag=-1)
-        return PayloadEstimate(t=t, phi=self._learners[bag].predict_one(x), bag=bag,
-                               learning=bag == self._open)
+        return self._estimate(x, bag, t)
 
     def predict_many(self, X, F) -> np.ndarray:
         X = np.asarray(X, dtype=float)
@@ -252,10 +487,13 @@ class IncrementalEnsemble:
 
     # -- persistence ---------------------------------------------------------------------
     def to_state(self) -> dict:
+        """Plain data of the model; pending training is finished first (:meth:`drain`)."""
+        self.drain()
         return {"params": self.params(), "router": self._router.to_state(),
                 "learners": [lr.to_state() for lr in self._learners], "open": self._open,
                 "kept": None if self._kept is None else self._kept.to_state(),
-                "out": None if self._out is None else [v.tolist() for v in self._out]}
+                "out": None if self._out is None else [v.tolist() for v in self._out],
+                "gen": list(self._gen), "retired": self.retired}
 
     @classmethod
     def from_state(cls, state: dict):
@@ -265,8 +503,18 @@ class IncrementalEnsemble:
         if len(model._learners) != len(model._router):
             raise InvalidInputError(f"model state has {len(model._router)} bags but "
                                     f"{len(model._learners)} learners")
+        model._gen = [int(g) for g in state.get("gen", [0] * len(model._learners))]
+        if len(model._gen) != len(model._learners):
+            raise InvalidInputError(f"model state has {len(model._learners)} bags but "
+                                    f"{len(model._gen)} slot generations")
+        model.retired = int(state.get("retired", 0))
         model._open = int(state["open"])
+        if not -1 <= model._open < len(model._learners):
+            raise InvalidInputError(f"model state's open bag {model._open} is not one of its "
+                                    f"{len(model._learners)} bags (or -1)")
         kept = state.get("kept")
         model._kept = None if kept is None else Reservoir.from_state(kept)
+        if model._open >= 0:  # the jobs train their own copy; the published one stays
+            model._training = model._learners[model._open].copy()
         model._out = None if state["out"] is None else tuple(np.array(v) for v in state["out"])
         return model

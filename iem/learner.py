@@ -168,12 +168,15 @@ class WeakLearner:
     # -- offline batch training ----------------------------------------------------------
     @classmethod
     def fit(cls, X, Y, lo, hi, lr: float = 0.5, input_noise=None, seed=0,
-            epochs: int = 10, batch: int = 77, fit_lr: float = 0.1) -> WeakLearner:
+            epochs: int = 10, batch: int = 77, fit_lr: float = 0.1,
+            pause=None) -> WeakLearner:
         """A learner trained on a whole bag's samples by SGD in whitened coordinates.
 
         The scaling is fitted to ``X`` (plus the input noise's variance); the SGD runs on
         ``u = W (x)`` with ``W`` the whitening of the scaled inputs, then the weights are
         mapped back, so the returned learner is an ordinary :class:`WeakLearner`.
+        ``pause``, if given, is called after every mini-batch (a worker thread passes
+        ``time.sleep(0)`` there, so a waiting estimate gets the interpreter within a step).
         """
         X = np.asarray(X, dtype=float)
         Y = np.asarray(Y, dtype=float)
@@ -206,6 +209,8 @@ class WeakLearner:
                 ga, gb, _ = _gradient(a_u, b, x @ white, t_all[j])
                 a_u -= fit_lr * ga
                 b -= fit_lr * gb
+                if pause is not None:
+                    pause()
         learner.a = a_u @ white.T  # a_u (W^T x) = (a_u W^T) x
         learner.b = b
         return learner

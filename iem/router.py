@@ -202,14 +202,31 @@ class BagRouter:
         x = np.asarray(flange, dtype=float)
         bag, nearest = self.route(q, x)
         if bag >= 0:
-            k = self._counts[bag] + 1
-            row = self._means[bag]
-            row[:7] += (q - row[:7]) / k
-            row[7:] += (x - row[7:]) / k
-            self._counts[bag] = k
-            self._mirror(bag)
+            self.join(bag, q, x)
             return bag, False, nearest
         return self._new_bag(q, x), True, nearest
+
+    def join(self, bag: int, q, flange) -> None:
+        """The point joins ``bag``: its means move to include it (Algorithm 1)."""
+        k = self._counts[bag] + 1
+        row = self._means[bag]
+        row[:7] += (np.asarray(q, dtype=float) - row[:7]) / k
+        row[7:] += (np.asarray(flange, dtype=float) - row[7:]) / k
+        self._counts[bag] = k
+        self._mirror(bag)
+
+    def new_bag(self, q, flange) -> int:
+        """A new bag with the point as its mean; returns its index."""
+        return self._new_bag(np.asarray(q, dtype=float), np.asarray(flange, dtype=float))
+
+    def replace(self, bag: int, q, flange) -> None:
+        """Bag ``bag`` is retired and its slot starts a new bag at the point (count 1)."""
+        if not 0 <= bag < self._n:
+            raise InvalidInputError(f"bag {bag} does not exist (there are {self._n})")
+        self._means[bag, :7] = np.asarray(q, dtype=float)
+        self._means[bag, 7:] = np.asarray(flange, dtype=float)
+        self._counts[bag] = 1
+        self._mirror(bag)
 
     def _new_bag(self, q: np.ndarray, x: np.ndarray) -> int:
         if self._n == self._means.shape[0]:

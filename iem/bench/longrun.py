@@ -1,0 +1,393 @@
+"""``iem bench longrun``: IEM and IEM+phys over a long random task motion.
+
+Set-up (everything seeded by ``--seed``):
+
+- The motion: rest-to-rest quintic segments (:func:`sim.paths.linear_path`) between random
+  waypoints drawn uniformly within the joint limits less a margin of
+  :data:`MARGIN` of each joint's range; each segment's duration is the shortest that keeps
+  every joint's velocity and acceleration within :data:`LIMIT_FRACTION` (90 %) of its limit
+  (a quintic's peaks are ``1.875 |dq| / T`` and ``5.7735 |dq| / T²``).
+- The plant (:class:`sim.plant.PandaPlant`, perfect arm, default sensor model) carries the
+  test payload (``test-3w``) and is told it, so it follows the motion.
+- The models are trained as ``iem train`` does
+  (:func:`deploy.training.train_initial_model`) and fed through
+  :class:`iem.online.OnlineIdentifier` as the service feeds them, learning as they go.
+
+Per 30 s window and model: ``bags``, ``nbytes``, the process's ``rss_mb`` (both models and
+the plant live in it), ``route_us`` (p50/p99 of the model's :meth:`BagRouter.route` on
+every 10th sample, timed apart from the estimator; ``route_cpu_us`` the same in this
+thread's CPU time, which leaves out the time the machine ran other work), ``estimate_us``
+(p50/p99 of ``predict_one``), ``learn_ms`` (median, max and total of the ``learn_one`` calls
+that learnt from a point, and how many) and ``mae`` per group (mass, com, inertia) of the smoothed
+estimate against the true payload; ``changes``: payload changes reported (false alarms:
+the payload never changes); ``ood_share``: the share of estimates flagged out of
+distribution (``extra["ood"]``; the IEM's own estimates carry it).
+
+Then the first minute of the motion is driven backwards (every segment reversed, in reverse
+order: the same poses, every velocity reversed) by a fresh plant, and each model, as it is
+at the end of the run, estimates along it with learning off (IEM+phys forgets the payload
+first, as for a new task): ``reverse_mae``.
+
+The models run with :data:`LONGRUN_PARAMS` (coverage training and a bag budget, ``--budget``)
+unless ``--plain`` (the ensemble's defaults, the paper's rule); they train in the cycle
+(``background=False``: seeded runs reproduce) unless ``--background`` (the worker thread:
+``learn_ms`` is then what the cycle itself spends). Last, ``at_budget``: a model
+of ``--budget`` bags (the trained IEM's learners copied onto random poses within the limits)
+saved and loaded: ``load_s``, ``file_mb``, ``route_us`` (p50/p99 over 2,000 random queries)
+and the RSS it adds.
+
+JSON keys: ``windows`` (a list), ``max_window_mae`` {model: {mass, com, inertia}},
+``reverse_mae`` {model: {...}}, ``false_alarms`` {model: n} (None: no detector),
+``bags_end``, ``rss_mb_end``, ``route_us_p99_end`` (each {model: value}), plus ``setup``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from iem.metrics import groups_of, mae
+from iem.online import OnlineIdentifier
+from iem.types import JointState
+
+MODELS = ("IEM", "IEM+phys")
+WINDOW_S = 30.0
+MARGIN = 0.1
+"""Margin of the waypoints from the joint limits, as a fraction of each joint's range."""
+LIMIT_FRACTION = 0.9
+"""Largest fraction of the velocity and acceleration limits a segment uses."""
+MIN_SEGMENT_S = 0.5
+REVERSE_S = 60.0
+ROUTE_EVERY = 10
+"""Every how many samples the route time is measured."""
+DEFAULT_BUDGET = 2000
+LONGRUN_PARAMS = {"coverage": "sim.coverage:other_velocities", "coverage_draws": 1}
+"""The ensemble's parameters for long runs (plus ``budget_bags``)."""
+
+_QUINTIC_DS = 1.875
+_QUINTIC_DDS = 10.0 / math.sqrt(3.0)
+
+
+def rss_mb() -> float:
+    """Resident set size of this process, MB (from /proc/self/statm)."""
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except (OSError, ValueError, IndexError):
+        return math.nan
+
+
+def segment_duration(q_a, q_b, dq_max, ddq_max, fraction: float = LIMIT_FRACTION) -> float:
+    """Shortest quintic duration (s, whole ms) from ``q_a`` to ``q_b`` within ``fraction``
+    of the velocity and acceleration limits."""
+    d = np.abs(np.asarray(q_b, float) - np.asarray(q_a, float))
+    t_v = float(np.max(_QUINTIC_DS * d / (fraction * dq_max)))
+    t_a = float(np.max(np.sqrt(_QUINTIC_DDS * d / (fraction * ddq_max))))
+    return max(MIN_SEGMENT_S, math.ceil(max(t_v, t_a) * 1000.0 + 1.0) / 1000.0)
+
+
+def random_segments(seconds: float, seed: int, kin):
+    """Random rest-to-rest quintic segments (:class:`sim.paths.Path`) totalling at least
+    ``seconds``; yields them one at a time."""
+    from sim.paths import linear_path
+
+    rng = np.random.default_rng([seed, 15])
+    span = kin.q_max - kin.q_min
+    lo, hi = kin.q_min + MARGIN * span, kin.q_max - MARGIN * span
+    q = rng.uniform(lo, hi)
+    total, k = 0.0, 0
+    while total < seconds:
+        nxt = rng.uniform(lo, hi)
+        T = segment_duration(q, nxt, kin.dq_max, kin.ddq_max)
+        seg = linear_path(q, nxt, T, name=f"segment-{k}")
+        total += seg.duration
+        k += 1
+        q = nxt
+        yield seg
+
+
+def reversed_path(segments):
+    """The segments driven backwards: the last first, each from its end to its start, with
+    every velocity reversed (q(T - t), -dq(T - t), ddq(T - t))."""
+    from sim.paths import Path
+
+    path = None
+    for seg in reversed(segments):
+        back = Path(name=f"{seg.name}-back", t=seg.t, q=seg.q[::-1], dq=-seg.dq[::-1],
+                    ddq=seg.ddq[::-1])
+        path = back if path is None else path.then(back)
+    return path
+
+
+class _Feed:
+    """One model fed through an :class:`OnlineIdentifier`, with per-window figures."""
+
+    def __init__(self, name, model, kin, tandem, learn: bool = True) -> None:
+        self.name = name
+        self.model = model
+        self.kin = kin
+        self.online = OnlineIdentifier(model, kin.flange_position, tandem.samples,
+                                       learn=learn, timed=True)
+        self._new_window()
+        self.changes_total = 0
+
+    def _new_window(self) -> None:
+        self.smoothed: list[np.ndarray] = []
+        self.route_s: list[float] = []
+        self.route_cpu_s: list[float] = []
+        self.changes = 0
+        self.ood = 0
+        self.online.learn_times.clear()
+        self.online.predict_times.clear()
+        self.online.learnt.clear()
+
+    @property
+    def router(self):
+        ens = getattr(self.model, "ensemble_model", self.model)
+        return ens.router
+
+    def step(self, state: JointState, k: int) -> None:
+        est, smoothed = self.online.step(state)
+        self.smoothed.append(smoothed)
+        if est.extra.get("change"):
+            self.changes += 1
+        self.ood += bool(est.extra.get("ood"))
+        if k % ROUTE_EVERY == 0:
+            flange = self.kin.flange_position(state.q)
+            router = self.router
+            c0, t0 = time.thread_time(), time.perf_counter()
+            router.route(state.q, flange)
+            self.route_s.append(time.perf_counter() - t0)
+            self.route_cpu_s.append(time.thread_time() - c0)
+
+    def window(self, phi) -> dict:
+        o = self.online
+        learnt = np.array(o.learnt, dtype=bool)
+        learn_ms = np.array(o.learn_times)[learnt] * 1e3 if learnt.any() else np.array([])
+        est_us = np.array(o.predict_times) * 1e6
+        route_us = np.array(self.route_s) * 1e6
+        out = {
+            "bags": int(self.model.n_bags), "nbytes": int(self.model.nbytes()),
+            "rss_mb": rss_mb(),
+            "route_us": _pct(route_us),
+            "route_cpu_us": _pct(np.array(self.route_cpu_s) * 1e6),
+            "estimate_us": _pct(est_us),
+            "learn_ms": {"median": float(np.median(learn_ms)) if learn_ms.size else None,
+                         "max": float(learn_ms.max()) if learn_ms.size else None,
+                         "total": float(learn_ms.sum()), "points": int(learn_ms.size)},
+            "mae": groups_of(mae(np.array(self.smoothed), phi)),
+            "changes": self.changes,
+            "ood_share": self.ood / max(1, len(self.smoothed)),
+        }
+        self.changes_total += self.changes
+        self._new_window()
+        return out
+
+
+def _pct(values: np.ndarray) -> dict:
+    if values.size == 0:
+        return {"p50": None, "p99": None}
+    return {"p50": float(np.percentile(values, 50)), "p99": float(np.percentile(values, 99))}
+
+
+def train_models(seed: int, log, params: dict | None = None) -> dict:
+    from deploy.training import train_initial_model
+
+    return {kind: train_initial_model(kind, seed=seed, log=log, **(params or {}))
+            for kind in MODELS}
+
+
+def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
+                params: dict | None = None) -> dict:
+    """The long run; returns the results (see the module docstring)."""
+    from sim.family import default_test_payload, training_payloads
+    from sim.plant import PandaPlant
+    from sim.robot import PandaModel
+    from sim.tandem import TandemSimulators
+
+    started = time.perf_counter()
+    kin = PandaModel()
+    payload = default_test_payload()
+    phi = payload.to_phi()
+    tandem = TandemSimulators(training_payloads(), model=PandaModel())
+    models = train_models(seed, log, params)
+    feeds = {name: _Feed(name, m, kin, tandem) for name, m in models.items()}
+    plant = PandaPlant(payload=payload, seed=seed, controller_load=payload)
+    windows: list[dict] = []
+    first_minute = []
+    seconds = float(minutes) * 60.0
+    t_sim, k, next_window, started_plant = 0.0, 0, WINDOW_S, False
+    segments = 0
+    for seg in random_segments(seconds, seed, kin):
+        if t_sim < REVERSE_S:
+            first_minute.append(seg)
+        segments += 1
+        n = len(seg)
+        first = 0 if not started_plant else 1  # a joined segment's first sample is the last's
+        if not started_plant:
+            plant.reset(seg.q[0], seg.dq[0])
+            started_plant = True
+        for i in range(first, n):
+            s = plant.step(seg.q[i], seg.dq[i], seg.ddq[i])
+            state = JointState(t=s.t, q=s.q, dq=s.dq, tau_J=s.tau_J, cycle=k)
+            for feed in feeds.values():
+                feed.step(state, k)
+            k += 1
+            t_sim = k / 1000.0
+            if t_sim >= next_window - 1e-9:
+                w = {"t_end_s": t_sim, **{name: f.window(phi) for name, f in feeds.items()}}
+                windows.append(w)
+                log(_fmt_window(w))
+                next_window += WINDOW_S
+    if feeds["IEM"].smoothed:  # a last partial window
+        w = {"t_end_s": t_sim, **{name: f.window(phi) for name, f in feeds.items()}}
+        windows.append(w)
+        log(_fmt_window(w))
+    for m in models.values():
+        if hasattr(m, "close"):
+            m.close()
+        ens = getattr(m, "ensemble_model", m)
+        if hasattr(ens, "drain"):
+            ens.drain()  # the training still in the worker lands before the replay
+
+    reverse = reversed_path(first_minute)
+    back_plant = PandaPlant(payload=payload, seed=seed + 1000, controller_load=payload)
+    rollout = back_plant.follow(reverse)
+    reverse_mae = {}
+    for name, m in models.items():
+        if hasattr(m, "reset"):
+            m.reset()
+        online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
+        out = np.empty((len(rollout), 10))
+        for i in range(len(rollout)):
+            state = JointState(t=float(rollout.t[i]), q=rollout.q[i], dq=rollout.dq[i],
+                               tau_J=rollout.tau[i], cycle=i)
+            out[i] = online.step(state)[1]
+        reverse_mae[name] = groups_of(mae(out, phi))
+        log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
+
+    at_budget = budget_figures(models["IEM"], (params or {}).get("budget_bags") or DEFAULT_BUDGET,
+                               kin, seed)
+    log(f"at the budget: {at_budget}")
+    results = {
+        "windows": windows,
+        "max_window_mae": {name: {g: max(w[name]["mae"][g] for w in windows)
+                                  for g in ("mass", "com", "inertia")} for name in models},
+        "reverse_mae": reverse_mae,
+        "false_alarms": {name: (f.changes_total
+                                if getattr(models[name], "detects_changes", False) else None)
+                         for name, f in feeds.items()},
+        "bags_end": {name: int(m.n_bags) for name, m in models.items()},
+        "rss_mb_end": rss_mb(),
+        "route_us_p99_end": {name: windows[-1][name]["route_us"]["p99"] for name in models},
+        "route_cpu_us_p99_end": {name: windows[-1][name]["route_cpu_us"]["p99"]
+                                 for name in models},
+        "at_budget": at_budget,
+        "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
+                  "segments": segments, "samples": k, "reverse_s": reverse.duration,
+                  "params": params or {}, "wall_s": time.perf_counter() - started},
+    }
+    log("max window MAE: " + "; ".join(f"{n} {_fmt(v)}"
+                                         for n, v in results["max_window_mae"].items()))
+    log(f"false alarms {results['false_alarms']}  bags {results['bags_end']}  "
+        f"RSS {results['rss_mb_end']:.0f} MB  route p99 {results['route_us_p99_end']} µs  "
+        f"({results['setup']['wall_s']:.0f} s)")
+    return results
+
+
+def budget_figures(model, n: int, kin, seed: int, queries: int = 2000) -> dict:
+    """A model of ``n`` bags (``model``'s learners copied onto random poses): its file's
+    size and load time, the RSS the loaded model adds, and route p50/p99 among its bags."""
+    import gc
+    import tempfile
+
+    from iem.ensemble import IncrementalEnsemble
+    from iem.persistence import load_model, save_model
+    from iem.router import BagRouter
+
+    rng = np.random.default_rng([seed, 2000])
+    Q = rng.uniform(kin.q_min, kin.q_max, size=(n, 7))
+    big = IncrementalEnsemble.from_state(model.to_state())
+    big._router = BagRouter.from_means(Q, kin.flange_positions(Q), big.delta, big.rho)
+    src = [model.learner(b) for b in range(model.n_bags)]
+    big._learners = [src[i % len(src)].copy_for(src[i % len(src)].center, seed=[seed, i])
+                     for i in range(n)]
+    big._gen = [0] * n
+    big._open, big._kept, big._training = -1, None, None
+    with tempfile.TemporaryDirectory() as tmp:
+        path = FsPath(tmp) / "budget.iem"
+        save_model(big, path)
+        size = path.stat().st_size
+        del big
+        gc.collect()
+        rss0 = rss_mb()
+        t0 = time.perf_counter()
+        loaded = load_model(path)
+        load_s = time.perf_counter() - t0
+        rss1 = rss_mb()
+    probe = rng.uniform(kin.q_min, kin.q_max, size=(queries, 7))
+    flange = kin.flange_positions(probe)
+    times = np.empty(queries)
+    cpu = np.empty(queries)
+    router = loaded.router
+    for i in range(queries):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        router.route(probe[i], flange[i])
+        times[i] = time.perf_counter() - t0
+        cpu[i] = time.thread_time() - c0
+    return {"bags": n, "file_mb": size / 1e6, "load_s": load_s, "rss_added_mb": rss1 - rss0,
+            "nbytes_mb": loaded.nbytes() / 1e6, "route_us": _pct(times * 1e6),
+            "route_cpu_us": _pct(cpu * 1e6)}
+
+
+def _fmt(groups: dict) -> str:
+    return "  ".join(f"{g} {v:.4g}" for g, v in groups.items())
+
+
+def _fmt_window(w: dict) -> str:
+    parts = [f"t {w['t_end_s']:6.0f} s"]
+    for name in MODELS:
+        f = w[name]
+        lm = f["learn_ms"]["median"]
+        parts.append(f"{name}: {f['bags']} bags {f['nbytes'] / 1e6:.2f} MB "
+                     f"route p99 {f['route_us']['p99']:.0f} µs "
+                     f"est p50 {f['estimate_us']['p50']:.0f} µs "
+                     f"learn {'-' if lm is None else f'{lm:.1f}'} ms "
+                     f"mass {f['mae']['mass']:.4f} alarms {f['changes']}")
+    return " | ".join(parts) + f" | RSS {w[MODELS[0]]['rss_mb']:.0f} MB"
+
+
+def configure(parser) -> None:
+    parser.add_argument("--minutes", type=float, default=10.0, help="length of the motion")
+    parser.add_argument("--seed", type=int, default=0, help="seed of motion, noise, learners")
+    parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="BAGS",
+                        help="bag budget of the ensemble (default 2000)")
+    parser.add_argument("--background", action="store_true",
+                        help="train in the worker thread, off the cycle (not reproducible: "
+                             "when training lands depends on the machine)")
+    parser.add_argument("--plain", action="store_true",
+                        help="the ensemble's defaults: no coverage training, no budget")
+
+
+def run(args) -> int:
+    from iem.errors import InvalidInputError
+
+    if not args.minutes > 0:
+        raise InvalidInputError(f"--minutes must be > 0, got {args.minutes}")
+    if args.budget < 2:
+        raise InvalidInputError(f"--budget must be >= 2 bags, got {args.budget}")
+    params = {} if args.plain else {**LONGRUN_PARAMS, "budget_bags": args.budget}
+    if args.background:
+        params["background"] = True
+    results = run_longrun(args.minutes, args.seed, params=params)
+    if args.json:
+        FsPath(args.json).write_text(json.dumps(results, indent=2) + "\n")
+        print(f"wrote {args.json}")
+    return 0

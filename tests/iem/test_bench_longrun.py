@@ -1,0 +1,73 @@
+"""``iem bench longrun``: the random motion it drives, its reversal, its JSON keys; the
+60-minute soak (slow) holds the issue's targets."""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from iem.bench.longrun import LIMIT_FRACTION, MARGIN, random_segments, reversed_path, run_longrun
+from sim.robot import PandaModel
+
+KIN = PandaModel()
+
+
+def test_random_segments_are_rest_to_rest_within_the_margins_and_90_percent_of_the_limits():
+    segs = list(random_segments(60.0, 3, KIN))
+    assert sum(s.duration for s in segs) >= 60.0 and len(segs) > 10
+    span = KIN.q_max - KIN.q_min
+    peaks_v, peaks_a = [], []
+    for a, b in itertools.pairwise(segs):
+        np.testing.assert_allclose(a.q[-1], b.q[0], atol=1e-12)
+    for s in segs:
+        assert np.all(s.q >= KIN.q_min + MARGIN * span - 1e-12)
+        assert np.all(s.q <= KIN.q_max - MARGIN * span + 1e-12)
+        assert np.abs(s.dq[[0, -1]]).max() < 1e-9 and np.abs(s.ddq[[0, -1]]).max() < 1e-9
+        peaks_v.append(np.max(np.abs(s.dq) / KIN.dq_max))
+        peaks_a.append(np.max(np.abs(s.ddq) / KIN.ddq_max))
+    assert max(peaks_v + peaks_a) <= LIMIT_FRACTION + 1e-9
+    # each segment is as fast as the limits allow: one of its peaks is near 90 %
+    assert np.all(np.maximum(peaks_v, peaks_a) > 0.8 * LIMIT_FRACTION)
+    again = list(random_segments(60.0, 3, KIN))
+    assert all(np.array_equal(a.q, b.q) for a, b in zip(segs, again, strict=True))
+
+
+def test_reversed_path_drives_the_same_poses_backwards():
+    segs = list(random_segments(5.0, 1, KIN))
+    forward = segs[0]
+    for s in segs[1:]:
+        forward = forward.then(s)
+    back = reversed_path(segs)
+    np.testing.assert_allclose(back.q, forward.q[::-1])
+    np.testing.assert_allclose(back.dq, -forward.dq[::-1])
+    np.testing.assert_allclose(back.ddq, forward.ddq[::-1])
+
+
+def test_results_have_the_keys_of_the_issue(tmp_path):
+    res = run_longrun(minutes=0.05, seed=0, log=lambda *a: None,
+                      params={"budget_bags": 50})
+    for key in ("windows", "max_window_mae", "reverse_mae", "false_alarms", "bags_end",
+                "rss_mb_end", "route_us_p99_end"):
+        assert key in res
+    for key in ("max_window_mae", "reverse_mae"):
+        assert set(res[key]) == {"IEM", "IEM+phys"}
+        assert set(res[key]["IEM"]) == {"mass", "com", "inertia"}
+    assert res["false_alarms"]["IEM"] is None and res["false_alarms"]["IEM+phys"] >= 0
+    w = res["windows"][0]["IEM"]
+    assert {"bags", "nbytes", "rss_mb", "route_us", "estimate_us", "learn_ms", "mae"} <= set(w)
+    assert res["at_budget"]["bags"] == 50
+    (tmp_path / "r.json").write_text(json.dumps(res))  # plain JSON
+
+
+@pytest.mark.slow
+def test_sixty_minutes_hold_the_targets():
+    res = run_longrun(minutes=60.0, seed=0, log=lambda *a: None,
+                      params={"coverage": "sim.coverage:other_velocities",
+                              "budget_bags": 2000})
+    assert res["false_alarms"]["IEM+phys"] == 0
+    assert res["max_window_mae"]["IEM+phys"]["mass"] <= 0.005
+    assert res["reverse_mae"]["IEM+phys"]["mass"] <= 0.005
+    assert max(res["bags_end"].values()) <= 2000

@@ -1,0 +1,313 @@
+"""The ensemble over long runs: learning off the cycle, the out-of-distribution flag, the bag
+budget and the router's slot operations (synthetic data of :mod:`tests.iem.test_checks`)."""
+
+from __future__ import annotations
+
+import copy
+import threading
+
+import numpy as np
+import pytest
+
+from iem import checks
+from iem.ensemble import OOD_THRESHOLD, IncrementalEnsemble
+from iem.errors import InvalidInputError
+from iem.persistence import dumps, loads
+from iem.router import BagRouter
+from iem.worker import LearningError, LearningWorker
+
+from .test_checks import DATA
+
+PARAMS = {"seed": 3, "fit_epochs": 2, "warmup_iters": 10, "iters": 2}
+
+
+def fitted(**kw) -> IncrementalEnsemble:
+    model = IncrementalEnsemble(**PARAMS, **kw)
+    idx = list(DATA.fit_points)
+    model.fit(DATA.X[idx, :7], DATA.F[idx], lambda i: DATA.samples_at(idx[i]))
+    return model
+
+
+def learn(model, points) -> None:
+    for i in points:
+        model.learn_one(DATA.X[i], DATA.F[i], lambda i=i: DATA.samples_at(i))
+
+
+def weights(model) -> list[tuple[np.ndarray, ...]]:
+    return [(lr.a.copy(), lr.b.copy(), lr.center.copy(), lr.scale.copy())
+            for lr in (model.learner(b) for b in range(model.n_bags))]
+
+
+def same(a, b) -> bool:
+    return all(all(np.array_equal(x, y) for x, y in zip(p, q, strict=True))
+               for p, q in zip(a, b, strict=True))
+
+
+class Gate:
+    """A job that holds the worker until released (so no training can land meanwhile)."""
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.started = threading.Event()
+
+    def __call__(self) -> None:
+        self.started.set()
+        assert self.release.wait(30)
+
+
+# -- learning off the cycle ----------------------------------------------------------------
+def test_background_learns_exactly_what_synchronous_learns():
+    sync, back = fitted(), fitted(background=True)
+    points = DATA.train_points() + DATA.further_points()
+    learn(sync, points)
+    learn(back, points)
+    sync.close()
+    back.close()
+    back.drain()
+    assert back.n_bags == sync.n_bags > 2
+    assert same(weights(back), weights(sync))
+    back.stop()
+
+
+def test_new_bag_estimates_with_its_copied_learner_until_its_training_lands():
+    model = fitted(background=True)
+    before = model.n_bags
+    gate = Gate()
+    model._worker.submit(gate)
+    assert gate.started.wait(30)
+    i = next(j for j in DATA.further_points()
+             if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
+    nearest = model.router.route(DATA.X[i, :7], DATA.F[i])[1]
+    source = model.learner(nearest)
+    model.learn_one(DATA.X[i], DATA.F[i], lambda: DATA.samples_at(i))
+    bag = model.n_bags - 1
+    assert bag == before and model.open_bag == bag and model.pending >= 1
+    copied = model.learner(bag)
+    assert np.array_equal(copied.a, source.a) and np.array_equal(copied.b, source.b)
+    est = model.predict_one(DATA.X[i], DATA.F[i])
+    assert est.bag == bag and est.learning
+    assert np.array_equal(est.phi, copied.predict_one(DATA.X[i]))
+    gate.release.set()
+    model.drain()
+    trained = model.learner(bag)
+    assert trained is not copied and not np.array_equal(trained.a, copied.a)
+    # the copy it estimated with was swapped out, never trained in place
+    assert np.array_equal(copied.a, source.a)
+    model.stop()
+
+
+def test_published_learners_never_change_and_closed_bags_are_never_retrained():
+    model = fitted(background=True)
+    learn(model, DATA.train_points())
+    model.close()
+    model.drain()
+    closed = weights(model)
+    held = [model.learner(b) for b in range(model.n_bags)]
+    learn(model, DATA.further_points())
+    model.close()
+    model.drain()
+    assert same(weights(model)[: len(closed)], closed)
+    assert same([(lr.a, lr.b, lr.center, lr.scale) for lr in held], closed)
+    model.stop()
+
+
+def test_saving_and_copying_finish_pending_work():
+    model = fitted(background=True)
+    gate = Gate()
+    model._worker.submit(gate)
+    learn(model, DATA.further_points()[:40])
+    assert model.pending > 0
+    threading.Timer(0.05, gate.release.set).start()
+    state = model.to_state()  # waits for the gate, then for the training behind it
+    assert model.pending == 0
+    sync = fitted()
+    learn(sync, DATA.further_points()[:40])
+    loaded = loads(dumps(model))
+    assert same(weights(loaded), weights(sync))
+    assert state["open"] == sync.open_bag
+    model.stop()
+
+
+def test_a_copy_of_a_background_ensemble_does_not_wait_and_holds_the_published_state():
+    model = fitted(background=True)
+    learn(model, DATA.further_points()[:20])
+    model.close()
+    model.drain()
+    closed = model.n_bags  # every bag so far is closed and trained
+    gate = Gate()
+    model._worker.submit(gate)
+    assert gate.started.wait(30)
+    learn(model, DATA.further_points()[20:60])
+    assert model.pending > 0
+    published = weights(model)
+    twin = copy.deepcopy(model)  # the gate still holds the worker: a wait would hang here
+    assert same(weights(twin), published) and twin.open_bag == -1 and twin.pending == 0
+    gate.release.set()
+    model.drain()
+    learn(twin, DATA.further_points()[60:])
+    twin.drain()
+    assert same(weights(model)[:closed], published[:closed])  # closed bags: untouched
+    model.stop()
+    twin.stop()
+
+
+def test_a_failed_job_is_reported_not_lost():
+    worker = LearningWorker()
+
+    def boom():
+        raise ValueError("bad batch")
+
+    worker.submit(boom)
+    with pytest.raises(LearningError, match="bad batch"):
+        worker.drain()
+    ran = []
+    worker.submit(lambda: ran.append(1))
+    worker.close()
+    assert ran == [1]
+
+
+# -- out of distribution -------------------------------------------------------------------
+def test_training_inputs_are_in_distribution_and_reversed_velocities_are_not():
+    model = fitted()  # its bags' learners were trained on the fit points' samples
+    inside, reversed_ = [], []
+    for i in DATA.fit_points:
+        bag = model.router.route(DATA.X[i, :7], DATA.F[i])[0]
+        X, _ = DATA.samples_at(i)
+        inside += [model.ood_score(x, bag) for x in X]
+        x = DATA.X[i].copy()
+        x[7:14] *= -3.0  # the same pose driven the other way, faster
+        est = model.predict_one(x, DATA.F[i])
+        assert est.extra["ood_score"] == pytest.approx(model.ood_score(x, est.bag))
+        reversed_.append(est.extra["ood"])
+    assert np.max(inside) < OOD_THRESHOLD
+    assert np.mean(reversed_) > 0.9
+    est = model.predict_one(DATA.X[50], DATA.F[50])
+    assert est.extra["ood"] is False
+
+
+def test_ood_threshold_is_a_hyper_parameter_and_the_open_bag_is_never_flagged():
+    model = fitted(ood_threshold=1e-9)
+    assert model.predict_one(DATA.X[0], DATA.F[0]).extra["ood"]
+    i = next(j for j in DATA.further_points()
+             if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
+    model.learn_one(DATA.X[i], DATA.F[i], lambda: DATA.samples_at(i))
+    est = model.predict_one(DATA.X[i] + 1.0, DATA.F[i])
+    assert est.learning and est.extra["ood_score"] > 1e-9 and est.extra["ood"] is False
+    with pytest.raises(InvalidInputError, match="ood_threshold"):
+        IncrementalEnsemble(ood_threshold=0.0)
+
+
+# -- the bag budget ------------------------------------------------------------------------
+def test_budget_bounds_the_bags_and_retires_the_least_used():
+    small = {"delta": 0.15, "rho": 0.08}  # many small bags
+    free = fitted(**small)
+    learn(free, DATA.train_points() + DATA.further_points())
+    budget = free.n_bags - 5
+    model = fitted(budget_bags=budget, **small)
+    retired_counts = []
+    orig = model._retire_for
+
+    def spy(nearest):
+        victim = orig(nearest)
+        counts = model.router.counts.astype(float)
+        counts[model.open_bag] = np.inf
+        assert counts[victim] == counts.min()
+        retired_counts.append(int(model.router.counts[victim]))
+        return victim
+
+    model._retire_for = spy
+    for i in DATA.train_points() + DATA.further_points():
+        model.learn_one(DATA.X[i], DATA.F[i], lambda i=i: DATA.samples_at(i))
+        assert model.n_bags <= budget
+    assert model.retired == len(retired_counts) >= 3
+    assert sum(model.slot_generation(b) for b in range(model.n_bags)) == model.retired
+    loaded = loads(dumps(model))
+    assert loaded.retired == model.retired and loaded.params()["budget_bags"] == budget
+    np.testing.assert_array_equal(loaded.predict_many(DATA.X, DATA.F),
+                                  model.predict_many(DATA.X, DATA.F))
+    with pytest.raises(InvalidInputError, match="budget_bags"):
+        IncrementalEnsemble(budget_bags=1)
+
+
+def test_old_model_state_without_the_new_fields_loads():
+    model = fitted()
+    state = model.to_state()
+    for key in ("gen", "retired"):
+        state.pop(key)
+    for key in ("background", "budget_bags", "ood_threshold"):
+        state["params"].pop(key)
+    old = IncrementalEnsemble.from_state(state)
+    assert old.n_bags == model.n_bags and old.budget_bags is None and not old.background
+    np.testing.assert_array_equal(old.predict_many(DATA.X, DATA.F),
+                                  model.predict_many(DATA.X, DATA.F))
+
+
+# -- router slot operations ----------------------------------------------------------------
+@pytest.mark.parametrize("n", [10, 300])
+def test_router_after_replacements_routes_as_a_fresh_router_of_its_means(n):
+    rng = np.random.default_rng(n)
+    Q = rng.uniform(-2.5, 2.5, (n, 7))
+    F = rng.uniform(-0.8, 0.8, (n, 3))
+    router = BagRouter.from_means(Q, F)
+    for _ in range(n // 2):
+        i = int(rng.integers(n))
+        q, f = rng.uniform(-2.5, 2.5, 7), rng.uniform(-0.8, 0.8, 3)
+        router.replace(i, q, f)
+        router.join(i, q + 0.01, f)
+    fresh = BagRouter.from_means(router.q_means, router.flange_means)
+    probes_q = np.vstack((router.q_means + rng.normal(0, 0.1, (n, 7)),
+                          rng.uniform(-2.5, 2.5, (200, 7))))
+    probes_f = np.vstack((router.flange_means + rng.normal(0, 0.05, (n, 3)),
+                          rng.uniform(-0.8, 0.8, (200, 3))))
+    for q, f in zip(probes_q, probes_f, strict=True):
+        assert router.route(q, f) == fresh.route(q, f)
+    np.testing.assert_array_equal(router.route_many(probes_q, probes_f),
+                                  fresh.route_many(probes_q, probes_f))
+    with pytest.raises(InvalidInputError, match="does not exist"):
+        router.replace(n, Q[0], F[0])
+
+
+class Drained(IncrementalEnsemble):
+    """A background ensemble that waits for its training after every point (so the shared
+    checks, which compare predictions point by point, see a deterministic model)."""
+
+    def learn_one(self, x, flange, samples) -> None:
+        super().learn_one(x, flange, samples)
+        self.drain()
+
+
+@pytest.mark.parametrize("check", [c for c in checks.CHECKS if c is not checks.check_save_load],
+                         ids=lambda c: c.__name__)
+def test_background_ensemble_passes_the_shared_checks(check):
+    check(lambda: Drained(seed=0, fit_epochs=2, warmup_iters=10, iters=2, background=True),
+          DATA)
+
+
+def test_a_dropped_background_ensemble_ends_its_thread():
+    import gc
+
+    model = fitted(background=True)
+    learn(model, DATA.further_points()[:5])
+    model.drain()
+    thread = model._worker._thread
+    assert thread.is_alive()
+    del model
+    gc.collect()
+    thread.join(10)
+    assert not thread.is_alive()
+
+
+def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch):
+    import iem.ensemble as ensemble
+
+    monkeypatch.setattr(ensemble, "MAX_PENDING", 5)
+    model = fitted(background=True)
+    gate = Gate()
+    model._worker.submit(gate)
+    assert gate.started.wait(30)
+    learn(model, DATA.further_points())
+    assert model.skipped_points > 0
+    assert model.pending <= 5 + 1 + model.n_bags  # new bags and closes always go
+    gate.release.set()
+    model.drain()
+    model.stop()
