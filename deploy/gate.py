@@ -24,6 +24,8 @@ controller. In order, an estimate is refused if:
 10. ``data_disagree``: the model reports ``extra["nis"]`` (its mean normalised innovation
     squared per degree of freedom over its recent equations, about 1 when the data agree
     with the model) and it exceeds ``max_nis``;
+    ``out_of_distribution``: the IEM alone estimated from an input far beyond its bag's
+    training inputs (``extra["ood"]``);
     ``unverified``: the estimate started from a payload file (``[estimate]
     initial_payload``) and the model has not yet tested it against enough live data
     (``extra["unverified"]``);
@@ -59,7 +61,8 @@ log = logging.getLogger("iem.gate")
 
 REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
            "out_of_wire_range", "controller_silent", "ack_missing", "refused", "uncertain",
-           "data_disagree", "unverified", "unstable", "no_change", "rate_limited")
+           "data_disagree", "unverified", "out_of_distribution", "unstable", "no_change",
+           "rate_limited")
 REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
 """Reasons that say the estimate itself can never be written (counted in ``rejected``)."""
 _QUIET = ("unstable", "uncertain", "no_change", "rate_limited")

@@ -51,10 +51,12 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
 
 
 def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
-    """``("unverified" | "uncertain" | "data_disagree", detail)`` if the model's own figures
-    say its estimate (an :class:`iem.types.PayloadEstimate`) is not good enough to write,
-    else None; also None for a model that reports neither a ``std`` nor ``extra["nis"]``.
+    """``("out_of_distribution" | "unverified" | "uncertain" | "data_disagree", detail)`` if
+    the model's own figures say its estimate (an :class:`iem.types.PayloadEstimate`) is not
+    good enough to write, else None; also None for a model that reports none of them.
 
+    - ``out_of_distribution``: ``extra["ood"]``: the IEM's learner met an input far beyond its
+      bag's training inputs (:meth:`iem.ensemble.IncrementalEnsemble.ood_score`);
     - ``unverified``: ``extra["unverified"]``: the estimate started from a payload file and
       the model has not yet tested it against enough live data;
     - ``uncertain``: ``2 * std[0]`` (the 2-sigma band on the mass, kg) is wider than
@@ -66,6 +68,9 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     if estimate is None:
         return None
     extra = getattr(estimate, "extra", None) or {}
+    if extra.get("ood"):
+        return ("out_of_distribution", f"the learner's input lies {extra.get('ood_score', 0):.3g}"
+                " standard deviations beyond what its bag was trained on")
     if extra.get("unverified"):
         return ("unverified", "the estimate starts from a payload file and has not yet been "
                               "tested against enough live data")

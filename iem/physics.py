@@ -14,7 +14,10 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   (:class:`iem.prior_summary.BagCalibration`) is measured on what the model has: the tandem
   samples of the training payloads at the bag's points, noise-free inputs, learner output
   minus true phi (:meth:`PhysicsInformedEnsemble.fit` for the initial bags, every learnt
-  point for new ones). ``prior_scale`` multiplies its standard deviations.
+  point for new ones). ``prior_scale`` multiplies its standard deviations. An estimate whose
+  input lies beyond its bag's training distribution (the ensemble's ``ood_score`` above its
+  threshold, e.g. a pose met at other velocities) adds its bag's covariance times
+  ``(score / threshold)²``: the prior is less sure there, and the physics governs.
   The calibration holds where the learners were trained; far from that an ensemble can be
   off by more than it says, so the data judge the prior: its covariance is scaled by the
   empirical-Bayes factor ``s² >= 1`` that makes the data most likely
@@ -142,6 +145,7 @@ class PhysicsInformedEnsemble:
         self._detector = ChangeDetector(7, self.drift, self.threshold)
         self._floor = np.square(PRIOR_FLOOR)
         self._calib = BagCalibration()
+        self._calib_gen: list[int] = []  # the slot generation each calibration belongs to
         self._window = EquationWindow()
         self._summary = PriorSummary()
         self._nis = np.zeros(NIS_WINDOW)
@@ -252,13 +256,32 @@ class PhysicsInformedEnsemble:
                 + 8 * 10 * 10 * 3)  # the posterior's matrices
 
     # -- prior calibration ---------------------------------------------------------------
+    def _current(self, bag: int) -> None:
+        """A slot the ensemble reused for a new bag (its budget) forgets the old bag's
+        calibration, so the new learner is not judged by the retired one's errors."""
+        gen = self._ens.slot_generation(bag)
+        while len(self._calib_gen) <= bag:
+            self._calib_gen.append(0)
+        if self._calib_gen[bag] != gen:
+            self._calib.forget(bag)
+            self._calib_gen[bag] = gen
+
     def _calibrate(self, bag: int, X, Y) -> None:
         """Add a bag's learner's errors on labelled samples to the bag's covariance."""
+        self._current(bag)
         err = self._ens.learner(bag).predict_many(X) - np.asarray(Y, dtype=float)
         self._calib.add(bag, err)
 
+    def _ood_factor(self, est) -> float:
+        """How much less sure an ensemble estimate is than its bag's calibration says:
+        ``(score / threshold)²`` once its input lies beyond the bag's training distribution
+        (:meth:`iem.ensemble.IncrementalEnsemble.ood_score`), else 1."""
+        score = est.extra.get("ood_score", 0.0) if est.extra else 0.0
+        return max(1.0, score / self._ens.ood_threshold) ** 2
+
     def _bag_cov(self, bag: int) -> np.ndarray:
         """The bag's learner's error covariance (a weak default if never measured)."""
+        self._current(bag)
         if self._calib.measured(bag):
             return self._calib.cov(bag)
         learner = self._ens.learner(bag)
@@ -350,7 +373,9 @@ class PhysicsInformedEnsemble:
             summary = self._summary
             if summary.n == 0:
                 summary.noise0 = self._noise_cov(est.bag, x)
-            summary.add(est.phi, est.bag)
+            factor = self._ood_factor(est)  # out of distribution: the physics governs
+            summary.add(est.phi, est.bag,
+                        None if factor == 1.0 else (factor - 1.0) * self._bag_cov(est.bag))
             if self._window.empty and (summary.n % self.update_every == 1
                                        or self.update_every == 1):
                 self._post = None  # no data yet: refresh the prior-only posterior every
@@ -393,7 +418,8 @@ class PhysicsInformedEnsemble:
             if est.bag < 0 or not np.all(np.isfinite(est.phi)):
                 return None
             mean = est.phi
-            cov = self._bag_cov(est.bag) + self._noise_cov(est.bag, np.asarray(x, float))
+            cov = (self._bag_cov(est.bag) * self._ood_factor(est)
+                   + self._noise_cov(est.bag, np.asarray(x, float)))
         else:
             mean = np.zeros(10)
             cov = np.diag(np.square(DEFAULT_PRIOR_STD))
@@ -470,7 +496,8 @@ class PhysicsInformedEnsemble:
     # -- persistence ---------------------------------------------------------------------
     def to_state(self) -> dict:
         return {"params": self.params(), "ensemble": self._ens.to_state(),
-                **self._calib.to_state(), "regression": self._reg.to_state(),
+                **self._calib.to_state(), "calib_gen": list(self._calib_gen),
+                "regression": self._reg.to_state(),
                 **self._window.to_state(), **self._summary.to_state(),
                 "detector": self._detector.to_state(), "changed": self._changed,
                 "post": None if self._post is None else self._post.to_state(),
@@ -483,6 +510,7 @@ class PhysicsInformedEnsemble:
         model = cls(**state["params"])
         model._ens = IncrementalEnsemble.from_state(state["ensemble"])
         model._calib.set_state(state)
+        model._calib_gen = [int(g) for g in state.get("calib_gen", [])]
         if len(model._calib) > model.n_bags:
             raise InvalidInputError(f"model state has {len(model._calib)} bag covariances "
                                     f"for {model.n_bags} bags")

@@ -54,6 +54,13 @@ class BagCalibration:
     def measured(self, bag: int) -> bool:
         return bag < len(self._n) and self._n[bag] > 0
 
+    def forget(self, bag: int) -> None:
+        """Drop what was measured of ``bag`` (its slot now holds another bag)."""
+        if bag < len(self._sum):
+            self._sum[bag][:] = 0.0
+            self._n[bag] = 0
+            self._cov.pop(bag, None)
+
     def cov(self, bag: int) -> np.ndarray:
         """The bag's error covariance (only if :meth:`measured`)."""
         cov = self._cov.get(bag)
@@ -91,8 +98,11 @@ class PriorSummary:
         self._counts: dict[int, int] = {}
         self._sum_c_base = np.zeros((10, 10))  # from a state saved before bag counts
 
-    def add(self, phi: np.ndarray, bag: int) -> None:
-        """One estimate ``phi`` made by ``bag``'s learner."""
+    def add(self, phi: np.ndarray, bag: int, extra_cov: np.ndarray | None = None) -> None:
+        """One estimate ``phi`` made by ``bag``'s learner; ``extra_cov`` is added to its
+        error covariance (an estimate the learner was not trained for is less sure)."""
+        if extra_cov is not None:
+            self._sum_c_base += extra_cov
         self._buf[self._k] = phi
         self._k += 1
         if self._k == BLOCK:

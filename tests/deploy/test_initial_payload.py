@@ -67,3 +67,11 @@ def test_the_gate_waits_for_live_data():
     checked = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), std=np.full(10, 1e-4),
                               extra={"nis": 1.0})
     assert model_doubt(checked, GateConfig()) is None
+
+
+def test_the_gate_does_not_write_an_iem_estimate_out_of_its_distribution():
+    est = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), extra={"ood": True, "ood_score": 9.0})
+    reason, detail = model_doubt(est, GateConfig())
+    assert reason == "out_of_distribution" and "9" in detail
+    fine = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), extra={"ood": False, "ood_score": 1.0})
+    assert model_doubt(fine, GateConfig()) is None

@@ -418,3 +418,32 @@ def test_every_output_is_physically_consistent():
     assert impossible > 300  # the projection had work to do
     assert all(is_consistent(phi) for phi in outputs)
     assert all(_payload_ok(phi) for phi in outputs[::10])
+
+
+def test_an_input_beyond_its_bags_training_makes_the_prior_less_sure():
+    """Issue 15: the ensemble's out-of-distribution score inflates the prior the estimate
+    contributes by (score / threshold)², so the physics governs there."""
+    model = _trained()
+    ens = model.ensemble_model
+    x, f = DATA.X[0].copy(), DATA.F[0]
+    near = model._prior(x, f)
+    bag = ens.router.route(x[:7], f)[0]
+    far = x.copy()
+    far[14:] += 40.0 * ens.learner(bag).scale[14:]  # torques far beyond the bag's training
+    est = ens.predict_one(far, f)
+    assert est.extra["ood_score"] > ens.ood_threshold
+    _, cov_far = model._prior(far, f)
+    factor = (est.extra["ood_score"] / ens.ood_threshold) ** 2
+    assert np.all(np.diag(cov_far) >= 0.9 * factor * np.diag(model._bag_cov(est.bag)))
+    assert np.trace(cov_far) > 10 * np.trace(near[1])
+
+
+def test_a_reused_slot_forgets_the_retired_bags_calibration():
+    model = _trained()
+    ens = model.ensemble_model
+    before = model._bag_cov(0).copy()
+    ens._gen[0] += 1  # the budget gave slot 0 to a new bag
+    learner = ens.learner(0)
+    default = np.diag(np.square((learner.hi - learner.lo) / 4.0))
+    np.testing.assert_allclose(model._bag_cov(0), default)  # unmeasured, not the old errors
+    assert not np.allclose(before, default)
