@@ -214,6 +214,9 @@ class Service:
                            where=f"the model {path}" if path.exists() else "the model")
         if self.config.estimate.initial_payload:
             start_from_file(self.model, self.config.estimate.initial_payload)
+        ens = getattr(self.model, "ensemble_model", self.model)
+        if hasattr(ens, "set_background"):  # a live link: learning never holds up estimating;
+            ens.set_background(self.threaded_reader)  # a replay: inline, reproducible
         if self.link is None:
             from firmware_bridge.links import open_link
 
@@ -361,11 +364,15 @@ class Service:
         return self.summary()
 
     def close(self) -> None:
-        """Final checkpoint (synchronous), then close the link."""
+        """Final checkpoint (synchronous: the learning worker's pending work lands first),
+        then stop the worker and close the link."""
         try:
             if self.model is not None:
                 self.checkpoint()
         finally:
+            ens = getattr(self.model, "ensemble_model", self.model)
+            if hasattr(ens, "stop"):
+                ens.stop()
             if self.link is not None:
                 self.link.close()
             self.notifier.close()

@@ -223,6 +223,17 @@ class IncrementalEnsemble:
         """Drain and stop the worker thread (a later learn starts it again)."""
         self._worker.close()
 
+    def set_background(self, on: bool) -> None:
+        """Train in the worker thread (True) or inline (False) from now on; what is pending
+        lands first. The service turns it on for a live link; a replay and the benchmarks
+        keep it off (inline training makes a run reproducible to the bit)."""
+        on = bool(on)
+        if on == self.background:
+            return
+        self._worker.close()
+        self.background = on
+        self._worker = LearningWorker(synchronous=not on)
+
     def _publish(self, bag: int, gen: int, learner: WeakLearner) -> None:
         """Swap a trained learner in (unless its slot was reused since): one assignment."""
         with self._lock:
