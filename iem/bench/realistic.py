@@ -11,7 +11,9 @@ Set-up (seed ``S``; the paper benchmark's machinery, :class:`iem.bench.paper.Ben
   (:func:`sim.paths.calibration_path`, 30 s) with sensor-noise seed ``CAL_NOISE_BASE + S``;
   :func:`sim.calibration.calibrate` turns it into the arm file (written to ``DIR/arm.msgpack``).
   ``--arm ARM`` uses a given arm file instead.
-- **Models**, trained on the planned excitation path with the paper's 77 payloads: ``IEM``
+- **Models**, trained on the planned excitation path with the plug-in's default training
+  family (:data:`sim.family.DEPLOY_FAMILY`: the paper's 77 payloads and 77 random tools, as
+  ``iem train`` makes them; the paper benchmark keeps the paper's 77): ``IEM``
   and ``IEM+phys`` on the nominal arm (the tandem simulators and the physics' dynamics);
   ``IEM+cal`` and ``IEM+phys+cal`` the same on the calibrated arm (tandem simulators of the
   calibrated arm, the physics' dynamics spec ``sim.arm:arm_dynamics@DIR/arm.msgpack``).
@@ -96,10 +98,17 @@ class RealisticBench(Bench):
     """The paper benchmark's set-up on the gapped plant, with a calibrated arm."""
 
     def __init__(self, quick: bool = False, seed: int = 0, log=print) -> None:
+        from sim.family import DEPLOY_FAMILY, family
         from sim.plant import RealityGap
+        from sim.robot import PandaModel
+        from sim.tandem import TandemSimulators
 
         super().__init__(quick=quick, seed=seed, log=log)
         self.gap = RealityGap(seed=GAP_SEED_BASE + seed)
+        # what a cell deploys: the plug-in's default training family (the paper's 77 and 77
+        # random tools), not the paper's alone
+        self.family = DEPLOY_FAMILY
+        self.tandem = TandemSimulators(family(DEPLOY_FAMILY), model=PandaModel())
         if quick:
             self.new_path = self.new_path.slice(0, 3.0)
             self.change_at = len(self.new_path) // 2
@@ -269,6 +278,7 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
             "sensor": {"sigma_q": DEFAULT_SENSOR.sigma_q, "sigma_dq": DEFAULT_SENSOR.sigma_dq,
                        "sigma_tau": DEFAULT_SENSOR.sigma_tau},
             "payloads": {k: (None if p is None else p.name) for k, p in payloads.items()},
+            "family": bench.family, "training_payloads": len(bench.tandem),
             "change": {"to": CHANGE_TO, "at_s": bench.change_at / 1000.0},
             "new_path_s": bench.new_path.duration},
     }
