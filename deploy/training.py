@@ -148,6 +148,19 @@ def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
     return model
 
 
+def _seed(text: str) -> int:
+    """A learners' seed: numpy's seeds are non-negative (argparse reports the error)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value < 2**63:
+        raise argparse.ArgumentTypeError(f"{text!r}: valid is an integer from 0 to 2**63-1")
+    return value
+
+
 def configure(parser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE", help="model file to write")
     parser.add_argument("--kind", default=None, choices=list(TRAINABLE),
@@ -157,7 +170,8 @@ def configure(parser) -> None:
                              "container configurations and 77 random tools)")
     parser.add_argument("--excitation", default="builtin", metavar="CSV",
                         help="excitation path CSV (default: the built-in 20 s path)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the learners")
+    parser.add_argument("--seed", type=_seed, default=0,
+                        help="seed of the learners (an integer from 0 to 2**63-1)")
     parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ",
                         help="joint states per second the link delivers (fd 1000, classic 500)")
     parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
