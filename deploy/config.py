@@ -65,6 +65,8 @@ class EstimateConfig:
     filter_cutoff_hz: float = 50.0
     learn: bool = True
     max_lag_s: float = 0.1
+    background_learning: bool = True
+    """Train new bags in a worker thread, off the estimate path (a live link only)."""
     initial_payload: str = ""
     """A payload TOML file (``iem identify``'s) to start from: the first estimate and the
     prior of IEM+phys at every start; "" for none."""

@@ -216,7 +216,8 @@ class Service:
             start_from_file(self.model, self.config.estimate.initial_payload)
         ens = getattr(self.model, "ensemble_model", self.model)
         if hasattr(ens, "set_background"):  # a live link: learning never holds up estimating;
-            ens.set_background(self.threaded_reader)  # a replay: inline, reproducible
+            ens.set_background(self.threaded_reader  # a replay: inline, reproducible
+                               and self.config.estimate.background_learning)
         if self.link is None:
             from firmware_bridge.links import open_link
 

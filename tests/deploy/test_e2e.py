@@ -37,7 +37,8 @@ pytestmark = pytest.mark.hil
 TRUTH = default_test_payload()
 
 
-def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None, seed=1):
+def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None, seed=1,
+                   estimate=None):
     """The simulated controller (new task path, once) and the service on one virtual bus.
 
     The service works on ``model_file`` and saves it at the end; give each run its own copy.
@@ -47,7 +48,7 @@ def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None
     from sim.paths import new_task_path
 
     doc = cell_config(model_file, {"kind": "virtual", "channel": virtual_channel("test"),
-                                   "profile": "fd"}, gate=gate or {})
+                                   "profile": "fd"}, gate=gate or {}, estimate=estimate or {})
     rows = []
     with simulated_cell(config_from_dict(doc, where="test"), path=path or new_task_path(),
                         payload=TRUTH, once=True, seed=seed, faults=faults) as (controller,
@@ -166,9 +167,13 @@ def test_faults_cost_little_accuracy_and_every_bad_frame_is_counted(model_file, 
 
     second = tmp_path / "second.msgpack"
     shutil.copyfile(model_file, second)  # both runs start from the same trained model
-    _, clean_controller, _, est_clean = run_in_process(model_file)
+    # learning inline: with the worker, how far new bags have trained at an instant depends
+    # on the host, not on the stream, and this compares the stream's cost
+    inline = {"background_learning": False}
+    _, clean_controller, _, est_clean = run_in_process(model_file, estimate=inline)
     faulty, controller, _, est_faulty = run_in_process(
-        second, faults=FaultSpec(drop=0.05, corrupt=0.01, duplicate=0.02, delay=0.02, seed=3))
+        second, faults=FaultSpec(drop=0.05, corrupt=0.01, duplicate=0.02, delay=0.02, seed=3),
+        estimate=inline)
     truth = TRUTH.to_phi()
     m_clean, m_faulty = mae_groups(est_clean, truth), mae_groups(est_faulty, truth)
     for g in ("mass", "com", "inertia"):
