@@ -19,7 +19,6 @@ from iem.identify import (
     BareLoadError,
     ExcitationError,
     Identification,
-    IdentifyError,
     MismatchedLogsError,
     Recording,
     identify,
@@ -205,14 +204,12 @@ def test_an_arm_model_replaces_the_bare_recording_for_any_motion():
     assert np.all(np.abs(z) < 4.0), z
 
 
-def test_an_arm_file_is_refused_when_the_build_has_no_calibration(short, tmp_path):
-    import importlib.util
+def test_a_missing_arm_file_is_a_clear_error(short, tmp_path):
+    from iem.errors import ModelFileError
 
-    if importlib.util.find_spec("sim.arm") is not None:
-        pytest.skip("this build has sim.arm: the arm file is used, not refused")
     arm = Arm()
-    with pytest.raises(IdentifyError, match="not available in this build"):
-        identify(traffic(arm, short, default_test_payload(), 1), arm=tmp_path / "arm.msgpack")
+    with pytest.raises(ModelFileError, match=r"arm\.msgpack"):
+        identify(traffic(arm, short, default_test_payload(), 1), arm=str(tmp_path / "arm.msgpack"))
 
 
 def test_recordings_of_different_motions_are_refused(short):
