@@ -11,14 +11,12 @@ from __future__ import annotations
 import itertools
 import sys
 
-import can
 import pytest
 
 from deploy.cli import main
 from deploy.config import LINK_KINDS, load_config
 from deploy.sdnotify import Notifier
 from deploy.service import Service, link_rate
-from firmware_bridge.can_link import CanControllerPort, open_bus
 from firmware_bridge.links import LINKS, JointStateSource, PayloadSink, rate_hz
 from firmware_bridge.sim_controller import SimController, open_port
 from sim.paths import new_task_path
@@ -26,6 +24,7 @@ from tests.firmware_bridge import franka_fake
 from tests.firmware_bridge.hil import vcan_unavailable
 
 from .conftest import cell_config, write_toml
+from .test_replay import record_sim
 
 _channels = itertools.count()
 
@@ -106,19 +105,8 @@ def test_franka_with_the_pylibfranka_fake(tmp_path, model_file, monkeypatch):
 def test_replay_through_iem_run(tmp_path, model_file, capsys):
     """``[link] kind = "replay"`` in cell.toml: ``iem run`` replays the file to its end."""
     log = tmp_path / "cell.log"
-    channel = f"kinds-{next(_channels)}"
     path = new_task_path().slice(0, 0.5)
-    recorder = open_bus("virtual", channel, "fd")
-    port = CanControllerPort(open_bus("virtual", channel, "fd"), "fd")
-    try:
-        SimController(port, path=path, realtime=False, once=True).run(cycles=len(path))
-        writer = can.Logger(str(log))
-        while (msg := recorder.recv(0)) is not None:
-            writer.on_message_received(msg)
-        writer.stop()
-    finally:
-        port.close()
-        recorder.shutdown()
+    record_sim(log, "fd", path=path)
     cell = write_toml(tmp_path / "cell.toml",
                       cell_config(model_file, {"kind": "replay", "channel": str(log)}))
     assert main(["run", "--config", str(cell)]) == 0
