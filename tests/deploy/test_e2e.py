@@ -167,9 +167,10 @@ def test_faults_cost_little_accuracy_and_every_bad_frame_is_counted(model_file, 
 
     second = tmp_path / "second.msgpack"
     shutil.copyfile(model_file, second)  # both runs start from the same trained model
-    # learning inline: with the worker, how far new bags have trained at an instant depends
-    # on the host, not on the stream, and this compares the stream's cost
-    inline = {"background_learning": False}
+    # learning inline and always (max_lag_s 0): with the worker, or with learning skipped
+    # while the service is behind, what is learnt at an instant depends on the host, not on
+    # the stream, and this compares the stream's cost
+    inline = {"background_learning": False, "max_lag_s": 0.0}
     _, clean_controller, _, est_clean = run_in_process(model_file, estimate=inline)
     faulty, controller, _, est_faulty = run_in_process(
         second, faults=FaultSpec(drop=0.05, corrupt=0.01, duplicate=0.02, delay=0.02, seed=3),
