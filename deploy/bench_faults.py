@@ -224,10 +224,11 @@ def expected_counters(events, first: int, last: int, failures=()) -> dict:
     # its backlog filled): a joint state's cycle is lost, a corrupted frame never arrives
     failed = {(c, name) for c, name in failures}
     lost_js = {c for c, name in failed if name == JOINT_STATE}
+    faulted_js = {c for c, name, _ in events if name == JOINT_STATE}
     missing = {c for c, name, action in events if name == JOINT_STATE
                and action in ("drop", "corrupt", "delay", "silenced")} | lost_js
     for cycle in lost_js:
-        if first <= cycle <= last and cycle not in {c for c, n, _ in events if n == JOINT_STATE}:
+        if first <= cycle <= last and cycle not in faulted_js:
             out["lost"] += 1
     for cycle, name, action in events:
         if not first <= cycle <= last:

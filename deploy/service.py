@@ -214,7 +214,7 @@ class Service:
                            where=f"the model {path}" if path.exists() else "the model")
         if self.config.estimate.initial_payload:
             start_from_file(self.model, self.config.estimate.initial_payload)
-        ens = getattr(self.model, "ensemble_model", self.model)
+        ens = self._ensemble()
         if hasattr(ens, "set_background"):  # a live link: learning never holds up estimating;
             ens.set_background(self.threaded_reader  # a replay: inline, reproducible
                                and self.config.estimate.background_learning)
@@ -237,6 +237,10 @@ class Service:
             smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s, dt=1.0 / self.rate_hz))
         self.gate.wire_check = wire_check_of(self.link)  # out_of_wire_range before send
         return self
+
+    def _ensemble(self):
+        """The IEM that learns (IEM+phys holds one), or the model itself."""
+        return getattr(self.model, "ensemble_model", self.model)
 
     def stop(self) -> None:
         """Ask the loop to end after the current cycle (safe from a signal handler)."""
@@ -371,7 +375,7 @@ class Service:
             if self.model is not None:
                 self.checkpoint()
         finally:
-            ens = getattr(self.model, "ensemble_model", self.model)
+            ens = self._ensemble()
             if hasattr(ens, "stop"):
                 ens.stop()
             if self.link is not None:

@@ -357,16 +357,7 @@ class IncrementalEnsemble:
                 self.skipped_points += 1  # the worker is behind: memory stays bounded
                 return bag
             X, Y = resolve(samples)
-            training, kept, iters = self._training, self._kept, self.iters
-            gen = self._gen[bag]
-
-            def step():
-                training.learn(X, Y, iters)
-                if kept is not None:
-                    kept.add(X, Y)
-                self._publish(bag, gen, training)
-
-            self._worker.submit(step)
+            self._worker.submit(self._training_job(bag, X, Y, self.iters))
         else:
             self.close()  # the path left the open bag: it is closed for good
         return bag
@@ -396,16 +387,22 @@ class IncrementalEnsemble:
         kept = (Reservoir(self.reservoir, [self.seed, bag, 2] + ([gen] if gen else []))
                 if self.reservoir > 0 else None)
         self._open, self._kept, self._training = bag, kept, training
-        warmup = self.warmup_iters
+        self._worker.submit(self._training_job(bag, X, Y, self.warmup_iters))
+        return bag
 
-        def start():
-            training.learn(X, Y, warmup)
+    def _training_job(self, bag: int, X, Y, iters: int):
+        """The job that trains the open bag's learner ``iters`` steps on one point's samples,
+        keeps them for the refit at close, and publishes the learner (bound now: the job may
+        run after the bag is closed or its slot reused)."""
+        training, kept, gen = self._training, self._kept, self._gen[bag]
+
+        def job():
+            training.learn(X, Y, iters)
             if kept is not None:
                 kept.add(X, Y)
             self._publish(bag, gen, training)
 
-        self._worker.submit(start)
-        return bag
+        return job
 
     def _retire_for(self, nearest: int) -> int:
         """The slot a new bag takes at the budget: the least-used closed bag (fewest points

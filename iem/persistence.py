@@ -105,7 +105,7 @@ def new_model(kind: str = DEFAULT_MODEL, **params):
 
 
 # -- encoding ----------------------------------------------------------------------------
-def _arm_crc(arm: dict | None, crc: int, family: str | None = None) -> int:
+def _record_crc(arm: dict | None, crc: int, family: str | None = None) -> int:
     """The file CRC: the state's, continued over the arm record and the training family if
     there are any."""
     if arm is not None:
@@ -161,7 +161,7 @@ def dumps(model, schema: str = SCHEMA) -> bytes:
     arm = _arm_record(model)
     family = _family_record(model)
     head = {"schema": schema, "version": VERSION, "kind": kind,
-            "crc32": _arm_crc(arm, zlib.crc32(state), family), "state": state}
+            "crc32": _record_crc(arm, zlib.crc32(state), family), "state": state}
     if arm is not None:
         head["arm"] = arm
     if family is not None:
@@ -239,7 +239,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if family is not None and not isinstance(family, str):
         raise ModelFileError(f"{where}: field 'family' is {family!r}, expected a family name")
     state_bytes = head["state"]
-    crc = _arm_crc(arm, zlib.crc32(state_bytes), family)
+    crc = _record_crc(arm, zlib.crc32(state_bytes), family)
     if crc != head["crc32"]:
         raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")

@@ -175,7 +175,7 @@ class PayloadRegression:
         self.count = 0
         self._acc = np.zeros(21)  # the block being averaged (decimate > 1)
         self._n_acc = 0
-        self._x: np.ndarray | None = None  # the last input sample
+        self._x: np.ndarray | None = None  # the last input sample (block averaging)
 
     @property
     def settled(self) -> bool:
@@ -226,8 +226,7 @@ class PayloadRegression:
             self.reset()
             steps = 1
         x = np.asarray(x, dtype=float)
-        if self.decimate == 1:
-            self._x = x
+        if self.decimate == 1:  # the filter bridges the gap itself
             return self._filter(x, steps, phi)
         if steps > 1 and self._x is not None:  # bridge: the lost samples, interpolated
             x0 = self._x

@@ -54,29 +54,14 @@ def test_the_config_takes_its_kinds_from_the_registry():
     assert rate_hz("virtual", "classic") == 500.0 and rate_hz("serial", "classic") == 1000.0
 
 
-def test_virtual(tmp_path, model_file):
-    channel = f"kinds-{next(_channels)}"
-    sim, _ = controller("virtual", channel)
+@pytest.mark.parametrize(("interface", "kind"), [
+    ("virtual", "virtual"), ("slcan-pty", "slcan"), ("serial-pty", "serial")])
+def test_a_simulated_controller_behind_each_link(tmp_path, model_file, interface, kind):
+    """The virtual bus in this process; slcan and serial on a pty in the controller's."""
+    channel = f"kinds-{next(_channels)}" if interface == "virtual" else ""
+    sim, pty = controller(interface, channel)
     try:
-        summary = run_service(tmp_path, model_file, {"kind": "virtual", "channel": channel})
-    finally:
-        sim.close()
-    assert summary["cycles"] > 0
-
-
-def test_slcan_over_a_pty(tmp_path, model_file):
-    sim, pty = controller("slcan-pty")
-    try:
-        summary = run_service(tmp_path, model_file, {"kind": "slcan", "channel": pty})
-    finally:
-        sim.close()
-    assert summary["cycles"] > 0
-
-
-def test_serial_over_a_pty(tmp_path, model_file):
-    sim, pty = controller("serial-pty")
-    try:
-        summary = run_service(tmp_path, model_file, {"kind": "serial", "channel": pty})
+        summary = run_service(tmp_path, model_file, {"kind": kind, "channel": pty or channel})
     finally:
         sim.close()
     assert summary["cycles"] > 0
