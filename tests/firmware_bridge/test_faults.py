@@ -14,11 +14,12 @@ from .conftest import synthetic_states
 N_CYCLES = 3000
 
 
-def drain(link):
+def drain(link, timeout: float = 0.05):
+    """Every cycle the link delivers until it is silent for ``timeout`` s."""
     got = []
     while True:
         try:
-            got.append(link.read(0.05))
+            got.append(link.read(timeout))
         except ControllerSilent:
             return got
 

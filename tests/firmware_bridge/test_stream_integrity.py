@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from firmware_bridge.can_link import CanControllerPort, CanDecoder, CanLink, _message, open_bus
-from firmware_bridge.errors import ControllerSilent
 from firmware_bridge.faults import FaultSpec
 from firmware_bridge.links import LinkCounters
 from firmware_bridge.protocol import Heartbeat, profile
@@ -17,6 +16,7 @@ from firmware_bridge.replay import ReplaySource
 from iem.types import JointState
 
 from .conftest import synthetic_states
+from .test_faults import drain as drain_for
 
 
 def encoded(name, states, counter0=0, t0=1000.0):
@@ -127,12 +127,7 @@ def publish_with_a_bogus_frame(port, n=300, at=150):
 
 
 def drain(link):
-    got = []
-    while True:
-        try:
-            got.append(link.read(0.1))
-        except ControllerSilent:
-            return got
+    return drain_for(link, 0.1)
 
 
 @pytest.mark.parametrize("name", ["fd", "classic"])
