@@ -72,12 +72,15 @@ class OnlineIdentifier:
         self._smoothed: np.ndarray | None = None
         self._steps = 1
         self.learned_points = 0
-        self.skipped = 0
-        """Samples not used: not newer than the last one used."""
         self.timed = timed
         self.learn_times: list[float] = []
         self.predict_times: list[float] = []
         self.learnt: list[bool] = []
+
+    @property
+    def skipped(self) -> int:
+        """Samples not used: not newer than the last one used (the gap rule's count)."""
+        return self.state_filter.gaps.skipped
 
     def reset(self) -> None:
         """Start a new task: filters and smoother restart (the model is kept)."""
@@ -97,7 +100,6 @@ class OnlineIdentifier:
         q, dq, ddq = self.state_filter(state.q, state.dq, state.t)
         steps = self.state_filter.steps  # its gap rule decides for the estimator too
         if steps == SKIP and self.raw is not None:
-            self.skipped += 1
             return self.raw, self._smoothed.copy()
         if steps == RESTART:
             resume = getattr(self.estimator, "resume", None)
