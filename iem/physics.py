@@ -269,8 +269,9 @@ class PhysicsInformedEnsemble:
     def _calibrate(self, bag: int, X, Y) -> None:
         """Add a bag's learner's errors on labelled samples to the bag's covariance."""
         self._current(bag)
-        err = self._ens.learner(bag).predict_many(X) - np.asarray(Y, dtype=float)
-        self._calib.add(bag, err)
+        Y = np.asarray(Y, dtype=float)
+        err = self._ens.learner(bag).predict_many(X) - Y
+        self._calib.add(bag, err, Y)
 
     def _ood_factor(self, est) -> float:
         """How much less sure an ensemble estimate is than its bag's calibration says:
@@ -412,14 +413,17 @@ class PhysicsInformedEnsemble:
         if self._initial is not None:
             mean, cov = self._initial
         elif self._summary.n > 0:
-            mean, cov = self._summary.mean_cov(self._bag_cov)
+            mean, cov = self._summary.mean_cov(self._bag_cov, self._calib.scale)
         elif x is not None and self._ens.n_bags:
             est = self._ens.predict_one(x, flange)
             if est.bag < 0 or not np.all(np.isfinite(est.phi)):
                 return None
             mean = est.phi
-            cov = (self._bag_cov(est.bag) * self._ood_factor(est)
-                   + self._noise_cov(est.bag, np.asarray(x, float)))
+            cov = self._bag_cov(est.bag) * self._ood_factor(est)
+            d = self._calib.scale(float(mean[0]))
+            if d is not None:
+                cov = d[:, None] * cov * d[None, :]
+            cov = cov + self._noise_cov(est.bag, np.asarray(x, float))
         else:
             mean = np.zeros(10)
             cov = np.diag(np.square(DEFAULT_PRIOR_STD))
