@@ -42,8 +42,10 @@ _SMALL = 64
 _SCAN_MARGIN = 1e-4
 """Slack on the squared thresholds (rad², m²) of the float32 scan; float64 decides."""
 
-INDEX_ABOVE = 10_000
-"""Above this many bags the spatial index routes instead of the scan (measured crossover)."""
+INDEX_ABOVE = 5_000
+"""Above this many bags the spatial index routes instead of the scan: where it became the
+faster on points inside a bag (what the cycle routes almost always), measured with
+``iem bench longrun --routing-only`` on the project's 2-core machine (README)."""
 
 
 class BagRouter:
