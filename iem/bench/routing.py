@@ -39,17 +39,19 @@ def scan_vs_index(kin, sizes, seed: int = 0, queries: int = 2000) -> list[dict]:
         row = {"bags": int(n), "build_ms": (time.perf_counter() - t0) * 1e3, "same": True}
         for name, P in probes.items():
             F = kin.flange_positions(P)
-            times = {"scan": np.empty(queries), "index": np.empty(queries)}
+            times = {way: np.empty(queries) for way in ("scan", "index", "scan_cpu", "index_cpu")}
             inside = 0
             for i in range(queries):
                 router.index_above = None
-                t0 = time.perf_counter()
+                c0, t0 = time.thread_time(), time.perf_counter()
                 by_scan = router.route(P[i], F[i])
                 times["scan"][i] = time.perf_counter() - t0
+                times["scan_cpu"][i] = time.thread_time() - c0
                 router.index_above = 0
-                t0 = time.perf_counter()
+                c0, t0 = time.thread_time(), time.perf_counter()
                 by_index = router.route(P[i], F[i])
                 times["index"][i] = time.perf_counter() - t0
+                times["index_cpu"][i] = time.thread_time() - c0
                 row["same"] &= by_scan == by_index
                 inside += by_scan[0] >= 0
             row[name] = {way: _pct(t * 1e6) for way, t in times.items()}
@@ -63,14 +65,15 @@ def _pct(values: np.ndarray) -> dict:
 
 
 def format_rows(rows: list[dict]) -> str:
-    """One line per size: route µs p50/p99, scan vs index, for both query sets."""
+    """One line per size and query set: route µs p50/p99, scan vs index, wall and CPU."""
     lines = []
     for r in rows:
-        parts = [f"{r['bags']:>7,} bags"]
         for name in ("random", "inside"):
-            s, x = r[name]["scan"], r[name]["index"]
-            parts.append(f"{name}: scan {s['p50']:.1f}/{s['p99']:.1f} µs, "
-                         f"index {x['p50']:.1f}/{x['p99']:.1f} µs")
-        parts.append(f"build {r['build_ms']:.1f} ms, same {r['same']}")
-        lines.append(" | ".join(parts))
+            f = {k: f"{v['p50']:.1f}/{v['p99']:.1f}" for k, v in r[name].items()
+                 if isinstance(v, dict)}
+            lines.append(f"{r['bags']:>7,} bags {name:6s}: scan {f['scan']} (cpu "
+                         f"{f['scan_cpu']}) µs, index {f['index']} (cpu {f['index_cpu']}) µs, "
+                         f"{r[name]['inside_share']:.0%} inside a bag")
+        lines.append(f"{r['bags']:>7,} bags: index build {r['build_ms']:.1f} ms, "
+                     f"same decisions {r['same']}")
     return "\n".join(lines)
