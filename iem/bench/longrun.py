@@ -260,21 +260,9 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         if hasattr(ens, "drain"):
             ens.drain()  # the training still in the worker lands before the replay
 
-    reverse = reversed_path(first_minute)
-    back_plant = PandaPlant(payload=payload, seed=seed + 1000, controller_load=payload)
-    rollout = back_plant.follow(reverse)
-    reverse_mae = {}
-    for name, m in models.items():
-        if hasattr(m, "reset"):
-            m.reset()
-        online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
-        out = np.empty((len(rollout), 10))
-        for i in range(len(rollout)):
-            state = JointState(t=float(rollout.t[i]), q=rollout.q[i], dq=rollout.dq[i],
-                               tau_J=rollout.tau[i], cycle=i)
-            out[i] = online.step(state)[1]
-        reverse_mae[name] = groups_of(mae(out, phi))
-        log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
+    reverse_mae, reverse_s = reverse_figures(models, first_minute, payload, seed, kin, tandem,
+                                             log)
+    del first_minute  # the replay's data die with it, before the figures at the budget
 
     at_budget = budget_figures(models["IEM"], (params or {}).get("budget_bags") or DEFAULT_BUDGET,
                                kin, seed)
@@ -294,7 +282,7 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
                                  for name in models},
         "at_budget": at_budget,
         "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
-                  "segments": segments, "samples": k, "reverse_s": reverse.duration,
+                  "segments": segments, "samples": k, "reverse_s": reverse_s,
                   "params": params or {}, "wall_s": time.perf_counter() - started},
     }
     results["route_sizes"] = route_sizes(kin, sizes, seed, log)
@@ -304,6 +292,32 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         f"RSS {results['rss_mb_end']:.0f} MB  route p99 {results['route_us_p99_end']} µs  "
         f"({results['setup']['wall_s']:.0f} s)")
     return results
+
+
+def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tandem,
+                    log=print) -> tuple[dict, float]:
+    """The segments driven backwards by a fresh plant, each model estimating along them with
+    learning off (IEM+phys forgets the payload first): ``({model: MAE per group}, seconds)``.
+    A function of its own so that the rollout (tens of MB) is freed when it returns."""
+    from sim.plant import PandaPlant
+
+    phi = payload.to_phi()
+    reverse = reversed_path(segments)
+    back_plant = PandaPlant(payload=payload, seed=seed + 1000, controller_load=payload)
+    rollout = back_plant.follow(reverse)
+    reverse_mae = {}
+    for name, m in models.items():
+        if hasattr(m, "reset"):
+            m.reset()
+        online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
+        out = np.empty((len(rollout), 10))
+        for i in range(len(rollout)):
+            state = JointState(t=float(rollout.t[i]), q=rollout.q[i], dq=rollout.dq[i],
+                               tau_J=rollout.tau[i], cycle=i)
+            out[i] = online.step(state)[1]
+        reverse_mae[name] = groups_of(mae(out, phi))
+        log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
+    return reverse_mae, reverse.duration
 
 
 def route_sizes(kin, sizes, seed: int, log=print) -> list[dict]:
