@@ -202,6 +202,10 @@ def test_above_the_threshold_the_router_uses_the_index_by_itself():
         assert router.route(q, x) == brute(means, q, x, DELTA, RHO)
     assert router._index is not None and router._index.size == n
     assert router.nbytes() == before + router._index.nbytes()
+    loaded = BagRouter.from_state(router.to_state())
+    assert loaded._index is not None and loaded._index.size == n  # built at load
+    for q, x in zip(*probes(rng, router, 10), strict=True):
+        assert loaded.route(q, x) == brute(means, q, x, DELTA, RHO)
 
 
 def test_the_index_is_derived_state_never_saved():
