@@ -22,7 +22,7 @@ distances decide among them: the scan's decision (ties go to the lowest bag inde
 that grows with the log of the bags rather than with the bags. The index is derived state:
 never saved; a router loaded above the threshold builds it at load, one that grows past it at
 its next route (importing scipy.spatial then), and it is rebuilt, on the thread that routes,
-when more than 128 bags moved or were added since (about 0.3 µs per bag on this machine).
+when more than 128 bags moved or were added since (5-14 ms at 20,000 bags here).
 """
 
 from __future__ import annotations
