@@ -283,13 +283,21 @@ class IncrementalEnsemble:
             module, _, attr = self.coverage.partition(":")
             self._cover = getattr(importlib.import_module(module), attr)()
         rng = np.random.default_rng(seed)
-        xs, ys = [X], [Y]
-        for s in range(0, X.shape[0], batch):
+        n = X.shape[0]
+        # filled in place, not stacked from a list: a bag's samples are tens of MB, and a
+        # list of per-point arrays beside its stacked copy doubled the peak (and the heap
+        # it leaves behind)
+        X_out = np.empty((n * (1 + self.coverage_draws), X.shape[1]))
+        Y_out = np.empty((X_out.shape[0], Y.shape[1]))
+        X_out[:n], Y_out[:n] = X, Y
+        r = n
+        for s in range(0, n, batch):
             q, phi = X[s, :7], Y[s:s + batch]
             for _ in range(self.coverage_draws):
-                xs.append(self._cover(q, phi, rng))
-                ys.append(phi)
-        return np.vstack(xs), np.vstack(ys)
+                x = self._cover(q, phi, rng)
+                X_out[r:r + len(x)], Y_out[r:r + len(x)] = x, phi
+                r += len(x)
+        return X_out[:r], Y_out[:r]
 
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
         if self._out is None:
@@ -323,9 +331,7 @@ class IncrementalEnsemble:
             idx = np.flatnonzero(labels == bag)[:: self.fit_stride]
             if idx.size == 0:
                 idx = np.flatnonzero(labels == bag)[:1]
-            pairs = [samples_at(int(i)) for i in idx]
-            X = np.vstack([p[0] for p in pairs])
-            Y = np.vstack([p[1] for p in pairs])
+            X, Y = _stacked(samples_at, idx)
             if self._out is None:
                 self._out = output_range(Y)
             batch = Y.shape[0] // len(idx)
@@ -526,3 +532,21 @@ class IncrementalEnsemble:
             model._training = model._learners[model._open].copy()
         model._out = None if state["out"] is None else tuple(np.array(v) for v in state["out"])
         return model
+
+
+def _stacked(samples_at, idx) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of the points ``idx`` stacked, ``(len(idx) K, n_in)`` and
+    ``(len(idx) K, n_out)``: filled one point at a time into arrays allocated once (a list of
+    every point's samples beside the stacked copy doubled the peak of a bag's fit)."""
+    X0, Y0 = samples_at(int(idx[0]))
+    k = X0.shape[0]
+    X = np.empty((len(idx) * k, X0.shape[1]))
+    Y = np.empty((len(idx) * k, Y0.shape[1]))
+    for j, i in enumerate(idx):
+        Xi, Yi = (X0, Y0) if j == 0 else samples_at(int(i))
+        if Xi.shape != X0.shape or Yi.shape != Y0.shape:
+            raise InvalidInputError(f"samples_at gave {Xi.shape} and {Yi.shape} samples at "
+                                    f"point {int(i)}, {X0.shape} and {Y0.shape} at the first; "
+                                    f"every point must give as many")
+        X[j * k:(j + 1) * k], Y[j * k:(j + 1) * k] = Xi, Yi
+    return X, Y

@@ -188,7 +188,8 @@ class WeakLearner:
         scale = np.sqrt(X.var(axis=0) + noise ** 2)
         learner = cls(lo, hi, center, scale, lr=lr, input_noise=input_noise, seed=seed)
         inv = learner._inv_scale
-        x_all = (X - center) * inv
+        x_all = X - center
+        x_all *= inv  # in place: one bag-sized temporary fewer (the same arithmetic)
         cov = np.cov(x_all.T) + np.diag((noise * inv) ** 2)
         lam, vec = np.linalg.eigh(cov)
         lam = np.maximum(lam, 1e-6 * lam.max())

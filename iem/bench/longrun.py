@@ -36,7 +36,9 @@ unless ``--plain`` (the ensemble's defaults, the paper's rule); they train in th
 ``learn_ms`` is then what the cycle itself spends). Last, ``at_budget``: a model
 of ``--budget`` bags (the trained IEM's learners copied onto random poses within the limits)
 saved and loaded: ``load_s``, ``file_mb``, ``route_us`` (p50/p99 over 2,000 random queries)
-and the RSS it adds.
+and the RSS it adds. Then ``route_sizes`` (new; after ``rss_mb_end`` is taken): route µs
+p50/p99 of the float32 scan against the spatial index on maps of ``--sizes`` bags
+(:mod:`iem.bench.routing`); ``--routing-only`` prints that alone, without the motion.
 
 JSON keys: ``windows`` (a list), ``max_window_mae`` {model: {mass, com, inertia}},
 ``reverse_mae`` {model: {...}}, ``false_alarms`` {model: n} (None: no detector),
@@ -68,6 +70,8 @@ REVERSE_S = 60.0
 ROUTE_EVERY = 10
 """Every how many samples the route time is measured."""
 DEFAULT_BUDGET = 2000
+ROUTE_SIZES = (2000, 20000, 100000)
+"""Bags of the maps the scan and the index are timed on (``route_sizes``)."""
 LONGRUN_PARAMS = {"coverage": "sim.coverage:other_velocities", "coverage_draws": 1}
 """The ensemble's parameters for long runs (plus ``budget_bags``)."""
 
@@ -206,7 +210,7 @@ def train_models(seed: int, log, params: dict | None = None) -> dict:
 
 
 def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
-                params: dict | None = None) -> dict:
+                params: dict | None = None, sizes=ROUTE_SIZES) -> dict:
     """The long run; returns the results (see the module docstring)."""
     from sim.family import default_test_payload, training_payloads
     from sim.plant import PandaPlant
@@ -259,21 +263,9 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         if hasattr(ens, "drain"):
             ens.drain()  # the training still in the worker lands before the replay
 
-    reverse = reversed_path(first_minute)
-    back_plant = PandaPlant(payload=payload, seed=seed + 1000, controller_load=payload)
-    rollout = back_plant.follow(reverse)
-    reverse_mae = {}
-    for name, m in models.items():
-        if hasattr(m, "reset"):
-            m.reset()
-        online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
-        out = np.empty((len(rollout), 10))
-        for i in range(len(rollout)):
-            state = JointState(t=float(rollout.t[i]), q=rollout.q[i], dq=rollout.dq[i],
-                               tau_J=rollout.tau[i], cycle=i)
-            out[i] = online.step(state)[1]
-        reverse_mae[name] = groups_of(mae(out, phi))
-        log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
+    reverse_mae, reverse_s = reverse_figures(models, first_minute, payload, seed, kin, tandem,
+                                             log)
+    del first_minute  # the replay's data die with it, before the figures at the budget
 
     at_budget = budget_figures(models["IEM"], (params or {}).get("budget_bags") or DEFAULT_BUDGET,
                                kin, seed)
@@ -293,15 +285,52 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
                                  for name in models},
         "at_budget": at_budget,
         "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
-                  "segments": segments, "samples": k, "reverse_s": reverse.duration,
+                  "segments": segments, "samples": k, "reverse_s": reverse_s,
                   "params": params or {}, "wall_s": time.perf_counter() - started},
     }
+    results["route_sizes"] = route_sizes(kin, sizes, seed, log)
     log("max window MAE: " + "; ".join(f"{n} {_fmt(v)}"
                                          for n, v in results["max_window_mae"].items()))
     log(f"false alarms {results['false_alarms']}  bags {results['bags_end']}  "
         f"RSS {results['rss_mb_end']:.0f} MB  route p99 {results['route_us_p99_end']} µs  "
         f"({results['setup']['wall_s']:.0f} s)")
     return results
+
+
+def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tandem,
+                    log=print) -> tuple[dict, float]:
+    """The segments driven backwards by a fresh plant, each model estimating along them with
+    learning off (IEM+phys forgets the payload first): ``({model: MAE per group}, seconds)``.
+    A function of its own so that the rollout (tens of MB) is freed when it returns."""
+    from sim.plant import PandaPlant
+
+    phi = payload.to_phi()
+    reverse = reversed_path(segments)
+    back_plant = PandaPlant(payload=payload, seed=seed + 1000, controller_load=payload)
+    rollout = back_plant.follow(reverse)
+    reverse_mae = {}
+    for name, m in models.items():
+        if hasattr(m, "reset"):
+            m.reset()
+        online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
+        out = np.empty((len(rollout), 10))
+        for i in range(len(rollout)):
+            state = JointState(t=float(rollout.t[i]), q=rollout.q[i], dq=rollout.dq[i],
+                               tau_J=rollout.tau[i], cycle=i)
+            out[i] = online.step(state)[1]
+        reverse_mae[name] = groups_of(mae(out, phi))
+        log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
+    return reverse_mae, reverse.duration
+
+
+def route_sizes(kin, sizes, seed: int, log=print) -> list[dict]:
+    """Route µs, scan against index, on maps of ``sizes`` bags (:mod:`iem.bench.routing`)."""
+    from iem.bench.routing import format_rows, scan_vs_index
+
+    rows = scan_vs_index(kin, sizes, seed) if sizes else []
+    if rows:
+        log("route µs p50/p99, scan vs index:\n" + format_rows(rows))
+    return rows
 
 
 def budget_figures(model, n: int, kin, seed: int, queries: int = 2000) -> dict:
@@ -377,6 +406,22 @@ def configure(parser) -> None:
                              "when training lands depends on the machine)")
     parser.add_argument("--plain", action="store_true",
                         help="the ensemble's defaults: no coverage training, no budget")
+    parser.add_argument("--sizes", default=",".join(map(str, ROUTE_SIZES)), metavar="N,N,...",
+                        help="bags of the maps on which route µs of the scan and the spatial "
+                             "index are compared (default 2000,20000,100000; '' for none)")
+    parser.add_argument("--routing-only", action="store_true",
+                        help="only the scan-vs-index routing figures, without the motion")
+
+
+def parse_sizes(text: str) -> tuple[int, ...]:
+    """``--sizes``: comma-separated bag counts, each >= 1 ('' for none)."""
+    from iem.errors import InvalidInputError
+
+    parts = [part.strip() for part in text.split(",") if part.strip()]
+    if not all(part.isdigit() and int(part) >= 1 for part in parts):
+        raise InvalidInputError(f"--sizes must be comma-separated bag counts >= 1 "
+                                f"(e.g. 2000,20000), got {text!r}")
+    return tuple(int(part) for part in parts)
 
 
 def run(args) -> int:
@@ -386,10 +431,16 @@ def run(args) -> int:
         raise InvalidInputError(f"--minutes must be > 0, got {args.minutes}")
     if args.budget < 2:
         raise InvalidInputError(f"--budget must be >= 2 bags, got {args.budget}")
-    params = {} if args.plain else {**LONGRUN_PARAMS, "budget_bags": args.budget}
-    if args.background:
-        params["background"] = True
-    results = run_longrun(args.minutes, args.seed, params=params)
+    sizes = parse_sizes(args.sizes)
+    if args.routing_only:
+        from sim.robot import PandaModel
+
+        results = {"route_sizes": route_sizes(PandaModel(), sizes, args.seed)}
+    else:
+        params = {} if args.plain else {**LONGRUN_PARAMS, "budget_bags": args.budget}
+        if args.background:
+            params["background"] = True
+        results = run_longrun(args.minutes, args.seed, params=params, sizes=sizes)
     if args.json:
         FsPath(args.json).write_text(json.dumps(results, indent=2) + "\n")
         print(f"wrote {args.json}")

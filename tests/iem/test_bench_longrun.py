@@ -9,7 +9,15 @@ import json
 import numpy as np
 import pytest
 
-from iem.bench.longrun import LIMIT_FRACTION, MARGIN, random_segments, reversed_path, run_longrun
+from iem.bench.longrun import (
+    LIMIT_FRACTION,
+    MARGIN,
+    parse_sizes,
+    random_segments,
+    reversed_path,
+    run_longrun,
+)
+from iem.errors import InvalidInputError
 from sim.robot import PandaModel
 
 KIN = PandaModel()
@@ -48,7 +56,7 @@ def test_reversed_path_drives_the_same_poses_backwards():
 
 def test_results_have_the_keys_of_the_issue(tmp_path):
     res = run_longrun(minutes=0.05, seed=0, log=lambda *a: None,
-                      params={"budget_bags": 50})
+                      params={"budget_bags": 50}, sizes=(70, 150))
     for key in ("windows", "max_window_mae", "reverse_mae", "false_alarms", "bags_end",
                 "rss_mb_end", "route_us_p99_end"):
         assert key in res
@@ -59,7 +67,19 @@ def test_results_have_the_keys_of_the_issue(tmp_path):
     w = res["windows"][0]["IEM"]
     assert {"bags", "nbytes", "rss_mb", "route_us", "estimate_us", "learn_ms", "mae"} <= set(w)
     assert res["at_budget"]["bags"] == 50
+    assert [r["bags"] for r in res["route_sizes"]] == [70, 150]
+    for row in res["route_sizes"]:
+        assert row["same"] is True and row["inside"]["inside_share"] > 0.5
+        assert {"scan", "index"} <= set(row["random"]) and row["random"]["index"]["p99"] > 0
     (tmp_path / "r.json").write_text(json.dumps(res))  # plain JSON
+
+
+def test_sizes_option_takes_bag_counts_and_names_what_is_valid():
+    assert parse_sizes("2000, 20000,100000") == (2000, 20000, 100000)
+    assert parse_sizes("") == ()
+    for bad in ("0", "2k", "-5", "1,,x"):
+        with pytest.raises(InvalidInputError, match="comma-separated bag counts >= 1"):
+            parse_sizes(bad)
 
 
 @pytest.mark.slow

@@ -311,3 +311,21 @@ def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch):
     gate.release.set()
     model.drain()
     model.stop()
+
+
+# -- the fit's memory ----------------------------------------------------------------------
+def test_fit_stacks_a_bags_samples_as_vstack_does_and_refuses_uneven_points():
+    from iem.ensemble import _stacked
+
+    idx = np.array(DATA.fit_points[:5])
+    X, Y = _stacked(DATA.samples_at, idx)
+    pairs = [DATA.samples_at(int(i)) for i in idx]
+    np.testing.assert_array_equal(X, np.vstack([p[0] for p in pairs]))
+    np.testing.assert_array_equal(Y, np.vstack([p[1] for p in pairs]))
+
+    def uneven(i):
+        Xi, Yi = DATA.samples_at(i)
+        return (Xi[:-1], Yi[:-1]) if i == idx[2] else (Xi, Yi)
+
+    with pytest.raises(InvalidInputError, match="every point must give as many"):
+        _stacked(uneven, idx)
