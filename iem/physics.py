@@ -369,7 +369,7 @@ class PhysicsInformedEnsemble:
         if est is None:
             est = self._ens.predict_one(x, flange)
         self._routed = (x, est.bag)
-        if est.bag >= 0 and np.all(np.isfinite(est.phi)):
+        if est.bag >= 0 and np.isfinite(est.phi).all():
             summary = self._summary
             if summary.n == 0:
                 summary.noise0 = self._noise_cov(est.bag, x)
