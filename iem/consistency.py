@@ -161,6 +161,7 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
     t = dist0 / 4.0
     steps = 0
     while steps < max_newton:
+        f_x = None  # cost(x, t), kept from the line search that accepted x
         for _ in range(50):  # Newton on the barrier problem for this t
             K = np.linalg.inv(slack(x))
             grad = W @ (x - mu) - t * (_BF @ K.ravel())
@@ -175,12 +176,12 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
             yield
             if dec <= rtol * dist0 or steps >= max_newton:
                 break
-            f0, a = cost(x, t), 1.0
-            while a > 1e-10 and not cost(x + a * step, t) <= f0 - 0.25 * a * dec:
+            f0, a = (cost(x, t) if f_x is None else f_x), 1.0
+            while a > 1e-10 and not (f_x := cost(x + a * step, t)) <= f0 - 0.25 * a * dec:
                 a *= 0.5
             if a <= 1e-10:
                 break
-            x = x + a * step
+            x = x + a * step  # the point f_x was computed at (the same expression)
         if 4.0 * t <= rtol * dist0:
             break
         t *= 0.05
