@@ -47,13 +47,6 @@ from .status import StatusLine
 
 log = logging.getLogger("iem.service")
 
-SWITCH_INTERVAL_S = 0.0005
-"""The interpreter's thread switch interval while the service runs a live link (CPython's
-default is 5 ms): a learning worker that computes holds the interpreter for up to that long
-before the estimate path gets it back. Measured (``iem bench paper``'s cycle timing, the new
-task path with training in the worker, two alternations): median cycle 72-75 µs at 5 ms,
-50-51 µs at 0.5 ms."""
-
 SKIP_LAG_S = 2.0
 """A cycle older than this when read is dropped (counted in ``skipped``): even estimating
 without learning has fallen hopelessly behind."""
@@ -290,9 +283,6 @@ class Service:
                  extra={"event": "started"})
         reader = (LinkReader(link, cfg.link.silence_timeout_s).start() if self.threaded_reader
                   else None)
-        switch = sys.getswitchinterval()
-        if self.threaded_reader:  # a live link: the worker yields the interpreter sooner
-            sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
 
         def next_item() -> Item | None:
             if reader is not None:
@@ -372,7 +362,6 @@ class Service:
                 if self.status.due(now):
                     self.status.show(self._status_text(now - started, smoothed))
         finally:
-            sys.setswitchinterval(switch)
             self.wall_s = time.monotonic() - started
             self.cpu_s = time.thread_time() - cpu0
             if reader is not None:
