@@ -229,8 +229,8 @@ class SafetyGate:
         and ``extra["nis"]`` are checked by :meth:`decide`)."""
         if estimate is not None:
             self._estimate = estimate
-        if np.all(np.isfinite(phi)):
-            self._history.append((t, np.asarray(phi, dtype=float)[:4].copy()))
+        if np.isfinite(phi).all():  # a copy: the caller's array may change
+            self._history.append((t, np.array(phi[:4], dtype=float)))
         while self._history and t - self._history[0][0] > self.config.stable_window_s:
             self._history.popleft()
 

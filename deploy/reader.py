@@ -14,20 +14,19 @@ stamps, which its gap rule (:mod:`iem.gaps`) bridges or restarts on.
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
-from collections import deque
-from dataclasses import dataclass
+from typing import NamedTuple
 
 CAPACITY = 500
 """Cycles the queue holds (0.5 s at 1 kHz): more behind than that, and the oldest go."""
 
 
-@dataclass(frozen=True)
-class Item:
+class Item(NamedTuple):
     """What the reader got: ``kind`` is ``"state"`` (``value`` a joint state, ``frame_time``
     its arrival, epoch s), ``"silent"`` (``value`` the message), ``"end"`` or ``"error"``
-    (``value`` the exception)."""
+    (``value`` the exception). Immutable (a named tuple: one is made every cycle)."""
 
     kind: str
     value: object = None
@@ -51,8 +50,9 @@ class LinkReader:
         """Cycles dropped because the queue was full."""
         self.cpu_s = 0.0
         """CPU time the reader thread used, s (when it has stopped)."""
-        self._queue: deque[Item] = deque()
-        self._ready = threading.Condition()
+        # the C queue: a put and a blocking get cost a fraction of a Condition's
+        # Python-level wait and notify, on both threads, every cycle
+        self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -83,20 +83,21 @@ class LinkReader:
             self.cpu_s = time.thread_time() - cpu0
 
     def _put(self, item: Item) -> None:
-        with self._ready:
-            if item.kind == "state" and len(self._queue) >= self.capacity:
-                dropped = self._queue.popleft()  # the oldest: a cycle, or old news of a silence
-                self.skipped += dropped.kind == "state"
-            self._queue.append(item)
-            self._ready.notify()
+        q = self._queue
+        if item.kind == "state" and q.qsize() >= self.capacity:
+            try:  # only this thread puts, so the queue is at most full
+                dropped = q.get_nowait()  # the oldest: a cycle, or old news of a silence
+            except queue.Empty:  # the consumer took the last ones meanwhile
+                dropped = None
+            self.skipped += dropped is not None and dropped.kind == "state"
+        q.put(item)
 
     def get(self, timeout: float) -> Item | None:
         """The next item, or None after ``timeout`` s without one."""
-        with self._ready:
-            if not self._queue and not self._ready.wait_for(lambda: bool(self._queue),
-                                                             timeout):
-                return None
-            return self._queue.popleft()
+        try:
+            return self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
 
     def stop(self, timeout: float | None = None) -> None:
         """Stop after the current read (at most the silence timeout)."""

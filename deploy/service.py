@@ -218,6 +218,10 @@ class Service:
         if hasattr(ens, "set_background"):  # a live link: learning never holds up estimating;
             ens.set_background(self.threaded_reader  # a replay: inline, reproducible
                                and self.config.estimate.background_learning)
+        if hasattr(self.model, "project_budget"):  # a live link: a long consistency
+            from iem.physics import LIVE_PROJECT_BUDGET  # projection is spread over cycles
+
+            self.model.project_budget = LIVE_PROJECT_BUDGET if self.threaded_reader else 0
         if self.link is None:
             from firmware_bridge.links import open_link
 

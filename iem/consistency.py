@@ -108,6 +108,20 @@ def project(phi, weight=None, eps: float = EPS, rtol: float = 1e-6,
     Returns:
         A new array; ``phi`` itself (copied) if already consistent; NaN in, NaN out.
     """
+    steps = project_steps(phi, weight, eps, rtol, max_newton)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def project_steps(phi, weight=None, eps: float = EPS, rtol: float = 1e-6,
+                  max_newton: int = 200):
+    """:func:`project` one Newton step at a time: a generator that yields (None) after each
+    step of the weighted projection and returns the result (``StopIteration.value``), the
+    very same arithmetic. A caller with a time budget (the online cycle) spreads the
+    projection over several calls; a consistent ``phi`` finishes without a yield."""
     phi = _check(phi).reshape(10).copy()
     if not np.all(np.isfinite(phi)):
         return phi
@@ -120,12 +134,13 @@ def project(phi, weight=None, eps: float = EPS, rtol: float = 1e-6,
     if W.shape != (10, 10):
         raise InvalidInputError(f"weight must be 10x10, got shape {W.shape}")
     W = 0.5 * (W + W.T)
-    return _barrier(phi, W, eps, rtol, max_newton,
-                    _clip(phi, eps + max(1e-6 * scale, 10.0 * eps)))
+    return (yield from _barrier(phi, W, eps, rtol, max_newton,
+                                _clip(phi, eps + max(1e-6 * scale, 10.0 * eps))))
 
 
 def _barrier(mu, W, eps, rtol, max_newton, x):
-    """``min 0.5 (x - mu)^T W (x - mu) - t log det(J(x) - eps E)`` for t -> 0."""
+    """``min 0.5 (x - mu)^T W (x - mu) - t log det(J(x) - eps E)`` for t -> 0 (a generator:
+    yields after each Newton step, returns the point)."""
     eye = eps * np.eye(4)
 
     def slack(x):
@@ -146,6 +161,7 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
     t = dist0 / 4.0
     steps = 0
     while steps < max_newton:
+        f_x = None  # cost(x, t), kept from the line search that accepted x
         for _ in range(50):  # Newton on the barrier problem for this t
             K = np.linalg.inv(slack(x))
             grad = W @ (x - mu) - t * (_BF @ K.ravel())
@@ -157,14 +173,15 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
                 return x  # feasible, if not quite optimal
             dec = float(-grad @ step)  # Newton decrement squared
             steps += 1
+            yield
             if dec <= rtol * dist0 or steps >= max_newton:
                 break
-            f0, a = cost(x, t), 1.0
-            while a > 1e-10 and not cost(x + a * step, t) <= f0 - 0.25 * a * dec:
+            f0, a = (cost(x, t) if f_x is None else f_x), 1.0
+            while a > 1e-10 and not (f_x := cost(x + a * step, t)) <= f0 - 0.25 * a * dec:
                 a *= 0.5
             if a <= 1e-10:
                 break
-            x = x + a * step
+            x = x + a * step  # the point f_x was computed at (the same expression)
         if 4.0 * t <= rtol * dist0:
             break
         t *= 0.05

@@ -352,12 +352,11 @@ class IncrementalEnsemble:
         """:meth:`learn_one`; returns the bag the point is in now."""
         q = np.asarray(x, dtype=float)[:7]
         flange = np.asarray(flange, dtype=float)
-        bag, nearest = self._router.route(q, flange)
+        bag, nearest = self._router.route_join(q, flange)  # a point inside a bag joins it
         if bag < 0:
             self.close()  # the path left the open bag
             X, Y = resolve(samples)
             return self._start_bag(q, flange, nearest, X, Y)
-        self._router.join(bag, q, flange)
         if bag == self._open:
             if self.background and self._worker.pending > MAX_PENDING:
                 self.skipped_points += 1  # the worker is behind: memory stays bounded
@@ -469,9 +468,10 @@ class IncrementalEnsemble:
 
     def _estimate(self, x: np.ndarray, bag: int, t: float) -> PayloadEstimate:
         learner = self._learners[bag]  # one read: the learner published now
-        score = float(np.abs((x - learner.center) * learner._inv_scale).max())
+        z = learner.scaled(x)  # scaled once for the score and the estimate
+        score = max(float(z.max()), -float(z.min()))  # the largest |z|
         learning = bag == self._open  # the open bag trains on this very point: not flagged
-        return PayloadEstimate(t=t, phi=learner.predict_one(x), bag=bag, learning=learning,
+        return PayloadEstimate(t=t, phi=learner.predict_scaled(z), bag=bag, learning=learning,
                                extra={"ood": not learning and score > self.ood_threshold,
                                       "ood_score": score})
 

@@ -113,7 +113,15 @@ class WeakLearner:
     # -- prediction ----------------------------------------------------------------------
     def predict_one(self, X) -> np.ndarray:
         """phi (10) for one input ``X = [q, dq, tau]`` (21)."""
-        x = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
+        return self.predict_scaled((np.asarray(X, dtype=float) - self.center) * self._inv_scale)
+
+    def scaled(self, X) -> np.ndarray:
+        """The input as the network sees it: ``(X - center) / scale`` (21)."""
+        return (np.asarray(X, dtype=float) - self.center) * self._inv_scale
+
+    def predict_scaled(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`predict_one` of an input already :meth:`scaled` (the estimate path scales
+        once for the estimate and its out-of-distribution score)."""
         y = self.a @ x + self.b
         np.maximum(y, 0.0, out=y)
         return self.lo + y * self._span

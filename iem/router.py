@@ -171,6 +171,36 @@ class BagRouter:
             return -1, nearest
         return int(cand[np.flatnonzero(ok)[np.argmin(eq[ok])]]), nearest
 
+    def route_join(self, q, flange) -> tuple[int, int]:
+        """:meth:`route`, then, if the point is inside a bag, :meth:`join` it: Algorithm 1
+        without the new bag (the caller decides what a point outside every bag starts).
+        Returns :meth:`route`'s ``(bag, nearest)``. One pass over the bags for both on a
+        small map (the online cycle's case)."""
+        n = self._n
+        if n > _SMALL or n == 0:
+            bag, nearest = self.route(q, flange)
+            if bag >= 0:
+                self.join(bag, q, flange)
+            return bag, nearest
+        p = np.concatenate((np.asarray(q, dtype=float), np.asarray(flange, dtype=float)))
+        d = self._means[:n] - p
+        d *= d
+        d2q = d[:, :7].sum(axis=1)  # the same arithmetic as _route_small
+        nearest = int(d2q.argmin())
+        if d2q[nearest] < self._delta2 and d[nearest, 7:].sum() < self._rho2:
+            bag = nearest  # the usual case: the nearest bag qualifies
+        else:
+            inside = (d2q < self._delta2) & (d[:, 7:].sum(axis=1) < self._rho2)
+            if not inside.any():
+                return -1, nearest
+            bag = int(np.where(inside, d2q, np.inf).argmin())
+        k = self._counts[bag] + 1
+        row = self._means[bag]
+        row += (p - row) / k  # as join: both means move toward the point
+        self._counts[bag] = k
+        self._mirror(bag)
+        return bag, nearest
+
     def _route_small(self, q: np.ndarray, x: np.ndarray) -> tuple[int, int]:
         """:meth:`route` for a few bags: exact float64 distances to every bag directly."""
         m = self._means[: self._n]

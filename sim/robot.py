@@ -119,8 +119,9 @@ class PandaModel:
     # -- kinematics ------------------------------------------------------------------------
     def flange_position(self, q) -> np.ndarray:
         """Flange origin in the base frame, m."""
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        return self.data.oMf[self.flange_id].translation.copy()
+        pin.forwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
+        # only the flange's frame (all frames cost twice as much; the online cycle asks this)
+        return pin.updateFramePlacement(self.model, self.data, self.flange_id).translation.copy()
 
     def tcp_position(self, q) -> np.ndarray:
         pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))

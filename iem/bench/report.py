@@ -188,8 +188,12 @@ def _timing(results) -> list[str]:
     lines.append(f"| learning, per point of a forming bag (median, {t['learn_points']} points) "
                  f"| {_g(lm)} ms | 12 ms |")
     if "phys_us_per_sample_median" in t:
-        lines.append(f"| IEM+phys, learn and estimate per sample on the new path (median) | "
-                     f"{t['phys_us_per_sample_median']:.0f} µs | |")
+        lines.append(f"| IEM+phys, learn (inline) and estimate per sample on the new path "
+                     f"(median) | {t['phys_us_per_sample_median']:.0f} µs | |")
+    if "phys_cycle_us_median" in t:
+        lines.append(f"| IEM+phys, one cycle as the plug-in runs it (learning in the worker) "
+                     f"on the new path, median / p99 | {t['phys_cycle_us_median']:.0f} / "
+                     f"{t['phys_cycle_us_p99']:.0f} µs | |")
     return lines
 
 

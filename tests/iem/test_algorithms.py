@@ -656,3 +656,28 @@ def test_learn_predict_one_equals_learn_then_predict():
         assert a.bag == b.bag and a.learning == b.learning
         np.testing.assert_array_equal(a.phi, b.phi)
     assert one.n_bags == two.n_bags >= 2
+
+
+@pytest.mark.parametrize("n_bags", [12, 200])
+def test_route_join_is_route_then_join(n_bags):
+    """The cycle's one-pass route_join decides as route and moves the means as join, to the
+    bit, on bag boundaries and inside, on a small map (one pass) and a large one (the scan)."""
+    import copy
+
+    fused = _crowded_router(n_bags)
+    split = copy.deepcopy(fused)
+    rng = np.random.default_rng(4)
+    points = list(_boundary_points(split, min(10, len(split)), rng))
+    points += [(split.q_means[i % len(split)] + rng.normal(0, 0.2, 7), np.zeros(3))
+               for i in range(200)]
+    outcomes = set()
+    for q, f in points:
+        bag, nearest = split.route(q, f)
+        if bag >= 0:
+            split.join(bag, q, f)
+        assert fused.route_join(q, f) == (bag, nearest)
+        outcomes.add(bag >= 0)
+    assert outcomes == {True, False}  # both cases are exercised
+    assert fused.q_means.tobytes() == split.q_means.tobytes()
+    assert fused.flange_means.tobytes() == split.flange_means.tobytes()
+    assert fused.counts.tolist() == split.counts.tolist()

@@ -31,6 +31,9 @@ def test_schema(results):
     t = r["timing"]
     assert set(t["route_us_median"]) == {"1", "10", "100", "1000", "10000"}
     assert t["predict_us_median"] > 0 and t["learn_ms_per_point_median"] > 0
+    # the cycle as the plug-in runs it (training in the worker) beside the inline figure
+    assert 0 < t["phys_cycle_us_median"] <= t["phys_cycle_us_p99"]
+    assert t["phys_us_per_sample_median"] > 0
     assert r["bags"]["after_excitation"] >= 3
     assert r["bags"]["after_new_path"] > r["bags"]["after_excitation"]
 

@@ -447,3 +447,33 @@ def test_a_reused_slot_forgets_the_retired_bags_calibration():
     default = np.diag(np.square((learner.hi - learner.lo) / 4.0))
     np.testing.assert_allclose(model._bag_cov(0), default)  # unmeasured, not the old errors
     assert not np.allclose(before, default)
+
+
+def test_a_projection_budget_shows_the_same_projections_later():
+    """With ``project_budget`` a long projection is spread over samples: every estimate is
+    one the at-once model made at the same or an earlier sample (phi and std of the same
+    posterior, to the bit), the first is at once, and some are shown later (the budget did
+    spread work: the test can fail)."""
+    rng = np.random.default_rng(8)
+    junk = DATA.X[rng.integers(0, DATA.n, 1500)] + rng.normal(0.0, 1.0, (1500, 21))
+    flanges = DATA.F[rng.integers(0, DATA.n, 1500)]
+    runs = {}
+    for budget in (0, 1):
+        model = _trained(dynamics="sim.robot:panda_dynamics")
+        model.project_budget = budget
+        out = []
+        for x, f in zip(junk, flanges, strict=True):
+            model.observe_one(x, f)
+            est = model.predict_one(x, f)
+            out.append((est.phi.tobytes(), est.std.tobytes()))
+        runs[budget] = out
+    first = {}
+    for k, pair in enumerate(runs[0]):
+        first.setdefault(pair, k)
+    made = [first[pair] for pair in runs[1]]  # KeyError: an estimate the model never made
+    assert all(j <= k for k, j in enumerate(made))  # made at that sample or before
+    same = np.array([a == b for a, b in zip(runs[0], runs[1], strict=True)])
+    assert same[0] and not same.all()  # the first at once; some shown later
+    assert PhysicsInformedEnsemble(project_budget=3).params()["project_budget"] == 3
+    with pytest.raises(InvalidInputError, match="project_budget"):
+        PhysicsInformedEnsemble(project_budget=-1)
