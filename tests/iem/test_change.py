@@ -47,3 +47,21 @@ def test_state_round_trip_and_old_states():
     assert old.g == 3.0 and old.level == 7.0 and old.n == LEVEL_EQUATIONS
     with pytest.raises(InvalidInputError, match="level_equations"):
         ChangeDetector(level_equations=-1)
+
+
+# Recorded chi² (iem bench longrun seed 0 at 445.7 s, the window 44,540 equations long, and
+# iem bench paper seed 0 across its payload change), each after a quiet stretch.
+MOTION_ONSET = [11, 27, 50, 65, 77, 87, 90, 87, 90, 129, 200, 275, 363, 473, 557, 613, 689,
+                753, 761, 731, 643, 482, 347, 290, 288, 350, 488, 674, 910, 1180, 1435, 1676,
+                1870, 1949, 1964, 1942, 1815, 1606, 1360, 1081, 835, 673, 576, 527, 533]
+PAYLOAD_CHANGE = [25, 181, 691, 1703, 3224, 5150, 7339, 9557, 11239, 13304, 15153]
+
+
+def test_a_misfit_rising_with_the_motion_is_no_change_but_a_new_payload_is():
+    rng = np.random.default_rng(3)
+    quiet = list(rng.chisquare(7, 100))
+    assert feed(ChangeDetector(), quiet + MOTION_ONSET + quiet) == []
+    fired = feed(ChangeDetector(), quiet + PAYLOAD_CHANGE)
+    assert fired and fired[0] - len(quiet) <= 3
+    # the 30-equation level this replaced counted the misfit's rise as evidence
+    assert feed(ChangeDetector(level_equations=30), quiet + MOTION_ONSET + quiet) != []
