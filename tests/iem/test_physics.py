@@ -246,7 +246,8 @@ def test_bad_parameters_are_errors():
 
 # -- the change detector -----------------------------------------------------------------
 def test_cusum_accumulates_excess_and_forgets_quiet():
-    det = ChangeDetector(dof=7, drift=21.0, threshold=100.0)
+    # the CUSUM's own arithmetic, on the raw chi² (the level is tests/iem/test_change.py's)
+    det = ChangeDetector(dof=7, drift=21.0, threshold=100.0, level_equations=0)
     assert not any(det(7.0) for _ in range(1000)) and det.g == 0.0
     assert not det(7.0 + 21.0 + 60.0) and det.g == pytest.approx(60.0)
     assert det(7.0 + 21.0 + 50.0)  # 110 > 100
