@@ -42,6 +42,7 @@ from iem.smoothing import ExponentialSmoother
 
 from .config import CellConfig
 from .gate import SafetyGate
+from .latency import LatencyWindow
 from .sdnotify import Notifier
 from .status import StatusLine
 
@@ -186,7 +187,7 @@ class Service:
         self.on_cycle: list[Callable[[CycleRecord], None]] = []
         self._stop = threading.Event()
         self._saver: threading.Thread | None = None
-        self.latencies: list[float] = []
+        self.latencies = LatencyWindow()
         self.cycles = 0
         self.silent = False
         self.silences = 0
@@ -332,7 +333,7 @@ class Service:
                 if publish is not None:  # the ros2 link: the estimate on its topics,
                     publish(raw, smoothed)  # at its own rate
                 latency = time.time() - frame_t if frame_t > 0 else math.nan
-                self.latencies.append(latency)
+                self.latencies.add(latency)
                 self.cycles += 1
                 if self.on_cycle:
                     record = CycleRecord(state, raw, smoothed, latency)
@@ -477,7 +478,6 @@ class Service:
                 + ("  SILENT" if self.silent else ""))
 
     def summary(self) -> dict:
-        lat = np.array([v for v in self.latencies if math.isfinite(v)]) * 1e6
         c = self.link.counters
         gate = self.gate.summary()
         return {
@@ -485,8 +485,8 @@ class Service:
             "estimates": self.cycles,
             "bags": self.model.n_bags,
             "model": self.model.name,
-            "latency_us": {"p50": float(np.percentile(lat, 50)) if lat.size else None,
-                           "p99": float(np.percentile(lat, 99)) if lat.size else None},
+            "latency_us": dict(zip(("p50", "p99"), self.latencies.percentiles_us(50, 99),
+                                   strict=True)),
             "writes": {"sent": gate["sent"], "acked": gate["acked"],
                        "rejected": gate["rejected"], "refused_by_controller": self.gate.refusals,
                        "send_errors": self.gate.send_errors},
