@@ -67,22 +67,14 @@ class LowPass2:
         self._x = self._y = self.previous = None
 
     @property
-    def _z1(self) -> np.ndarray:
-        """The filter's first state (channels)."""
-        return self._s[1].copy()
+    def state(self) -> list[np.ndarray]:
+        """The filter's two states ``[z1, z2]`` (channels each, copies): what a saved
+        filter needs besides its coefficients."""
+        return [self._s[1].copy(), self._s[2].copy()]
 
-    @_z1.setter
-    def _z1(self, value) -> None:
-        self._s[1] = value
-
-    @property
-    def _z2(self) -> np.ndarray:
-        """The filter's second state (channels)."""
-        return self._s[2].copy()
-
-    @_z2.setter
-    def _z2(self, value) -> None:
-        self._s[2] = value
+    @state.setter
+    def state(self, value) -> None:
+        self._s[1], self._s[2] = value
 
     def _step(self, x: np.ndarray) -> np.ndarray:
         s = self._s

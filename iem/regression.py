@@ -277,7 +277,7 @@ class PayloadRegression:
             return None if v is None else v.tolist()
 
         return {"count": self.count,
-                "filter": None if not lp._started else [lp._z1.tolist(), lp._z2.tolist()],
+                "filter": None if not lp._started else [z.tolist() for z in lp.state],
                 "input": vec(lp._x), "output": vec(lp._y), "previous": vec(lp.previous),
                 "block": [self._acc.tolist(), self._n_acc], "last": vec(self._x)}
 
@@ -286,7 +286,7 @@ class PayloadRegression:
         self.count = int(state["count"])
         if state["filter"] is not None:
             lp = self._lp
-            lp._z1, lp._z2 = (np.array(v, dtype=float) for v in state["filter"])
+            lp.state = [np.array(v, dtype=float) for v in state["filter"]]
             lp._started = True
             for key, attr in (("input", "_x"), ("output", "_y"), ("previous", "previous")):
                 value = state.get(key)
