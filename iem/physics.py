@@ -437,17 +437,15 @@ class PhysicsInformedEnsemble:
         if self._initial is not None:
             mean, cov = self._initial
         elif self._summary.n > 0:
-            mean, cov = self._summary.mean_cov(self._bag_cov, self._calib.scale)
+            mean, cov = self._summary.mean_cov(self._bag_cov, self._calib.widen)
         elif x is not None and self._ens.n_bags:
             est = self._ens.predict_one(x, flange)
             if est.bag < 0 or not np.all(np.isfinite(est.phi)):
                 return None
             mean = est.phi
-            cov = self._bag_cov(est.bag) * self._ood_factor(est)
-            d = self._calib.scale(float(mean[0]))
-            if d is not None:
-                cov = d[:, None] * cov * d[None, :]
-            cov = cov + self._noise_cov(est.bag, np.asarray(x, float))
+            cov = (self._calib.widen(self._bag_cov(est.bag) * self._ood_factor(est),
+                                     float(mean[0]))
+                   + self._noise_cov(est.bag, np.asarray(x, float)))
         else:
             mean = np.zeros(10)
             cov = np.diag(np.square(DEFAULT_PRIOR_STD))

@@ -91,6 +91,12 @@ class BagCalibration:
         ratio = (self._bin_sq[k] / self._bin_n[k]) / np.maximum(pooled, 1e-300)
         return np.clip(np.sqrt(ratio), *SCALE_RANGE)
 
+    def widen(self, cov: np.ndarray, mass: float) -> np.ndarray:
+        """``cov`` (a learner error covariance) with its standard deviations scaled by
+        :meth:`scale` for a payload of ``mass`` kg (``cov`` itself when there is no factor)."""
+        d = self.scale(mass)
+        return cov if d is None else d[:, None] * cov * d[None, :]
+
     def measured(self, bag: int) -> bool:
         return bag < len(self._n) and self._n[bag] > 0
 
@@ -166,11 +172,11 @@ class PriorSummary:
             self._k = 0
 
     def mean_cov(self, bag_cov: Callable[[int], np.ndarray],
-                 scale: Callable[[float], np.ndarray | None] | None = None,
+                 widen: Callable[[np.ndarray, float], np.ndarray] | None = None,
                  ) -> tuple[np.ndarray, np.ndarray]:
         """``(mu_p, C_p)``; ``bag_cov(bag)`` gives a bag's learner's error covariance and
-        ``scale(mass)`` the factors on its standard deviations for the mean's mass
-        (:meth:`BagCalibration.scale`)."""
+        ``widen(cov, mass)`` scales the summed covariance for the mean's mass
+        (:meth:`BagCalibration.widen`)."""
         self._fold()
         n = self.n
         mean = self._sum_phi / n
@@ -180,9 +186,8 @@ class PriorSummary:
         sum_c = self._sum_c_base.copy()
         for bag, count in self._counts.items():
             sum_c += count * bag_cov(bag)
-        d = None if scale is None else scale(float(mean[0]))
-        if d is not None:
-            sum_c = d[:, None] * sum_c * d[None, :]
+        if widen is not None:
+            sum_c = widen(sum_c, float(mean[0]))
         return mean, sum_c / n + noise / n
 
     def to_state(self) -> dict:
