@@ -47,18 +47,14 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InvalidInputError
+from .small_linalg import chi_square
+
+__all__ = ["LEVEL_CLIP", "LEVEL_EQUATIONS", "ChangeDetector", "chi_square"]
 
 LEVEL_EQUATIONS = 10
 """Equations over which the level of ``chi2`` is averaged (exponentially)."""
 LEVEL_CLIP = 4.0
 """Largest ``chi2`` an equation adds to the level, as a multiple of the level."""
-
-
-def chi_square(nu, S) -> float:
-    """``nu^T S^-1 nu`` (via a Cholesky factor of ``S``)."""
-    L = np.linalg.cholesky(S)
-    w = np.linalg.solve(L, nu)
-    return float(w @ w)
 
 
 class ChangeDetector:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InvalidInputError
+from .small_linalg import cholesky, solve, sym_inv
 
 EPS = 1e-9
 """Smallest eigenvalue a projected pseudo-inertia gets (kg, kg·m²)."""
@@ -148,7 +149,7 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
 
     def cost(x, t):
         try:
-            L = np.linalg.cholesky(slack(x))
+            L = cholesky(slack(x))
         except np.linalg.LinAlgError:
             return np.inf
         d = x - mu
@@ -163,12 +164,15 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
     while steps < max_newton:
         f_x = None  # cost(x, t), kept from the line search that accepted x
         for _ in range(50):  # Newton on the barrier problem for this t
-            K = np.linalg.inv(slack(x))
+            try:
+                K = sym_inv(slack(x))  # x is feasible: the slack is positive definite
+            except np.linalg.LinAlgError:
+                return x
             grad = W @ (x - mu) - t * (_BF @ K.ravel())
             KK = (K[:, None, :, None] * K[None, :, None, :]).reshape(16, 16)
             hess = W + t * (_BF @ KK @ _BF.T)
             try:
-                step = np.linalg.solve(hess, -grad)
+                step = solve(hess, -grad)
             except np.linalg.LinAlgError:
                 return x  # feasible, if not quite optimal
             dec = float(-grad @ step)  # Newton decrement squared

@@ -19,16 +19,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .consistency import EPS, project
+from .small_linalg import sym_inv
 
 MAX_INFLATION = 1e6
 """Largest factor :func:`prior_inflation` puts on the prior covariance."""
-
-
-def sym_inv(A: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive-definite matrix (via Cholesky), symmetrised."""
-    L = np.linalg.cholesky(A)
-    Li = np.linalg.solve(L, np.eye(A.shape[0]))
-    return Li.T @ Li
 
 
 def prior_inflation(mu_p, c_p, info, eta) -> float:
