@@ -19,10 +19,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .consistency import EPS, project
-from .small_linalg import sym_inv
+from .small_linalg import eigh, sym_inv
 
 MAX_INFLATION = 1e6
 """Largest factor :func:`prior_inflation` puts on the prior covariance."""
+
+
+_COARSE = np.linspace(0.0, math.log(MAX_INFLATION), 49)
+_FINE = np.linspace(0.0, 1.0, 33)  # a bracket of the coarse grid, refined
 
 
 def prior_inflation(mu_p, c_p, info, eta) -> float:
@@ -38,14 +42,14 @@ def prior_inflation(mu_p, c_p, info, eta) -> float:
     its covariance allows (e.g. an ensemble far outside its training data): then the prior's
     claims elsewhere, e.g. on the inertia the data barely see, are not trusted either.
     """
-    d, U = np.linalg.eigh(0.5 * (info + info.T))
+    d, U = eigh(0.5 * (info + info.T))
     keep = d > 1e-9 * max(float(d.max()), 1e-300)
     if not keep.any():
         return 1.0
     U, root = U[:, keep], np.sqrt(d[keep])
     v = (U.T @ (eta - info @ mu_p)) / root
     G = root[:, None] * (U.T @ c_p @ U) * root[None, :]
-    gamma, V = np.linalg.eigh(0.5 * (G + G.T))
+    gamma, V = eigh(0.5 * (G + G.T))
     gamma = np.maximum(gamma, 0.0)
     a2 = np.square(V.T @ v)
 
@@ -53,7 +57,7 @@ def prior_inflation(mu_p, c_p, info, eta) -> float:
         k = 1.0 + np.exp(log_s2)[:, None] * gamma[None, :]
         return np.sum(gamma * (a2 / (k * k) - 1.0 / k), axis=1)
 
-    grid = np.linspace(0.0, math.log(MAX_INFLATION), 49)
+    grid = _COARSE
     g = slope(grid)
     if g[0] <= 0.0:
         return 1.0
@@ -62,7 +66,7 @@ def prior_inflation(mu_p, c_p, info, eta) -> float:
         if down.size == 0:
             return MAX_INFLATION
         i = int(down[0])
-        grid = np.linspace(grid[i - 1], grid[i], 33)
+        grid = grid[i - 1] + (grid[i] - grid[i - 1]) * _FINE
         g = slope(grid)
     i = int(np.flatnonzero(g <= 0.0)[0])  # the last bracket: interpolate the slope
     w = g[i - 1] / (g[i - 1] - g[i])

@@ -5,18 +5,50 @@ takes under 1 µs at these sizes (10x10 symmetric inverse: 12.9 µs with ``chole
 ``solve``, 2.9 µs here; a 7x7 chi-square: 7.6 µs against 1.9 µs; measured on this machine).
 The cycle makes several of them per equation and per posterior refresh, so they are called
 here through SciPy's LAPACK wrappers (``dpotrf``, ``dtrtri``, ``dtrtrs``, ``dgesv``), the
-same routines numpy's functions call. Failures raise :class:`numpy.linalg.LinAlgError`, as
+same routines numpy's functions call (SciPy is imported at the first call: ``iem`` stays
+numpy-only at import). Failures raise :class:`numpy.linalg.LinAlgError`, as
 numpy's would, so callers keep their ``except`` clauses.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import lapack
 
-__all__ = ["chi_square", "cholesky", "solve", "sym_inv"]
+__all__ = ["chi_square", "cholesky", "eigh", "solve", "sym_inv"]
 
-_potrf, _trtri, _trtrs, _gesv = lapack.dpotrf, lapack.dtrtri, lapack.dtrtrs, lapack.dgesv
+
+def _load() -> None:
+    """Bind the LAPACK routines at first use (``iem`` stays numpy-only at import)."""
+    global _potrf, _trtri, _trtrs, _gesv, _syevd
+    from scipy.linalg import lapack
+
+    _potrf, _trtri, _trtrs, _gesv, _syevd = (lapack.dpotrf, lapack.dtrtri, lapack.dtrtrs,
+                                             lapack.dgesv, lapack.dsyevd)
+
+
+def _potrf(*args, **kwargs):  # replaced by SciPy's at the first call
+    _load()
+    return _potrf(*args, **kwargs)
+
+
+def _trtri(*args, **kwargs):
+    _load()
+    return _trtri(*args, **kwargs)
+
+
+def _trtrs(*args, **kwargs):
+    _load()
+    return _trtrs(*args, **kwargs)
+
+
+def _gesv(*args, **kwargs):
+    _load()
+    return _gesv(*args, **kwargs)
+
+
+def _syevd(*args, **kwargs):
+    _load()
+    return _syevd(*args, **kwargs)
 
 
 def cholesky(A: np.ndarray) -> np.ndarray:
@@ -53,3 +85,13 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     if info != 0:
         raise np.linalg.LinAlgError(f"singular matrix (LAPACK dgesv info {info})")
     return x
+
+
+def eigh(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and eigenvectors (columns) of the symmetric ``A`` (its lower
+    triangle is read), as ``numpy.linalg.eigh`` (LAPACK ``dsyevd``)."""
+    w, v, info = _syevd(A, compute_v=1, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"eigenvalues did not converge (LAPACK dsyevd info "
+                                    f"{info})")
+    return w, v
