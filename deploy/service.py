@@ -223,6 +223,9 @@ class Service:
             from iem.physics import LIVE_PROJECT_BUDGET  # projection is spread over cycles
 
             self.model.project_budget = LIVE_PROJECT_BUDGET if self.threaded_reader else 0
+        prepare = getattr(self.model, "prepare", None)
+        if prepare is not None:  # the imports of the first cycles, now
+            prepare()
         if self.link is None:
             from firmware_bridge.links import open_link
 

@@ -187,6 +187,15 @@ class PhysicsInformedEnsemble:
                 "eps": self.eps, "refresh_every": self.refresh_every,
                 "project_budget": self.project_budget}
 
+    def prepare(self) -> None:
+        """Load now what the first equations and refreshes would load (the robot model,
+        SciPy's LAPACK), so that a live link's first cycles do not stall on imports (they
+        took 165 ms of CPU in the first cycle of ``iem bench e2e``)."""
+        from . import small_linalg
+
+        self._reg.model()
+        small_linalg.cholesky(np.eye(2))
+
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
         return type(self)(**self.params())
