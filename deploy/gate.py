@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +56,7 @@ import numpy as np
 from sim.payload import Payload
 
 from .gate_checks import WireCheck, check_estimate, model_doubt
+from .time_window import TimeWindow
 
 log = logging.getLogger("iem.gate")
 
@@ -65,6 +66,14 @@ REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
            "rate_limited")
 REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
 """Reasons that say the estimate itself can never be written (counted in ``rejected``)."""
+def _mass_and_com(rows: np.ndarray) -> np.ndarray:
+    """``[m, m c]`` rows -> ``[m, c]`` rows."""
+    out = np.empty_like(rows)
+    out[:, 0] = rows[:, 0]
+    np.divide(rows[:, 1:4], rows[:, :1], out=out[:, 1:4])
+    return out
+
+
 _QUIET = ("unstable", "uncertain", "no_change", "rate_limited")
 """Reasons that are a normal part of converging: logged at DEBUG, the others at INFO."""
 
@@ -140,7 +149,7 @@ class SafetyGate:
         self.config = GateConfig() if config is None else config
         self.wire_check = wire_check
         self.counts: Counter[str] = Counter()
-        self._history: deque[tuple[float, np.ndarray]] = deque()
+        self._history = TimeWindow(self.config.stable_window_s, 4)  # m, m·c per cycle
         self._stable = False
         self._estimate = None  # the raw estimate last observed (its std and extra)
         self._last_decision_t = -math.inf
@@ -229,10 +238,10 @@ class SafetyGate:
         and ``extra["nis"]`` are checked by :meth:`decide`)."""
         if estimate is not None:
             self._estimate = estimate
-        if np.isfinite(phi).all():  # a copy: the caller's array may change
-            self._history.append((t, np.array(phi[:4], dtype=float)))
-        while self._history and t - self._history[0][0] > self.config.stable_window_s:
-            self._history.popleft()
+        if np.isfinite(phi).all():  # copied into the window's ring
+            self._history.push(t, phi[:4])
+        else:
+            self._history.expire(t)
 
     def decide(self, t: float, phi: np.ndarray, estimate=None) -> Decision:
         """Decide on the estimate ``phi`` (paper order) at time ``t``; ``estimate`` is the
@@ -302,15 +311,13 @@ class SafetyGate:
         return min(c.refusal_retry_s * 2.0 ** min(n, 60), c.refusal_retry_max_s)
 
     def _spread(self) -> tuple[float, float] | None:
-        if not self._history:
+        window = self._history
+        if not window.n:
             return None
-        span = self._history[-1][0] - self._history[0][0]
-        if span < 0.9 * self.config.stable_window_s:
+        if window.last_t - window.first_t < 0.9 * self.config.stable_window_s:
             return None  # not watched for long enough yet
-        values = np.array([v for _, v in self._history])
-        mass = values[:, 0]
-        com = values[:, 1:4] / mass[:, None]
-        return float(np.ptp(mass)), float(np.ptp(com, axis=0).max())
+        ptp = window.ptp(_mass_and_com)
+        return float(ptp[0]), float(ptp[1:].max())
 
     def _spread_text(self) -> str:
         spread = self._spread()
