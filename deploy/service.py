@@ -197,6 +197,10 @@ class Service:
         self._behind = False
         self.checkpoints = 0
         self.cpu_s = 0.0
+        self.cpu_parts = {"cycle": 0.0, "reader": 0.0, "learning": 0.0, "checkpoint": 0.0}
+        """CPU s of the last run by thread: the cycle's, the link reader's, the learning
+        worker's and the checkpoints' (``cpu_s`` is their sum)."""
+        self._checkpoint_cpu_s = 0.0
         self.wall_s = 0.0
 
     # -- set-up ----------------------------------------------------------------------------
@@ -274,6 +278,9 @@ class Service:
         publish = getattr(link, "publish_estimate", None)
         started = time.monotonic()
         cpu0 = time.thread_time()
+        ens = self._ensemble()
+        learn0 = getattr(ens, "learning_cpu_s", 0.0)
+        save0 = self._checkpoint_cpu_s
         next_checkpoint = started + cfg.model.checkpoint_period_s
         watchdog = self.notifier.watchdog_period()
         next_watchdog = started
@@ -367,11 +374,14 @@ class Service:
                     self.status.show(self._status_text(now - started, smoothed))
         finally:
             self.wall_s = time.monotonic() - started
-            self.cpu_s = time.thread_time() - cpu0
+            parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0, "reader": 0.0,
+                                      "learning": getattr(ens, "learning_cpu_s", 0.0) - learn0,
+                                      "checkpoint": self._checkpoint_cpu_s - save0}
             if reader is not None:
                 reader.stop()
                 self.reader_skipped += reader.skipped
-                self.cpu_s += reader.cpu_s
+                parts["reader"] = reader.cpu_s
+            self.cpu_s = sum(parts.values())
             self.status.clear()
             self.notifier.stopping()
         return self.summary()
@@ -455,6 +465,7 @@ class Service:
         path = self.config.model.path
 
         def save() -> None:
+            cpu0 = time.thread_time()
             try:
                 save_model(snapshot, path)
                 self.checkpoints += 1
@@ -462,6 +473,8 @@ class Service:
                          extra={"event": "checkpoint", "bags": snapshot.n_bags})
             except Exception:  # a failed save keeps the last good file; say so and go on
                 log.exception("checkpoint to %s failed; the previous file is kept", path)
+            finally:
+                self._checkpoint_cpu_s += time.thread_time() - cpu0
 
         self._saver = threading.Thread(target=save, name="iem-checkpoint", daemon=True)
         self._saver.start()
@@ -503,6 +516,7 @@ class Service:
             "checkpoints": self.checkpoints,
             "wall_s": self.wall_s,
             "cpu_s": self.cpu_s,
+            "cpu_parts": dict(self.cpu_parts),
         }
 
 

@@ -215,6 +215,12 @@ class IncrementalEnsemble:
         """Training jobs submitted and not finished (always 0 unless ``background``)."""
         return self._worker.pending
 
+    @property
+    def learning_cpu_s(self) -> float:
+        """CPU time of the training jobs of the current worker, s (its thread's on a live
+        link: what learning costs beside the cycle)."""
+        return self._worker.cpu_s
+
     def drain(self) -> None:
         """Wait until every submitted training job has landed."""
         self._worker.drain()

@@ -51,7 +51,7 @@ class LearningWorker:
         self.synchronous = bool(synchronous)
         self._queue: queue.Queue | None = None
         self._thread: threading.Thread | None = None
-        self._status = {"error": None, "done": 0}  # shared with the thread, not self
+        self._status = {"error": None, "done": 0, "cpu_s": 0.0}  # shared with the thread
 
     @property
     def jobs_done(self) -> int:
@@ -61,7 +61,9 @@ class LearningWorker:
     def submit(self, job: Callable[[], None]) -> None:
         """Queue ``job`` (run it now if synchronous)."""
         if self.synchronous:
+            cpu0 = time.thread_time()
             job()
+            self._status["cpu_s"] += time.thread_time() - cpu0
             self._status["done"] += 1
             return
         if self._thread is None or not self._thread.is_alive():
@@ -72,6 +74,11 @@ class LearningWorker:
             # a worker dropped without close() still ends its thread
             weakref.finalize(self, self._queue.put, None)
         self._queue.put(job)
+
+    @property
+    def cpu_s(self) -> float:
+        """CPU time the jobs took, s (the thread's, or the caller's when synchronous)."""
+        return self._status["cpu_s"]
 
     @property
     def pending(self) -> int:
@@ -115,7 +122,11 @@ def _loop(q: queue.Queue, status: dict) -> None:
         try:
             if job is None:
                 return
-            job()
+            cpu0 = time.thread_time()
+            try:
+                job()
+            finally:
+                status["cpu_s"] += time.thread_time() - cpu0
             status["done"] += 1
         except BaseException as exc:  # kept for drain(); the worker goes on
             status["error"] = exc

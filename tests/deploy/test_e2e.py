@@ -108,6 +108,9 @@ def test_identifies_and_writes_back_over_slcan_on_a_pty(model_file, tmp_path):
     # python-can's slcan reads a byte per call: with the estimator learning, the service
     # reads fewer than the 500 states per second the controller publishes (see README)
     assert summary["cycles"] > 1000, summary
+    parts = summary["cpu_parts"]  # the plug-in's CPU, by thread
+    assert parts["cycle"] > 0 and parts["reader"] > 0
+    assert summary["cpu_s"] == pytest.approx(sum(parts.values()))
     final = rows[-1]
     assert abs(final[0] - TRUTH.mass) < 0.03
     assert summary["writes"]["sent"] >= 1 and summary["writes"]["acked"] >= 1

@@ -15,7 +15,7 @@ def test_the_ring_holds_exactly_the_rows_of_the_last_span(capacity):
     ring = TimeWindow(span, 3, capacity=capacity)
     rows: list[tuple[float, np.ndarray]] = []
     t = 0.0
-    for k in range(3000):
+    for _ in range(3000):
         t += float(rng.choice([0.0, 0.001, 0.002, 0.03]))
         v = rng.normal(size=3)
         if rng.random() < 0.9:

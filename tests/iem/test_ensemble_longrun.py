@@ -166,6 +166,29 @@ def test_a_failed_job_is_reported_not_lost():
     assert ran == [1]
 
 
+@pytest.mark.parametrize("synchronous", [False, True])
+def test_the_worker_counts_the_cpu_time_of_its_jobs(synchronous):
+    """What learning costs beside the cycle is counted: a job that computes for 30 ms of
+    CPU adds about that to ``cpu_s`` (threaded or inline); an idle worker adds nothing."""
+    import time
+
+    worker = LearningWorker(synchronous=synchronous)
+    assert worker.cpu_s == 0.0
+
+    def burn():
+        end = time.thread_time() + 0.03
+        while time.thread_time() < end:
+            pass
+
+    worker.submit(burn)
+    worker.drain()
+    assert 0.03 <= worker.cpu_s < 0.5
+    before = worker.cpu_s
+    time.sleep(0.05)
+    assert worker.cpu_s == before
+    worker.close()
+
+
 # -- out of distribution -------------------------------------------------------------------
 def test_training_inputs_are_in_distribution_and_reversed_velocities_are_not():
     model = fitted()  # its bags' learners were trained on the fit points' samples
