@@ -515,6 +515,12 @@ class PhysicsInformedEnsemble:
         return None if post is None else (post.mean.copy(), post.cov.copy())
 
     @property
+    def busy(self) -> bool:
+        """The last sample did its heavy job (spread): a caller with periodic work of its
+        own (the safety gate's decision) may put it in the next sample instead."""
+        return self._busy and self.spread
+
+    @property
     def spread(self) -> bool:
         """The heavy work is spread over samples (a live link): with a ``project_budget``."""
         return self.project_budget > 0
