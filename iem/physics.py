@@ -66,10 +66,10 @@ from .base import Samples, resolve
 from .change import ChangeDetector, chi_square
 from .consistency import EPS, project_steps
 from .ensemble import IncrementalEnsemble
+from .ensemble_prior import EnsemblePrior
 from .errors import InvalidInputError
 from .least_squares import DEFAULT_PRIOR_STD
 from .posterior import EquationWindow, Posterior, combine, prior_inflation
-from .prior_summary import BagCalibration, PriorSummary
 from .regression import PayloadRegression
 from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
@@ -193,10 +193,9 @@ class PhysicsInformedEnsemble:
                            else round(self.holdoff_s * self.rate_hz))
         self._detector = ChangeDetector(7, self.drift, self.threshold)
         self._floor = np.square(PRIOR_FLOOR)
-        self._calib = BagCalibration()
-        self._calib_gen: list[int] = []  # the slot generation each calibration belongs to
+        self.ensemble_prior = EnsemblePrior(self._ens)
+        """The ensemble as the prior: its bags' calibration and the summary since a change."""
         self._window = EquationWindow()
-        self._summary = PriorSummary()
         self._nis = np.zeros(NIS_WINDOW)
         self._routed: tuple[np.ndarray, int] | None = None  # (x observed last, its bag)
         self.reset()
@@ -260,7 +259,7 @@ class PhysicsInformedEnsemble:
 
     def _forget(self) -> None:
         self._window.clear()
-        self._summary.clear()
+        self.ensemble_prior.summary.clear()
         self._detector.reset()
         self._changed = False
         self._post: Posterior | None = None
@@ -321,60 +320,16 @@ class PhysicsInformedEnsemble:
         return self._ens
 
     def nbytes(self) -> int:
-        state = (self._window.info, self._window.eta, self._summary._buf,
-                 self._summary._sum_outer, self._nis, self._reg._acc)
-        return (self._ens.nbytes() + self._calib.nbytes() + sum(a.nbytes for a in state)
-                + 8 * 10 * 10 * 3)  # the posterior's matrices
-
-    # -- prior calibration ---------------------------------------------------------------
-    def _current(self, bag: int) -> None:
-        """A slot the ensemble reused for a new bag (its budget) forgets the old bag's
-        calibration, so the new learner is not judged by the retired one's errors."""
-        gen = self._ens.slot_generation(bag)
-        while len(self._calib_gen) <= bag:
-            self._calib_gen.append(0)
-        if self._calib_gen[bag] != gen:
-            self._calib.forget(bag)
-            self._calib_gen[bag] = gen
-
-    def _calibrate(self, bag: int, X, Y) -> None:
-        """Add a bag's learner's errors on labelled samples to the bag's covariance."""
-        self._current(bag)
-        Y = np.asarray(Y, dtype=float)
-        err = self._ens.learner(bag).predict_many(X) - Y
-        self._calib.add(bag, err, Y)
-
-    def _ood_factor(self, est) -> float:
-        """How much less sure an ensemble estimate is than its bag's calibration says:
-        ``(score / threshold)²`` once its input lies beyond the bag's training distribution
-        (:meth:`iem.ensemble.IncrementalEnsemble.ood_score`), else 1."""
-        score = est.extra.get("ood_score", 0.0) if est.extra else 0.0
-        return max(1.0, score / self._ens.ood_threshold) ** 2
-
-    def _bag_cov(self, bag: int) -> np.ndarray:
-        """The bag's learner's error covariance (a weak default if never measured)."""
-        self._current(bag)
-        if self._calib.measured(bag):
-            return self._calib.cov(bag)
-        learner = self._ens.learner(bag)
-        return np.diag(np.square((learner.hi - learner.lo) / 4.0))
-
-    def _noise_cov(self, bag: int, x: np.ndarray) -> np.ndarray:
-        """Covariance of the learner's output from the sensor noise on its input ``x``."""
-        learner = self._ens.learner(bag)
-        if learner.input_noise is None:
-            return np.zeros((10, 10))
-        z = (x - learner.center) / learner.scale
-        active = (learner.a @ z + learner.b) > 0.0
-        a = learner.a * (learner.input_noise / learner.scale)
-        a = a * (active * (learner.hi - learner.lo))[:, None]
-        return a @ a.T
+        state = (self._window.info, self._window.eta, self._nis, self._reg._acc)
+        return (self._ens.nbytes() + self.ensemble_prior.nbytes()
+                + sum(a.nbytes for a in state) + 8 * 10 * 10 * 3)  # the posterior's matrices
 
     def fit(self, Q, F, samples_at) -> PhysicsInformedEnsemble:
         """The ensemble's initial bags and learners, then each bag's error covariance on the
         tandem samples of (a stride of) the points routed to it."""
         self._ens.fit(Q, F, samples_at)
-        self._calib.grow(self._ens.n_bags)
+        prior = self.ensemble_prior
+        prior.calib.grow(self._ens.n_bags)
         Q = np.asarray(Q, dtype=float)
         F = np.asarray(F, dtype=float)
         router = self._ens.router
@@ -386,7 +341,7 @@ class PhysicsInformedEnsemble:
             idx = np.flatnonzero(labels == bag)[::stride]
             for i in idx:
                 X, Y = samples_at(int(i))
-                self._calibrate(bag, X, Y)
+                prior.calibrate(bag, X, Y)
         self._post = None
         return self
 
@@ -403,7 +358,7 @@ class PhysicsInformedEnsemble:
         x = np.asarray(x, dtype=float)
         est = self._ens.learn_predict_one(x, flange, lazy)  # one routing for both
         if got and self._ens.open_bag >= 0:
-            self._calibrate(self._ens.open_bag, *got[0])
+            self.ensemble_prior.calibrate(self._ens.open_bag, *got[0])
         self._observe(x, flange, est)
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
@@ -442,15 +397,9 @@ class PhysicsInformedEnsemble:
         if est is None:
             est = self._ens.predict_one(x, flange)
         self._routed = (x, est.bag)
-        if est.bag >= 0 and np.isfinite(est.phi).all():
-            summary = self._summary
-            if summary.n == 0:
-                summary.noise0 = self._noise_cov(est.bag, x)
-            factor = self._ood_factor(est)  # out of distribution: the physics governs
-            summary.add(est.phi, est.bag,
-                        None if factor == 1.0 else (factor - 1.0) * self._bag_cov(est.bag))
-            if self._window.empty and (summary.n % self.update_every == 1
-                                       or self.update_every == 1):
+        if self.ensemble_prior.add(est, x):
+            n = self.ensemble_prior.summary.n
+            if self._window.empty and (n % self.update_every == 1 or self.update_every == 1):
                 self._stale = True  # no data yet: refresh the prior-only posterior every
                 # few samples (with data, the equations refresh it)
         if self._stale:
@@ -520,16 +469,13 @@ class PhysicsInformedEnsemble:
         since the last change, or the ensemble at ``x``."""
         if self._initial is not None:
             mean, cov = self._initial
-        elif self._summary.n > 0:
-            mean, cov = self._summary.mean_cov(self._bag_cov, self._calib.widen)
+        elif self.ensemble_prior.summary.n > 0:
+            mean, cov = self.ensemble_prior.summarised()
         elif x is not None and self._ens.n_bags:
-            est = self._ens.predict_one(x, flange)
-            if est.bag < 0 or not np.all(np.isfinite(est.phi)):
+            at = self.ensemble_prior.at(x, flange)
+            if at is None:
                 return None
-            mean = est.phi
-            cov = (self._calib.widen(self._bag_cov(est.bag) * self._ood_factor(est),
-                                     float(mean[0]))
-                   + self._noise_cov(est.bag, np.asarray(x, float)))
+            mean, cov = at
         else:
             mean = np.zeros(10)
             cov = np.diag(np.square(DEFAULT_PRIOR_STD))
@@ -567,7 +513,8 @@ class PhysicsInformedEnsemble:
         :data:`SPREAD_WAIT` samples late)."""
         if self._post is None or (self._stale and not (
                 self._busy and self.spread and self._stale_for <= SPREAD_WAIT)):
-            if self._summary.n == 0 and self._ens.n_bags and self._initial is None:
+            if (self.ensemble_prior.summary.n == 0 and self._ens.n_bags
+                    and self._initial is None):
                 return None  # nothing seen yet: predict_one uses the ensemble at its x
             try:
                 self._post = combine(*self._prior(), self._window, self.eps)
@@ -652,9 +599,10 @@ class PhysicsInformedEnsemble:
     # -- persistence ---------------------------------------------------------------------
     def to_state(self) -> dict:
         return {"params": self.params(), "ensemble": self._ens.to_state(),
-                **self._calib.to_state(), "calib_gen": list(self._calib_gen),
+                **self.ensemble_prior.calib.to_state(),
+                "calib_gen": list(self.ensemble_prior.calib_gen),
                 "regression": self._reg.to_state(),
-                **self._window.to_state(), **self._summary.to_state(),
+                **self._window.to_state(), **self.ensemble_prior.summary.to_state(),
                 "detector": self._detector.to_state(), "changed": self._changed,
                 "post": None if self._post is None else self._post.to_state(),
                 "holdoff": self._holdoff, "changes": self.changes,
@@ -665,14 +613,15 @@ class PhysicsInformedEnsemble:
     def from_state(cls, state: dict):
         model = cls(**state["params"])
         model._ens = IncrementalEnsemble.from_state(state["ensemble"])
-        model._calib.set_state(state)
-        model._calib_gen = [int(g) for g in state.get("calib_gen", [])]
-        if len(model._calib) > model.n_bags:
-            raise InvalidInputError(f"model state has {len(model._calib)} bag covariances "
+        prior = model.ensemble_prior = EnsemblePrior(model._ens)
+        prior.calib.set_state(state)
+        prior.calib_gen = [int(g) for g in state.get("calib_gen", [])]
+        if len(prior.calib) > model.n_bags:
+            raise InvalidInputError(f"model state has {len(prior.calib)} bag covariances "
                                     f"for {model.n_bags} bags")
         model._reg.set_state(state["regression"])
         model._window.set_state(state)
-        model._summary.set_state(state)
+        prior.summary.set_state(state)
         model._detector.set_state(state["detector"])
         model._changed = bool(state["changed"])
         if state["post"] is not None:

@@ -232,7 +232,7 @@ def test_prior_is_the_mean_of_the_ensembles_estimates():
         model.observe_one(x, f)
     mean, cov = model.posterior()
     np.testing.assert_allclose(mean, np.mean([e.phi for e in est], axis=0), rtol=1e-9)
-    bag_cov = np.mean([model._bag_cov(e.bag) for e in est], axis=0)
+    bag_cov = np.mean([model.ensemble_prior.bag_cov(e.bag) for e in est], axis=0)
     assert np.all(np.diag(cov) >= np.diag(bag_cov))  # at least the learners' error spread
 
 
@@ -245,7 +245,8 @@ def test_bag_covariance_is_the_learners_error_on_its_samples():
     pts = pts[:: ens.fit_stride]
     errs = np.vstack([ens.learner(bag).predict_many(DATA.samples_at(p)[0])
                       - DATA.samples_at(p)[1] for p in pts])
-    np.testing.assert_allclose(model._bag_cov(bag), errs.T @ errs / len(errs), rtol=1e-9)
+    np.testing.assert_allclose(model.ensemble_prior.bag_cov(bag), errs.T @ errs / len(errs),
+                               rtol=1e-9)
 
 
 def test_prior_inflation_is_the_maximum_likelihood_scale():
@@ -493,18 +494,19 @@ def test_an_input_beyond_its_bags_training_makes_the_prior_less_sure():
     assert est.extra["ood_score"] > ens.ood_threshold
     _, cov_far = model._prior(far, f)
     factor = (est.extra["ood_score"] / ens.ood_threshold) ** 2
-    assert np.all(np.diag(cov_far) >= 0.9 * factor * np.diag(model._bag_cov(est.bag)))
+    assert np.all(np.diag(cov_far) >= 0.9 * factor * np.diag(model.ensemble_prior.bag_cov(est.bag)))
     assert np.trace(cov_far) > 10 * np.trace(near[1])
 
 
 def test_a_reused_slot_forgets_the_retired_bags_calibration():
     model = _trained()
     ens = model.ensemble_model
-    before = model._bag_cov(0).copy()
+    before = model.ensemble_prior.bag_cov(0).copy()
     ens._gen[0] += 1  # the budget gave slot 0 to a new bag
     learner = ens.learner(0)
     default = np.diag(np.square((learner.hi - learner.lo) / 4.0))
-    np.testing.assert_allclose(model._bag_cov(0), default)  # unmeasured, not the old errors
+    # unmeasured, not the old errors
+    np.testing.assert_allclose(model.ensemble_prior.bag_cov(0), default)
     assert not np.allclose(before, default)
 
 
