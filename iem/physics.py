@@ -42,7 +42,9 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   refreshed every ``refresh_every`` equations (20 Hz by default: the output smoothing's time
   constant is 0.2 s), and between refreshes every estimate is the cached one.
 - **Payload change**: each equation's innovation, whitened by its covariance
-  ``R + Y Lambda^-1 Y^T``, feeds a CUSUM (:class:`iem.change.ChangeDetector`), from the
+  ``R + Y Lambda^-1 Y^T`` plus the filtered equation's own error where the arm's torque bends
+  sharply (:data:`iem.change.MODEL_ERROR_GAIN`), feeds a CUSUM
+  (:class:`iem.change.ChangeDetector`), from the
   window's :data:`DETECT_AFTER`-th equation on (before, a conflict is the prior's, which the
   inflation resolves, not a new payload's). On a change the data
   window, the prior summary and the detector restart, the equations of the next
@@ -63,7 +65,7 @@ import math
 import numpy as np
 
 from .base import Samples, resolve
-from .change import ChangeDetector, chi_square
+from .change import MODEL_ERROR_GAIN, ChangeDetector, chi_square
 from .consistency import EPS, project_steps
 from .ensemble import IncrementalEnsemble
 from .ensemble_prior import EnsemblePrior
@@ -87,24 +89,6 @@ LIVE_PROJECT_BUDGET = 4
 about 0.15 ms here; the longest projection (200 steps) is then spread over about 70 samples
 (those of each 10 that form, test or refresh do no steps), instead of stalling one cycle for
 up to 4 ms."""
-MODEL_ERROR_GAIN = 3.0
-"""The change detector's model error: the standard deviation of an equation's error per
-joint is this times the second difference of the robot model's torque over the last three
-equations (:attr:`iem.regression.PayloadRegression.curvature`, 10 ms apart by default).
-
-A 4 Hz low-pass does not commute with the arm's nonlinear dynamics: where the arm's torque
-bends sharply (a fast start from rest), the filtered equations of a perfect arm miss by
-0.1-0.3 N·m against a filtered noise of 0.01-0.02 N·m, chi² up to 6,326 on a fixed payload
-(``bench longrun`` seed 1, 1,838 s, 184,000 equations in the window: the one false alarm of
-its 60-minute run). Of the kinematic measures tried there (the first and second differences
-of the model torque, the mass matrix times the jerk, ``|ddq|``), the second difference
-predicts the miss best (correlation 0.61 with ``|nu|``; the miss is 0.7-7.5 times it where it
-exceeds 10 sigma). The gain was chosen on that stretch (1,830-1,900 s, seed 1) with changes
-of the test payload scaled by 1.25, 3 and 17 % injected at 1,850 s: the chi² maximum on the
-fixed payload falls from 6,326 to 144 (1: 258), the CUSUM's largest evidence from 294 to 41
-(threshold 300), while a 48 g change is still detected after 80 ms (70 without) and a 275 g
-one after 30 ms (30). Kinematic only: a payload change does not raise it. The estimate's own
-equations keep their weights (``R``); only the detector (not :attr:`nis`) uses it."""
 SPREAD_WAIT = 3
 """Samples a due posterior refresh may wait for one without other heavy work (spread)."""
 NIS_WINDOW = 50
