@@ -64,7 +64,17 @@ import threading
 
 import numpy as np
 
-from .bag_trainer import OpenState, Point, Prepare, Refit, Resume, StartBag, covered, load_sampler
+from .bag_trainer import (
+    OpenState,
+    Point,
+    Prepare,
+    Refit,
+    Resume,
+    StartBag,
+    Weights,
+    covered,
+    load_sampler,
+)
 from .base import Samples, resolve
 from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
@@ -256,11 +266,14 @@ class IncrementalEnsemble:
         if on:
             self._worker.start()
 
-    def _publish(self, bag: int, gen: int, learner: WeakLearner) -> None:
+    def _publish(self, bag: int, gen: int, learner: WeakLearner | Weights) -> None:
         """Swap a trained learner in (unless its slot was reused since): one assignment.
-        A background worker's learner is its own copy (it came through a pipe)."""
+        A background worker's learner is its own copy (it came through a pipe); new
+        :class:`~iem.bag_trainer.Weights` make a new learner from the published one."""
         with self._lock:
             if self._gen[bag] == gen:
+                if isinstance(learner, Weights):
+                    learner = learner.applied_to(self._learners[bag])
                 self._learners[bag] = learner
 
     def _open_state(self) -> tuple | None:
