@@ -139,8 +139,6 @@ class Child:
 
     def drain(self) -> None:
         """Wait until every job submitted so far was reported done (or the child died)."""
-        if not self._stopping and self.process.poll() is not None:
-            self._listener.join(JOIN_S)  # it ended: its death is known once the listener saw it
         with self._cond:
             target = self.submitted
             if self.acked >= target or self.died is not None:

@@ -80,12 +80,13 @@ def test_a_killed_learning_process_is_reported_and_the_next_bag_starts_a_new_one
     before = model.learner(open_bag)
     os.kill(pid, signal.SIGKILL)
     assert wait_gone(pid)
+    learn(model, POINTS[60:100])  # the open bag's points: lost, or no longer sent
     with pytest.raises(LearningError, match=rf"pid {pid}\).*exit code -9"):
         model.drain()
     model.drain()  # reported once
     assert model.learner(open_bag) is before  # the open bag keeps its last learner
     n = model.n_bags
-    learn(model, POINTS[60:])  # another opens at the 174th
+    learn(model, POINTS[100:])  # another opens at the 174th
     model.close()
     model.drain()
     new_pid = model._worker.pid
