@@ -252,7 +252,8 @@ class IncrementalEnsemble:
         """Train in the learning process (True) or inline (False) from now on; what is
         pending lands first. The service turns it on for a live link; a replay and the
         benchmarks keep it off (inline training makes a run reproducible to the bit). On,
-        the learning process starts now (its imports are not a cycle's)."""
+        the learning process starts now and this waits until it is ready (its imports and
+        the coverage sampler's are neither a cycle's nor a late first warm-up's)."""
         on = bool(on)
         if on != self.background:
             held = self._open_state()  # drains
@@ -264,7 +265,7 @@ class IncrementalEnsemble:
             if held is None:
                 self._open = -1
         if on:
-            self._worker.start()
+            self._worker.start(wait=True)
 
     def _publish(self, bag: int, gen: int, learner: WeakLearner | Weights) -> None:
         """Swap a trained learner in (unless its slot was reused since): one assignment.

@@ -105,8 +105,10 @@ class LearningWorker:
         return 0 if self._child is None else self._child.nbytes
 
     # -- work ----------------------------------------------------------------------------
-    def start(self) -> None:
-        """Start the child process now (its imports then do not delay the first job)."""
+    def start(self, wait: bool = False) -> None:
+        """Start the child process now (its imports then do not delay the first job);
+        ``wait``: until it has imported what the jobs need and run ``first`` (a service
+        starting, not a cycle: the first bag of a run is not trained late)."""
         if self.synchronous:
             return
         child = self._child
@@ -125,6 +127,8 @@ class LearningWorker:
 
         self._child = Child(publish, self._first)
         weakref.finalize(self, self._child.request_stop)  # a dropped worker ends its child
+        if wait:
+            self._child.call(None)
 
     def submit(self, job) -> None:
         """Queue ``job`` (run it now if synchronous)."""
