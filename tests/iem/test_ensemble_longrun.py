@@ -17,6 +17,7 @@ from iem.router import BagRouter
 from iem.worker import LearningError, LearningWorker
 
 from .test_checks import DATA
+from .worker_jobs import FileGate, Touch, boom, burn, gone, wait_gone
 
 PARAMS = {"seed": 3, "fit_epochs": 2, "warmup_iters": 10, "iters": 2}
 
@@ -43,16 +44,10 @@ def same(a, b) -> bool:
                for p, q in zip(a, b, strict=True))
 
 
-class Gate:
-    """A job that holds the worker until released (so no training can land meanwhile)."""
-
-    def __init__(self) -> None:
-        self.release = threading.Event()
-        self.started = threading.Event()
-
-    def __call__(self) -> None:
-        self.started.set()
-        assert self.release.wait(30)
+@pytest.fixture
+def gate(tmp_path) -> FileGate:
+    """A job that holds the learning process until released."""
+    return FileGate(str(tmp_path / "gate"))
 
 
 # -- learning off the cycle ----------------------------------------------------------------
@@ -69,12 +64,11 @@ def test_background_learns_exactly_what_synchronous_learns():
     back.stop()
 
 
-def test_new_bag_estimates_with_its_copied_learner_until_its_training_lands():
+def test_new_bag_estimates_with_its_copied_learner_until_its_training_lands(gate):
     model = fitted(background=True)
     before = model.n_bags
-    gate = Gate()
     model._worker.submit(gate)
-    assert gate.started.wait(30)
+    assert gate.started()
     i = next(j for j in DATA.further_points()
              if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
     nearest = model.router.route(DATA.X[i, :7], DATA.F[i])[1]
@@ -87,7 +81,7 @@ def test_new_bag_estimates_with_its_copied_learner_until_its_training_lands():
     est = model.predict_one(DATA.X[i], DATA.F[i])
     assert est.bag == bag and est.learning
     assert np.array_equal(est.phi, copied.predict_one(DATA.X[i]))
-    gate.release.set()
+    gate.release()
     model.drain()
     trained = model.learner(bag)
     assert trained is not copied and not np.array_equal(trained.a, copied.a)
@@ -111,13 +105,12 @@ def test_published_learners_never_change_and_closed_bags_are_never_retrained():
     model.stop()
 
 
-def test_saving_and_copying_finish_pending_work():
+def test_saving_and_copying_finish_pending_work(gate):
     model = fitted(background=True)
-    gate = Gate()
     model._worker.submit(gate)
     learn(model, DATA.further_points()[:40])
     assert model.pending > 0
-    threading.Timer(0.05, gate.release.set).start()
+    threading.Timer(0.05, gate.release).start()
     state = model.to_state()  # waits for the gate, then for the training behind it
     assert model.pending == 0
     sync = fitted()
@@ -128,21 +121,20 @@ def test_saving_and_copying_finish_pending_work():
     model.stop()
 
 
-def test_a_copy_of_a_background_ensemble_does_not_wait_and_holds_the_published_state():
+def test_a_copy_of_a_background_ensemble_does_not_wait_and_holds_the_published_state(gate):
     model = fitted(background=True)
     learn(model, DATA.further_points()[:20])
     model.close()
     model.drain()
     closed = model.n_bags  # every bag so far is closed and trained
-    gate = Gate()
     model._worker.submit(gate)
-    assert gate.started.wait(30)
+    assert gate.started()
     learn(model, DATA.further_points()[20:60])
     assert model.pending > 0
     published = weights(model)
     twin = copy.deepcopy(model)  # the gate still holds the worker: a wait would hang here
     assert same(weights(twin), published) and twin.open_bag == -1 and twin.pending == 0
-    gate.release.set()
+    gate.release()
     model.drain()
     learn(twin, DATA.further_points()[60:])
     twin.drain()
@@ -151,35 +143,28 @@ def test_a_copy_of_a_background_ensemble_does_not_wait_and_holds_the_published_s
     twin.stop()
 
 
-def test_a_failed_job_is_reported_not_lost():
+def test_a_failed_job_is_reported_not_lost(tmp_path):
     worker = LearningWorker()
-
-    def boom():
-        raise ValueError("bad batch")
-
     worker.submit(boom)
     with pytest.raises(LearningError, match="bad batch"):
         worker.drain()
-    ran = []
-    worker.submit(lambda: ran.append(1))
+    worker.submit(Touch(str(tmp_path / "ran")))
+    worker.submit(lambda trainer: None)  # cannot be pickled: fails, reported, nothing else
+    with pytest.raises(LearningError, match="pickle"):
+        worker.drain()
     worker.close()
-    assert ran == [1]
+    assert (tmp_path / "ran").exists()
 
 
 @pytest.mark.parametrize("synchronous", [False, True])
 def test_the_worker_counts_the_cpu_time_of_its_jobs(synchronous):
     """What learning costs beside the cycle is counted: a job that computes for 30 ms of
-    CPU adds about that to ``cpu_s`` (threaded or inline); an idle worker adds nothing."""
+    CPU adds about that to ``cpu_s`` (in the learning process or inline); an idle worker
+    adds nothing."""
     import time
 
     worker = LearningWorker(synchronous=synchronous)
     assert worker.cpu_s == 0.0
-
-    def burn():
-        end = time.thread_time() + 0.03
-        while time.thread_time() < end:
-            pass
-
     worker.submit(burn)
     worker.drain()
     assert 0.03 <= worker.cpu_s < 0.5
@@ -306,32 +291,30 @@ def test_background_ensemble_passes_the_shared_checks(check):
           DATA)
 
 
-def test_a_dropped_background_ensemble_ends_its_thread():
+def test_a_dropped_background_ensemble_ends_its_process():
     import gc
 
     model = fitted(background=True)
     learn(model, DATA.further_points()[:5])
     model.drain()
-    thread = model._worker._thread
-    assert thread.is_alive()
+    pid = model._worker.pid
+    assert pid is not None and not gone(pid)
     del model
     gc.collect()
-    thread.join(10)
-    assert not thread.is_alive()
+    assert wait_gone(pid)
 
 
-def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch):
+def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch, gate):
     import iem.ensemble as ensemble
 
     monkeypatch.setattr(ensemble, "MAX_PENDING", 5)
     model = fitted(background=True)
-    gate = Gate()
     model._worker.submit(gate)
-    assert gate.started.wait(30)
+    assert gate.started()
     learn(model, DATA.further_points())
     assert model.skipped_points > 0
     assert model.pending <= 5 + 1 + model.n_bags  # new bags and closes always go
-    gate.release.set()
+    gate.release()
     model.drain()
     model.stop()
 
