@@ -42,8 +42,9 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   refreshed every ``refresh_every`` equations (20 Hz by default: the output smoothing's time
   constant is 0.2 s), and between refreshes every estimate is the cached one.
 - **Payload change**: each equation's innovation, whitened by its covariance
-  ``R + Y Lambda^-1 Y^T`` plus the filtered equation's own error where the arm's torque bends
-  sharply (:data:`iem.change.MODEL_ERROR_GAIN`), feeds a CUSUM
+  ``R + Y Lambda^-1 Y^T`` (plus, with ``model_error`` > 0, the filtered equation's own error
+  where the arm's torque bends sharply: :data:`iem.change.MODEL_ERROR_GAIN`, off by
+  default), feeds a CUSUM
   (:class:`iem.change.ChangeDetector`), from the
   window's :data:`DETECT_AFTER`-th equation on (before, a conflict is the prior's, which the
   inflation resolves, not a new payload's). On a change the data
@@ -113,8 +114,8 @@ class PhysicsInformedEnsemble:
         holdoff_s: equations skipped after a change, s (-1: the filter's settling time).
         eps: smallest eigenvalue of the projected pseudo-inertia (:mod:`iem.consistency`).
         refresh_every: equations between refreshes of the posterior and its projection.
-        model_error: the change detector's model-error gain (:data:`MODEL_ERROR_GAIN`; 0:
-            the detector judges the equations by their noise alone, as before).
+        model_error: the change detector's model-error gain (:data:`MODEL_ERROR_GAIN`, 0 by
+            default: the detector judges the equations by their noise alone).
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
             budget (:attr:`spread`, a live link: the service sets
