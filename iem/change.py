@@ -78,9 +78,10 @@ mass matrix times the jerk, ``|ddq|``) the second difference predicts the miss b
 
 Why it is off: ``g = 3``, chosen on seed 1's 1,830-1,900 s (the model saved at 1,830 s, the
 stretch replayed, changes of 20, 48 and 275 g injected at 1,850 s), took that stretch's
-largest evidence from 294 to 41 and kept the 48 g and 275 g detections (80 and 30 ms), and
-seed 2 ran 60 minutes without an alarm; but the 10-minute runs, clean before, then raised 3
-false alarms on seed 0 (at 150-180, 270-300 and 420-450 s) and 2 in the first 270 s of seed 1.
+largest evidence from 294 to 41 and kept the 48 g and 275 g detections (80 and 30 ms); but
+the 10-minute runs, clean before, then raised 3 false alarms on seed 0 (at 150-180, 270-300
+and 420-450 s) and 2 in the first 270 s of seed 1, and seed 2's 60 minutes raised 2 (at
+3,150-3,180 and 3,540-3,570 s).
 The level of chi² (:data:`LEVEL_EQUATIONS`) had been absorbing these misfits because the
 sharp-bend part of each raised it first; with that part explained away, the level stayed
 low and the rest of the misfit (where the torque bends less) counted as evidence. A next
