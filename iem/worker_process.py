@@ -60,15 +60,7 @@ controller simulated in the process) take the cores first and training lands lat
 backlog beyond :data:`iem.ensemble.MAX_PENDING` skips points, counted). Measured with
 ``iem demo`` on the shared 2-core machine (load 2.9): at nice 0 the cycles of an open bag
 had a latency p50 of 1.4-1.5 ms and p99 4.5-80 ms (the child took a core the cycle
-needed); at nice 19 p50 0.39 ms and p99 1.2-1.4 ms, MAE and writes unchanged.
-
-The price, measured on main after the merge with two long benchmarks beside (load 3.2 on 2
-cores): at nice 19 the demo's p99 was 2.2-3.5 ms but the child learnt 4,100-4,600 points
-against 7,700-7,900 at nice 5 (p99 43-80 ms there), and the IEM model alone (not IEM+phys)
-then failed ``tests/deploy/test_e2e.py``'s 7 s identification over the virtual bus (the open
-bag's learner lags; the gate wrote nothing, the safe failure), which it passes at nice 5
-and on a machine with a free core. IEM+phys, the default, does not lean on the open bag's
-learner and kept its MAE in every run."""
+needed); at nice 19 p50 0.39 ms and p99 1.2-1.4 ms, MAE and writes unchanged."""
 
 JOIN_S = 10.0
 """How long :meth:`Child.stop` waits for the child to end before it terminates it, s."""
