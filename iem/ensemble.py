@@ -25,20 +25,15 @@
   outside every bag, of the nearest bag (``n_s = 1`` for that bag, 0 for the others).
 - Learning off the cycle (``background=True``): the cycle only routes, appends the copied
   learner of a new bag (which estimates until its training lands) and submits the training
-  (warm-up, the steps of each point that joins the open bag, the refit at close: the jobs of
-  :mod:`iem.bag_trainer`) to a :class:`iem.worker.LearningWorker`, which runs them in order
-  in a child process that owns the open bag's training state (its learner, its reservoir);
-  a listener thread swaps each trained learner in atomically (:meth:`_publish`: one
-  assignment under a lock, generation-checked; a learner once published is never changed).
-  A closed bag's learner is never trained again. While more than :data:`MAX_PENDING` jobs
-  wait, points that join the open bag are not learnt from (counted in ``skipped_points``):
-  a worker that falls behind holds bounded memory. If the learning process dies, the open
-  bag keeps its last published learner and learns no more (the next :meth:`drain` raises
-  :class:`~iem.worker.LearningError`; the next new bag starts a new process).
-  ``background=False`` (the default) runs the same jobs at once in the caller's thread:
-  seeded runs reproduce bit for bit, and a background run gives the very same learners once
-  drained. :meth:`drain` waits for pending work; saving (:meth:`to_state`) drains first, so
-  a saved model has no pending work (it is finished, never dropped). A deep copy of a
+  (warm-up, the steps of each point that joins the open bag, the refit at close) to a
+  :class:`iem.worker.LearningWorker` thread, which runs the jobs in order and swaps each
+  trained learner in atomically (one assignment under a lock; a learner once published is
+  never changed). A closed bag's learner is never trained again. While more than
+  :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
+  in ``skipped_points``): a worker that falls behind holds bounded memory. ``background=False`` (the
+  default) runs the same jobs at once in the caller's thread: seeded runs reproduce bit for
+  bit. :meth:`drain` waits for pending work; saving (:meth:`to_state`) drains first, so a
+  saved model has no pending work (it is finished, never dropped). A deep copy of a
   background ensemble (a checkpoint taken in the cycle) does not wait: it holds the
   published learners, with the open bag closed without its refit.
 - Out of distribution: each learner standardises its inputs (``center``, ``scale``: the
@@ -59,22 +54,13 @@
 from __future__ import annotations
 
 import copy
+import importlib
 import math
 import threading
+import time
 
 import numpy as np
 
-from .bag_trainer import (
-    OpenState,
-    Point,
-    Prepare,
-    Refit,
-    Resume,
-    StartBag,
-    Weights,
-    covered,
-    load_sampler,
-)
 from .base import Samples, resolve
 from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
@@ -97,6 +83,11 @@ OOD_THRESHOLD = 4.0
 deviations) that is in distribution; tuned in ``iem bench longrun`` (see the README)."""
 
 
+def _yield() -> None:
+    """Let another thread (the estimate path) take the interpreter, if one waits."""
+    time.sleep(0)
+
+
 class IncrementalEnsemble:
     """The proposed IEM.
 
@@ -113,7 +104,7 @@ class IncrementalEnsemble:
         reservoir: points of the open bag kept for its training at close (0: none).
         close_epochs: epochs of that training (None: ``fit_epochs``).
         seed: seed of everything random (the noise of each learner).
-        background: train in a child process, off the estimate path (see the module
+        background: train in a worker thread, off the estimate path (see the module
             docstring); False: at once, in the caller's thread (deterministic).
         budget_bags: largest number of bags (None: unbounded); beyond it the least-used
             closed bag's slot is reused.
@@ -162,17 +153,15 @@ class IncrementalEnsemble:
         self._learners: list[WeakLearner] = []
         self._gen: list[int] = []  # per slot: how many times it was reused
         self._open = -1
-        self._handover: tuple | None = None
-        """The open bag's training state (learner, reservoir) held here, not by the worker
-        (a loaded model, a copy, a switch of mode): handed over with its next job."""
-        self._open_losses = 0  # the worker's losses when the open bag was handed to it
+        self._kept: Reservoir | None = None
+        self._training: WeakLearner | None = None  # the open bag's learner, the jobs' own
         self._out: tuple[np.ndarray, np.ndarray] | None = None
         self.retired = 0
         """Bags retired to stay within the budget."""
         self.skipped_points = 0
         """Points of the open bag not learnt from because the worker was too far behind."""
         self._lock = threading.Lock()
-        self._worker = self._new_worker()
+        self._worker = LearningWorker(synchronous=not self.background)
 
     def params(self) -> dict:
         """The hyper-parameters as given (``type(self)(**self.params())`` is a fresh clone)."""
@@ -214,20 +203,13 @@ class IncrementalEnsemble:
         return self._gen[bag]
 
     def nbytes(self) -> int:
-        held = 0
-        if self._handover is not None:
-            training, kept = self._handover
-            held = ((0 if kept is None else kept.nbytes())
-                    + (training.nbytes() if self.background else 0))
-        return (self._router.nbytes() + sum(lr.nbytes() for lr in self._learners)
-                + self._worker.nbytes() + held)
+        kept = 0 if self._kept is None else self._kept.nbytes()
+        training = (self._training.nbytes() if self._training is not None
+                    and self.background else 0)
+        return (self._router.nbytes() + sum(lr.nbytes() for lr in self._learners) + kept
+                + training)
 
     # -- the worker ----------------------------------------------------------------------
-    def _new_worker(self) -> LearningWorker:
-        first = Prepare(self.coverage) if self.coverage and self.coverage_draws > 0 else None
-        return LearningWorker(synchronous=not self.background, publish=self._publish,
-                              first=first)
-
     @property
     def pending(self) -> int:
         """Training jobs submitted and not finished (always 0 unless ``background``)."""
@@ -235,9 +217,8 @@ class IncrementalEnsemble:
 
     @property
     def learning_cpu_s(self) -> float:
-        """CPU time of the training jobs of the current worker, s (its process's on a live
-        link, with the parent's threads that talk to it: what learning costs beside the
-        cycle)."""
+        """CPU time of the training jobs of the current worker, s (its thread's on a live
+        link: what learning costs beside the cycle)."""
         return self._worker.cpu_s
 
     def drain(self) -> None:
@@ -245,62 +226,25 @@ class IncrementalEnsemble:
         self._worker.drain()
 
     def stop(self) -> None:
-        """Drain and stop the learning process (a later learn starts it again)."""
+        """Drain and stop the worker thread (a later learn starts it again)."""
         self._worker.close()
 
     def set_background(self, on: bool) -> None:
-        """Train in the learning process (True) or inline (False) from now on; what is
-        pending lands first. The service turns it on for a live link; a replay and the
-        benchmarks keep it off (inline training makes a run reproducible to the bit). On,
-        the learning process starts now and this waits until it is ready (its imports and
-        the coverage sampler's are neither a cycle's nor a late first warm-up's)."""
+        """Train in the worker thread (True) or inline (False) from now on; what is pending
+        lands first. The service turns it on for a live link; a replay and the benchmarks
+        keep it off (inline training makes a run reproducible to the bit)."""
         on = bool(on)
-        if on != self.background:
-            held = self._open_state()  # drains
-            self._worker.close()
-            self.background = on
-            self._worker = self._new_worker()
-            self._handover = held
-            self._open_losses = 0
-            if held is None:
-                self._open = -1
-        if on:
-            self._worker.start(wait=True)
+        if on == self.background:
+            return
+        self._worker.close()
+        self.background = on
+        self._worker = LearningWorker(synchronous=not on)
 
-    def _publish(self, bag: int, gen: int, learner: WeakLearner | Weights) -> None:
-        """Swap a trained learner in (unless its slot was reused since): one assignment.
-        A background worker's learner is its own copy (it came through a pipe); new
-        :class:`~iem.bag_trainer.Weights` make a new learner from the published one."""
+    def _publish(self, bag: int, gen: int, learner: WeakLearner) -> None:
+        """Swap a trained learner in (unless its slot was reused since): one assignment."""
         with self._lock:
             if self._gen[bag] == gen:
-                if isinstance(learner, Weights):
-                    learner = learner.applied_to(self._learners[bag])
-                self._learners[bag] = learner
-
-    def _open_state(self) -> tuple | None:
-        """The open bag's training state ``(learner, reservoir)`` after the submitted jobs
-        (from the learning process if it holds it), or None (no open bag, or it was lost)."""
-        if self._open < 0:
-            return None
-        if self._handover is not None:
-            return self._handover
-        if self.background and self._worker.losses != self._open_losses:
-            return None
-        return self._worker.call(OpenState(self._open, self._gen[self._open]))
-
-    def _submit_open(self, job) -> None:
-        """Submit a job of the open bag, handing its training state over first if held."""
-        if self._handover is not None:
-            training, kept = self._handover
-            self._handover = None
-            self._open_losses = self._worker.losses
-            self._worker.submit(Resume(self._open, self._gen[self._open], training, kept))
-        self._worker.submit(job)
-
-    def _lost_open(self) -> bool:
-        """Whether the learning process that held the open bag's training died."""
-        return (self.background and self._handover is None
-                and self._worker.losses != self._open_losses)
+                self._learners[bag] = learner if not self.background else learner.copy()
 
     def __deepcopy__(self, memo):
         """A copy. Of a background ensemble: its published state, taken without waiting for
@@ -308,9 +252,9 @@ class IncrementalEnsemble:
         the open bag closed without its refit; the pending work stays with the original."""
         new = type(self).__new__(type(self))
         memo[id(self)] = new
-        skip = ("_lock", "_worker", "_cover", "_handover")
+        skip = ("_lock", "_worker", "_cover")
         if self.background:
-            skip += ("_learners", "_open")
+            skip += ("_learners", "_kept", "_training", "_open")
             with self._lock:
                 published = list(self._learners)
         for key, value in self.__dict__.items():
@@ -318,40 +262,48 @@ class IncrementalEnsemble:
                 setattr(new, key, copy.deepcopy(value, memo))
         if self.background:
             new._learners = [copy.deepcopy(lr, memo) for lr in published]
-            new._open, new._handover = -1, None
-        else:  # after the learners: the open bag's learner is one of them
-            new._handover = copy.deepcopy(self._open_state(), memo)
-        new._open_losses = 0
+            new._open, new._kept, new._training = -1, None, None
         new._cover = None
         new._lock = threading.Lock()
-        new._worker = new._new_worker()
+        new._worker = LearningWorker(synchronous=not self.background)
         return new
 
     def __getstate__(self) -> dict:
         self.drain()
-        state = {k: v for k, v in self.__dict__.items()
-                 if k not in ("_lock", "_worker", "_cover")}
-        state["_handover"] = self._open_state()
-        if state["_handover"] is None:
-            state["_open"] = -1  # its training was lost with a learning process
-        state["_open_losses"] = 0
-        return state
+        return {k: v for k, v in self.__dict__.items()
+                if k not in ("_lock", "_worker", "_cover")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._cover = None
         self._lock = threading.Lock()
-        self._worker = self._new_worker()
+        self._worker = LearningWorker(synchronous=not self.background)
 
     # -- training ------------------------------------------------------------------------
     def _covered(self, X: np.ndarray, Y: np.ndarray, batch: int, seed) -> tuple:
         """``(X, Y)`` plus, if ``coverage``, ``coverage_draws`` other states at each point's
-        pose (``batch`` samples per point, in order): :func:`iem.bag_trainer.covered`."""
+        pose (``batch`` samples per point, in order)."""
         if self.coverage is None or self.coverage_draws <= 0:
             return X, Y
         if self._cover is None:
-            self._cover = load_sampler(self.coverage)
-        return covered(self._cover, self.coverage_draws, X, Y, batch, seed)
+            module, _, attr = self.coverage.partition(":")
+            self._cover = getattr(importlib.import_module(module), attr)()
+        rng = np.random.default_rng(seed)
+        n = X.shape[0]
+        # filled in place, not stacked from a list: a bag's samples are tens of MB, and a
+        # list of per-point arrays beside its stacked copy doubled the peak (and the heap
+        # it leaves behind)
+        X_out = np.empty((n * (1 + self.coverage_draws), X.shape[1]))
+        Y_out = np.empty((X_out.shape[0], Y.shape[1]))
+        X_out[:n], Y_out[:n] = X, Y
+        r = n
+        for s in range(0, n, batch):
+            q, phi = X[s, :7], Y[s:s + batch]
+            for _ in range(self.coverage_draws):
+                x = self._cover(q, phi, rng)
+                X_out[r:r + len(x)], Y_out[r:r + len(x)] = x, phi
+                r += len(x)
+        return X_out[:r], Y_out[:r]
 
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
         if self._out is None:
@@ -412,14 +364,11 @@ class IncrementalEnsemble:
             X, Y = resolve(samples)
             return self._start_bag(q, flange, nearest, X, Y)
         if bag == self._open:
-            if self._lost_open():
-                self._open = -1  # its learning process died: it learns no more
-                return bag
             if self.background and self._worker.pending > MAX_PENDING:
                 self.skipped_points += 1  # the worker is behind: memory stays bounded
                 return bag
             X, Y = resolve(samples)
-            self._submit_open(self._training_job(bag, X, Y, self.iters))
+            self._worker.submit(self._training_job(bag, X, Y, self.iters))
         else:
             self.close()  # the path left the open bag: it is closed for good
         return bag
@@ -427,7 +376,6 @@ class IncrementalEnsemble:
     def _start_bag(self, q, flange, nearest: int, X, Y) -> int:
         """A new open bag at the point: its learner is a copy of the nearest bag's (it
         estimates with that copy until the warm-up lands)."""
-        source = None if nearest < 0 else (nearest, self._gen[nearest])
         if self.budget_bags is not None and len(self._router) >= self.budget_bags:
             bag = self._retire_for(nearest)
             learner = self._new_learner(X, Y, bag, nearest)
@@ -444,24 +392,28 @@ class IncrementalEnsemble:
                 self._learners.append(learner)
                 self._gen.append(0)
         gen = self._gen[bag]
-        reseed = [self.seed, bag, 4, gen] if gen else None
-        if reseed:  # a reused slot: its own noise, not the retired bag's
-            learner._rng = np.random.default_rng(reseed)
-        # the job trains this very learner inline; a learning process trains its own copy
-        # (the one published here is never changed)
-        self._open, self._handover = bag, None
-        self._open_losses = self._worker.losses
-        self._worker.submit(StartBag(bag, gen, learner, X, Y, self.warmup_iters,
-                                     self.reservoir,
-                                     [self.seed, bag, 2] + ([gen] if gen else []),
-                                     source, reseed))
+        if gen:  # a reused slot: its own noise, not the retired bag's
+            learner._rng = np.random.default_rng([self.seed, bag, 4, gen])
+        training = learner.copy() if self.background else learner
+        kept = (Reservoir(self.reservoir, [self.seed, bag, 2] + ([gen] if gen else []))
+                if self.reservoir > 0 else None)
+        self._open, self._kept, self._training = bag, kept, training
+        self._worker.submit(self._training_job(bag, X, Y, self.warmup_iters))
         return bag
 
-    def _training_job(self, bag: int, X, Y, iters: int) -> Point:
+    def _training_job(self, bag: int, X, Y, iters: int):
         """The job that trains the open bag's learner ``iters`` steps on one point's samples,
-        keeps them for the refit at close, and publishes the learner (bound to the bag's
-        slot generation now: the job may run after its slot was reused)."""
-        return Point(bag, self._gen[bag], X, Y, iters)
+        keeps them for the refit at close, and publishes the learner (bound now: the job may
+        run after the bag is closed or its slot reused)."""
+        training, kept, gen = self._training, self._kept, self._gen[bag]
+
+        def job():
+            training.learn(X, Y, iters)
+            if kept is not None:
+                kept.add(X, Y)
+            self._publish(bag, gen, training)
+
+        return job
 
     def _retire_for(self, nearest: int) -> int:
         """The slot a new bag takes at the budget: the least-used closed bag (fewest points
@@ -484,20 +436,27 @@ class IncrementalEnsemble:
 
     def close(self) -> None:
         """Close the open bag (the path left it, or a task ended): its learner is trained
-        once more on the bag's kept points (in the learning process if ``background``),
-        then it is final."""
-        bag = self._open
-        if bag < 0:
-            return
-        if self._lost_open():
-            self._open = -1
+        once more on the bag's kept points (in the worker if ``background``), then it is
+        final."""
+        bag, kept = self._open, self._kept
+        self._open, self._kept, self._training = -1, None, None
+        if bag < 0 or kept is None:
             return
         gen = self._gen[bag]
         epochs = self.fit_epochs if self.close_epochs is None else self.close_epochs
-        self._submit_open(Refit(bag, gen, self._out, self.lr, self.input_noise, epochs,
-                                self.fit_lr, [self.seed, bag, 3] + ([gen] if gen else []),
-                                self.coverage, self.coverage_draws))
-        self._open = -1
+        seed = [self.seed, bag, 3] + ([gen] if gen else [])
+
+        def refit():
+            if len(kept) < 2:
+                return
+            X, Y = self._covered(*kept.stacked(), kept.batch(), [*seed, 5])
+            learner = WeakLearner.fit(
+                X, Y, *self._out, lr=self.lr, input_noise=self.input_noise, seed=seed,
+                epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr,
+                pause=_yield if self.background else None)
+            self._publish(bag, gen, learner)
+
+        self._worker.submit(refit)
 
     # -- estimation ----------------------------------------------------------------------
     def _bag_for(self, q: np.ndarray, flange) -> int:
@@ -550,12 +509,9 @@ class IncrementalEnsemble:
     def to_state(self) -> dict:
         """Plain data of the model; pending training is finished first (:meth:`drain`)."""
         self.drain()
-        held = self._open_state()
-        kept = None if held is None else held[1]
         return {"params": self.params(), "router": self._router.to_state(),
-                "learners": [lr.to_state() for lr in self._learners],
-                "open": -1 if held is None else self._open,
-                "kept": None if kept is None else kept.to_state(),
+                "learners": [lr.to_state() for lr in self._learners], "open": self._open,
+                "kept": None if self._kept is None else self._kept.to_state(),
                 "out": None if self._out is None else [v.tolist() for v in self._out],
                 "gen": list(self._gen), "retired": self.retired}
 
@@ -577,9 +533,9 @@ class IncrementalEnsemble:
             raise InvalidInputError(f"model state's open bag {model._open} is not one of its "
                                     f"{len(model._learners)} bags (or -1)")
         kept = state.get("kept")
-        kept = None if kept is None else Reservoir.from_state(kept)
+        model._kept = None if kept is None else Reservoir.from_state(kept)
         if model._open >= 0:  # the jobs train their own copy; the published one stays
-            model._handover = (model._learners[model._open].copy(), kept)
+            model._training = model._learners[model._open].copy()
         model._out = None if state["out"] is None else tuple(np.array(v) for v in state["out"])
         return model
 

@@ -42,7 +42,7 @@ class InPlaceEnsemble(IncrementalEnsemble):
     def _learn_one(self, x, flange, samples: Samples) -> None:
         if not self._learners:  # nothing to update yet: start the first bag
             super()._learn_one(x, flange, samples)
-            self._open = -1  # no bag forms here: nothing to consolidate
+            self._open, self._kept = -1, None  # no bag forms here: nothing to consolidate
             return None
         bag, nearest = self._router.route(np.asarray(x, dtype=float)[:7], flange)
         if bag >= 0:

@@ -351,7 +351,7 @@ def budget_figures(model, n: int, kin, seed: int, queries: int = 2000) -> dict:
     big._learners = [src[i % len(src)].copy_for(src[i % len(src)].center, seed=[seed, i])
                      for i in range(n)]
     big._gen = [0] * n
-    big._open, big._handover = -1, None
+    big._open, big._kept, big._training = -1, None, None
     with tempfile.TemporaryDirectory() as tmp:
         path = FsPath(tmp) / "budget.iem"
         save_model(big, path)
