@@ -17,44 +17,24 @@ import numpy as np
 __all__ = ["chi_square", "cholesky", "eigh", "solve", "sym_inv"]
 
 
-def _load() -> None:
-    """Bind the LAPACK routines at first use (``iem`` stays numpy-only at import)."""
-    global _potrf, _trtri, _trtrs, _gesv, _syevd
-    from scipy.linalg import lapack
-
-    _potrf, _trtri, _trtrs, _gesv, _syevd = (lapack.dpotrf, lapack.dtrtri, lapack.dtrtrs,
-                                             lapack.dgesv, lapack.dsyevd)
+_LAPACK = None
 
 
-def _potrf(*args, **kwargs):  # replaced by SciPy's at the first call
-    _load()
-    return _potrf(*args, **kwargs)
+def _lapack():
+    """SciPy's LAPACK wrappers, imported at the first call (``iem`` stays numpy-only at
+    import)."""
+    global _LAPACK
+    if _LAPACK is None:
+        from scipy.linalg import lapack
 
-
-def _trtri(*args, **kwargs):
-    _load()
-    return _trtri(*args, **kwargs)
-
-
-def _trtrs(*args, **kwargs):
-    _load()
-    return _trtrs(*args, **kwargs)
-
-
-def _gesv(*args, **kwargs):
-    _load()
-    return _gesv(*args, **kwargs)
-
-
-def _syevd(*args, **kwargs):
-    _load()
-    return _syevd(*args, **kwargs)
+        _LAPACK = lapack
+    return _LAPACK
 
 
 def cholesky(A: np.ndarray) -> np.ndarray:
     """The lower Cholesky factor of the symmetric positive-definite ``A`` (its lower
     triangle is read); ``LinAlgError`` if it is not positive definite."""
-    L, info = _potrf(A, lower=1, clean=1)
+    L, info = _lapack().dpotrf(A, lower=1, clean=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"matrix is not positive definite (LAPACK dpotrf info "
                                     f"{info})")
@@ -64,7 +44,7 @@ def cholesky(A: np.ndarray) -> np.ndarray:
 def sym_inv(A: np.ndarray) -> np.ndarray:
     """Inverse of a symmetric positive-definite matrix, via its Cholesky factor: ``L^-T
     L^-1``, symmetric by construction."""
-    Li, info = _trtri(cholesky(A), lower=1)
+    Li, info = _lapack().dtrtri(cholesky(A), lower=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"singular Cholesky factor (LAPACK dtrtri info {info})")
     return Li.T @ Li
@@ -72,7 +52,7 @@ def sym_inv(A: np.ndarray) -> np.ndarray:
 
 def chi_square(nu: np.ndarray, S: np.ndarray) -> float:
     """``nu^T S^-1 nu`` for symmetric positive-definite ``S``, via its Cholesky factor."""
-    w, info = _trtrs(cholesky(S), nu, lower=1)
+    w, info = _lapack().dtrtrs(cholesky(S), nu, lower=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"singular Cholesky factor (LAPACK dtrtrs info {info})")
     return float(w @ w)
@@ -81,7 +61,7 @@ def chi_square(nu: np.ndarray, S: np.ndarray) -> float:
 def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``A^-1 b`` for a square ``A`` (LU with partial pivoting, as ``numpy.linalg.solve``);
     ``LinAlgError`` if ``A`` is singular."""
-    _, _, x, info = _gesv(A, b)
+    _, _, x, info = _lapack().dgesv(A, b)
     if info != 0:
         raise np.linalg.LinAlgError(f"singular matrix (LAPACK dgesv info {info})")
     return x
@@ -90,7 +70,7 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 def eigh(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (ascending) and eigenvectors (columns) of the symmetric ``A`` (its lower
     triangle is read), as ``numpy.linalg.eigh`` (LAPACK ``dsyevd``)."""
-    w, v, info = _syevd(A, compute_v=1, lower=1)
+    w, v, info = _lapack().dsyevd(A, compute_v=1, lower=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"eigenvalues did not converge (LAPACK dsyevd info "
                                     f"{info})")
