@@ -66,6 +66,8 @@ REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
            "rate_limited")
 REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
 """Reasons that say the estimate itself can never be written (counted in ``rejected``)."""
+
+
 def _mass_and_com(rows: np.ndarray) -> np.ndarray:
     """``[m, m c]`` rows -> ``[m, c]`` rows."""
     out = np.empty_like(rows)

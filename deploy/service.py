@@ -362,9 +362,10 @@ class Service:
                     last_ack = ack
                     self._acknowledged(ack, t_gate)
                 gate.observe(t_gate, smoothed, raw)
-                if gate.due(t_gate) and spreads and self.model.busy and deferred < GATE_DEFER:
+                due = gate.due(t_gate)
+                if due and spreads and self.model.busy and deferred < GATE_DEFER:
                     deferred += 1  # the model did its heavy job this cycle: decide in the
-                elif gate.due(t_gate):  # next one (the cycles' work stays level)
+                elif due:  # next one (the cycles' work stays level)
                     deferred = 0
                     decision = gate.decide(t_gate, smoothed)
                     if decision.send and sink:

@@ -43,8 +43,12 @@ it after 39 ms. Seeds 1-2 of both are the report.
 
 The level follows a misfit that rises at most 30 % per equation; a 60-minute run (seed 1)
 still met one that rose faster (3, 13, 33, 62, 106, ... at 1,838 s, up to 6,326), as steeply
-as a change. An equation's expected model error (:data:`MODEL_ERROR_GAIN`) explains that one
-away but, on its own, raised other false alarms; it is off by default.
+as a change: the regression's own error where the arm's torque bends sharply (the filtered
+equations of a perfect arm miss by 0.1-0.3 N·m there). A model-error term for it in the
+detector's covariance (3 x the second difference of the robot model's torque over the last
+three equations; commit b89d90c) explained that alarm away but raised 3 false alarms in seed
+0's 10 minutes, 2 in seed 1's first 270 s and 2 in seed 2's hour, so it was removed (README,
+"The model error of the filtered equations").
 """
 
 from __future__ import annotations
@@ -54,39 +58,12 @@ import numpy as np
 from .errors import InvalidInputError
 from .small_linalg import chi_square
 
-__all__ = ["LEVEL_CLIP", "LEVEL_EQUATIONS", "MODEL_ERROR_GAIN", "ChangeDetector", "chi_square"]
+__all__ = ["LEVEL_CLIP", "LEVEL_EQUATIONS", "ChangeDetector", "chi_square"]
 
 LEVEL_EQUATIONS = 10
 """Equations over which the level of ``chi2`` is averaged (exponentially)."""
 LEVEL_CLIP = 4.0
 """Largest ``chi2`` an equation adds to the level, as a multiple of the level."""
-MODEL_ERROR_GAIN = 0.0
-"""The change detector's model error, off by default (0): with a gain ``g`` the standard
-deviation of an equation's error per joint is taken as ``g`` times the second difference of
-the robot model's torque over the last three equations
-(:attr:`iem.regression.PayloadRegression.curvature`, 10 ms apart by default).
-
-Why it exists: a 4 Hz low-pass does not commute with the arm's nonlinear dynamics, so where
-the arm's torque bends sharply (a fast start from rest) the filtered equations of a perfect
-arm miss by 0.1-0.3 N·m against a filtered noise of 0.01-0.02 N·m: chi² up to 6,326 on a
-fixed payload (``bench longrun`` seed 1, 1,838 s, 184,000 equations in the window: the one
-false alarm of its 60-minute run; scaling the posterior's covariance up 30-fold moved that
-peak only to 6,144, so it is the equations' error, not the window's sharpness). Of the
-kinematic measures tried there (the first and second differences of the model torque, the
-mass matrix times the jerk, ``|ddq|``) the second difference predicts the miss best
-(correlation 0.61 with ``|nu|``).
-
-Why it is off: ``g = 3``, chosen on seed 1's 1,830-1,900 s (the model saved at 1,830 s, the
-stretch replayed, changes of 20, 48 and 275 g injected at 1,850 s), took that stretch's
-largest evidence from 294 to 41 and kept the 48 g and 275 g detections (80 and 30 ms); but
-the 10-minute runs, clean before, then raised 3 false alarms on seed 0 (at 150-180, 270-300
-and 420-450 s) and 2 in the first 270 s of seed 1, and seed 2's 60 minutes raised 2 (at
-3,150-3,180 and 3,540-3,570 s).
-The level of chi² (:data:`LEVEL_EQUATIONS`) had been absorbing these misfits because the
-sharp-bend part of each raised it first; with that part explained away, the level stayed
-low and the rest of the misfit (where the torque bends less) counted as evidence. A next
-step would combine both, e.g. the smaller of the two rescaled statistics per equation (never
-more evidence than today's detector), tuned and reported the same way."""
 
 class ChangeDetector:
     """One-sided CUSUM on a chi-square statistic.

@@ -42,10 +42,7 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   refreshed every ``refresh_every`` equations (20 Hz by default: the output smoothing's time
   constant is 0.2 s), and between refreshes every estimate is the cached one.
 - **Payload change**: each equation's innovation, whitened by its covariance
-  ``R + Y Lambda^-1 Y^T`` (plus, with ``model_error`` > 0, the filtered equation's own error
-  where the arm's torque bends sharply: :data:`iem.change.MODEL_ERROR_GAIN`, off by
-  default), feeds a CUSUM
-  (:class:`iem.change.ChangeDetector`), from the
+  ``R + Y Lambda^-1 Y^T``, feeds a CUSUM (:class:`iem.change.ChangeDetector`), from the
   window's :data:`DETECT_AFTER`-th equation on (before, a conflict is the prior's, which the
   inflation resolves, not a new payload's). On a change the data
   window, the prior summary and the detector restart, the equations of the next
@@ -66,7 +63,7 @@ import math
 import numpy as np
 
 from .base import Samples, resolve
-from .change import MODEL_ERROR_GAIN, ChangeDetector, chi_square
+from .change import ChangeDetector, chi_square
 from .consistency import EPS, project_steps
 from .ensemble import IncrementalEnsemble
 from .ensemble_prior import EnsemblePrior
@@ -77,8 +74,8 @@ from .regression import PayloadRegression
 from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
 
-__all__ = ["DETECT_AFTER", "LIVE_PROJECT_BUDGET", "MODEL_ERROR_GAIN", "NIS_WINDOW",
-           "PRIOR_FLOOR", "SPREAD_WAIT", "PhysicsInformedEnsemble", "prior_inflation"]
+__all__ = ["DETECT_AFTER", "LIVE_PROJECT_BUDGET", "NIS_WINDOW", "PRIOR_FLOOR", "SPREAD_WAIT",
+           "PhysicsInformedEnsemble", "prior_inflation"]
 
 PRIOR_FLOOR = (1e-4, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
 """Smallest prior standard deviation per parameter (kg, kg·m, kg·m²): keeps ``C_p``
@@ -114,8 +111,6 @@ class PhysicsInformedEnsemble:
         holdoff_s: equations skipped after a change, s (-1: the filter's settling time).
         eps: smallest eigenvalue of the projected pseudo-inertia (:mod:`iem.consistency`).
         refresh_every: equations between refreshes of the posterior and its projection.
-        model_error: the change detector's model-error gain (:data:`MODEL_ERROR_GAIN`, 0 by
-            default: the detector judges the equations by their noise alone).
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
             budget (:attr:`spread`, a live link: the service sets
@@ -143,8 +138,7 @@ class PhysicsInformedEnsemble:
                  rate_hz: float = 1000.0,
                  update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
                  threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS,
-                 refresh_every: int = 5, project_budget: int = 0,
-                 model_error: float = MODEL_ERROR_GAIN) -> None:
+                 refresh_every: int = 5, project_budget: int = 0) -> None:
         self.ensemble = dict(ensemble or {})
         self.dynamics = dynamics
         self.sigma_tau = float(sigma_tau)
@@ -159,9 +153,6 @@ class PhysicsInformedEnsemble:
         self.eps = float(eps)
         self.refresh_every = int(refresh_every)
         self.project_budget = int(project_budget)
-        self.model_error = float(model_error)
-        if not self.model_error >= 0.0:
-            raise InvalidInputError(f"model_error must be >= 0 (0: none), got {model_error}")
         if not self.prior_scale > 0.0:
             raise InvalidInputError(f"prior_scale must be > 0, got {prior_scale}")
         if self.refresh_every < 1:
@@ -193,7 +184,7 @@ class PhysicsInformedEnsemble:
                 "update_every": self.update_every, "prior_scale": self.prior_scale,
                 "drift": self.drift, "threshold": self.threshold, "holdoff_s": self.holdoff_s,
                 "eps": self.eps, "refresh_every": self.refresh_every,
-                "project_budget": self.project_budget, "model_error": self.model_error}
+                "project_budget": self.project_budget}
 
     def prepare(self) -> None:
         """Load now what the first equations and refreshes would load (the robot model,
@@ -359,15 +350,10 @@ class PhysicsInformedEnsemble:
     def _observe(self, x: np.ndarray, flange, est) -> None:
         """:meth:`observe_one`, given the ensemble's estimate at ``x`` if already made."""
         self._changed = False
-        self._busy = False
-        if self._queued is not None:  # spread: the last sample's equation, tested now
-            equation, self._queued = self._queued, None
-            self._take(equation)
-            self._busy = True
+        self._busy = self._take_queued()  # spread: the last sample's equation, tested now
         steps, self._steps = self._steps, 1
         equation = self._reg(x, self._mean_for_noise, steps)
         if equation is not None:
-            equation = (*equation, self._reg.curvature)  # for the test's model error
             self._busy = True  # forming it was this sample's work
             if self._holdoff <= 0:
                 if self.spread:
@@ -393,53 +379,49 @@ class PhysicsInformedEnsemble:
     def _take(self, equation) -> None:
         """Test an equation against the posterior, then add it to the window (or restart
         on a detected change)."""
-        Y, r, R, curvature = equation
-        if self._test(Y, r, R, curvature):
+        if self._test(*equation):
             self._forget()
             self._changed = True
             self.changes += 1
             self._holdoff = self._holdoff_n
         else:
-            self._window.add(Y, r, R, weight=self._weight)
+            self._window.add(*equation, weight=self._weight)
             self._since_refresh += 1
             if self._window.m <= self.refresh_every or \
                     self._since_refresh >= self.refresh_every:
                 self._stale = True  # refreshed at the next estimate (spread: the next
                 # sample without other work)
 
+    def _take_queued(self) -> bool:
+        """Test and add the equation a spread sample queued, if any; True if there was one."""
+        if self._queued is None:
+            return False
+        equation, self._queued = self._queued, None
+        self._take(equation)
+        return True
+
     def _flush(self) -> None:
         """Do the work a spread cycle left for the next samples (for a view of the state
         outside the cycle): the queued equation, then the refresh as soon as asked."""
-        if self._queued is not None:
-            equation, self._queued = self._queued, None
-            self._take(equation)
+        self._take_queued()
         self._busy = False
 
     def _mean_for_noise(self) -> np.ndarray | None:
         post = self._post if self.spread and self._post is not None else self._posterior()
         return None if post is None else post.mean
 
-    def _test(self, Y, r, R, curvature=None) -> bool:
+    def _test(self, Y, r, R) -> bool:
         """Innovation test of one equation against the current posterior (whose prior the
         data have already inflated if they contradict it): its whitened innovation goes into
         :attr:`nis`, and, from the window's :data:`DETECT_AFTER`-th equation on, into the
-        change detector (before, a conflict is the prior's, not a new payload's). The
-        detector's covariance also holds the filtered equations' own error,
-        ``diag((model_error * curvature)²)`` (:data:`MODEL_ERROR_GAIN`); the NIS the gate
-        reads keeps the noise alone, as before."""
+        change detector (before, a conflict is the prior's, not a new payload's)."""
         post = self._posterior()
         if post is None:
             return False
         nu = r - Y @ post.mean
         S = R + Y @ post.cov @ Y.T
-        S = 0.5 * (S + S.T)
         try:
-            chi2 = chi_square(nu, S)
-            if curvature is not None and self.model_error > 0.0:
-                S[np.diag_indices(7)] += np.square(self.model_error * curvature)
-                chi2_change = chi_square(nu, S)
-            else:
-                chi2_change = chi2
+            chi2 = chi_square(nu, 0.5 * (S + S.T))
         except np.linalg.LinAlgError:
             return False
         self._nis[self._nis_n % NIS_WINDOW] = chi2 / 7.0
@@ -447,7 +429,7 @@ class PhysicsInformedEnsemble:
         self._nis_value = float(self._nis[:min(self._nis_n, NIS_WINDOW)].mean())
         if self._window.m < DETECT_AFTER:
             return False
-        return self._detector(chi2_change)
+        return self._detector(chi2)
 
     def _prior(self, x=None, flange=None):
         """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary

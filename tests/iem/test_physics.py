@@ -13,7 +13,6 @@ from iem.change import ChangeDetector, chi_square
 from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
 from iem.filters import LowPass2
-from iem.gaps import RESTART
 from iem.least_squares import DEFAULT_PRIOR_STD, RecursiveLeastSquares
 from iem.online import OnlineIdentifier
 from iem.physics import PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
@@ -144,63 +143,6 @@ def test_noiseless_equations_hold_on_the_task_path(new_rollout_noiseless):
             Y, r, R = eq
             worst = max(worst, chi_square(r - Y @ PHI, R))
     assert worst < 0.1  # chi-square of 7 unit-variance terms would be about 7
-
-
-def test_the_curvature_is_the_second_difference_of_the_robot_torque(new_rollout_noiseless):
-    """Every equation's ``curvature`` is ``tau_robot`` of the last three equations, second
-    difference, each ``tau_robot`` recomputed with Pinocchio at the equation's filtered
-    state; None for the first two and again after a restart."""
-    from sim.robot import panda_dynamics
-
-    dyn = panda_dynamics()
-    reg = PayloadRegression(cutoff_hz=4.0, every=1, settle=-1, payload_inertia=True,
-                            decimate=10)
-    taus, seen = [], 0
-    for k, x in enumerate(new_rollout_noiseless.features[:3000]):
-        if k == 2000:
-            reg(x, PHI, steps=RESTART)
-            taus = []
-            assert reg.curvature is None
-            continue
-        prev = reg._lp._y
-        eq = reg(x, PHI)
-        if eq is None:
-            continue
-        f, p = reg._lp._y, prev
-        mid = 0.5 * (f + p)
-        taus.append(dyn(mid[:7], mid[7:14], (f[7:14] - p[7:14]) * reg.filter_rate_hz)[0])
-        if len(taus) < 3:
-            assert reg.curvature is None
-        else:
-            np.testing.assert_allclose(reg.curvature, taus[-1] - 2 * taus[-2] + taus[-3],
-                                       atol=1e-12)
-            seen += 1
-    assert seen > 100
-
-
-def test_the_detector_judges_an_equation_with_its_model_error_and_the_nis_without():
-    """``_test``: the detector gets ``nu^T (S + diag((g c)^2))^-1 nu`` and the NIS
-    ``nu^T S^-1 nu / 7``, ``S = R + Y P Y^T`` (numpy's own solve here); with gain 0 both are
-    the plain one."""
-    X = _hand_made(1500)
-    rng = np.random.default_rng(4)
-    Y, R = rng.normal(size=(7, 10)), np.diag(rng.uniform(0.01, 0.05, 7) ** 2)
-    r, c = Y @ PHI + rng.normal(0.0, 0.3, 7), rng.normal(0.0, 0.1, 7)
-    for gain in (0.0, 3.0):
-        model = PhysicsInformedEnsemble(dynamics=FAKE, model_error=gain)
-        for x in X:
-            model.observe_one(x, None)
-        mean, cov = model.posterior()
-        S = R + Y @ cov @ Y.T
-        nu = r - Y @ mean
-        model._test(Y, r, R, c)
-        plain = float(nu @ np.linalg.solve(S, nu))
-        assert model._nis[(model._nis_n - 1) % 50] == pytest.approx(plain / 7.0, rel=1e-9)
-        judged = float(nu @ np.linalg.solve(S + np.diag((gain * c) ** 2), nu))
-        assert model._detector.last == pytest.approx(judged, rel=1e-9)
-        assert (judged < plain) == (gain > 0)
-    with pytest.raises(InvalidInputError, match="model_error"):
-        PhysicsInformedEnsemble(model_error=-1.0)
 
 
 @pytest.fixture(scope="module")
