@@ -90,28 +90,46 @@ class ChangeDetector:
     def reset(self) -> None:
         self.g = 0.0
         self.last = 0.0
+        self.last_model = 0.0
         self.level = float(self.dof)
+        self.level_model = float(self.dof)
         self.n = 0
 
-    def __call__(self, chi2: float) -> bool:
-        """Add one statistic; True if the evidence now exceeds the threshold."""
+    def __call__(self, chi2: float, chi2_model: float | None = None) -> bool:
+        """Add one statistic; True if the evidence now exceeds the threshold.
+
+        ``chi2_model``: the same equation judged with its model error in the covariance
+        (never above ``chi2``; None: not known, taken as ``chi2``). Each statistic is
+        rescaled by its own level and the CUSUM adds the smaller, so it never holds more
+        evidence than a CUSUM of either alone would."""
         self.last = float(chi2)
         if not np.isfinite(self.last):
             return False
+        model = self.last if chi2_model is None else float(chi2_model)
+        if not np.isfinite(model):
+            model = self.last
+        self.last_model = model
         z = self.last
         if self.level_equations:
-            level = max(float(self.dof), self.level)
-            z = self.last * self.dof / level
+            z, self.level = self._rescaled(self.last, self.level)
+            z_model, self.level_model = self._rescaled(model, self.level_model)
+            z = min(z, z_model)
             self.n += 1
-            self.level += (min(self.last, LEVEL_CLIP * level) - self.level) \
-                / min(self.n, self.level_equations)
             if self.n <= self.level_equations:
                 return False  # the first equations after a reset only learn the level
         self.g = max(0.0, self.g + z - self.dof - self.drift)
         return self.g > self.threshold
 
+    def _rescaled(self, chi2: float, level: float) -> tuple[float, float]:
+        """``chi2`` rescaled by ``level``, and the level after this equation."""
+        floor = max(float(self.dof), level)
+        step = min(self.n + 1, self.level_equations)
+        return (chi2 * self.dof / floor,
+                level + (min(chi2, LEVEL_CLIP * floor) - level) / step)
+
     def to_state(self) -> dict:
-        return {"g": self.g, "last": self.last, "level": self.level, "n": self.n}
+        return {"g": self.g, "last": self.last, "level": self.level, "n": self.n,
+                "level_model": self.level_model}
 
     def set_state(self, state: dict) -> None:
         self.g = float(state["g"])
@@ -119,3 +137,6 @@ class ChangeDetector:
         # a state from before the level: nominal level, learnt already
         self.level = float(state.get("level", self.dof))
         self.n = int(state.get("n", self.level_equations))
+        # a state from before the model error: its level is the plain one's
+        self.level_model = float(state.get("level_model", self.level))
+        self.last_model = self.last

@@ -176,6 +176,12 @@ class PayloadRegression:
         self._acc = np.zeros(21)  # the block being averaged (decimate > 1)
         self._n_acc = 0
         self._x: np.ndarray | None = None  # the last input sample (block averaging)
+        self._robot_torques: list[np.ndarray] = []  # tau_robot of the last two equations
+        self.curvature: np.ndarray | None = None
+        """Second difference of the robot model's torque ``tau_robot`` over the last three
+        equations (7, N·m), None until three consecutive equations since the start: how
+        sharply the arm's own torque bends, which sets the error of the filtered equations
+        (:data:`iem.physics.MODEL_ERROR_GAIN`)."""
 
     @property
     def settled(self) -> bool:
@@ -261,6 +267,11 @@ class PayloadRegression:
         q, dq, tau = mid[:7], mid[7:14], mid[14:]
         ddq = (f[7:14] - prev[7:14]) * self.filter_rate_hz
         tau_robot, Y, M = self.model()(q, dq, ddq)
+        last = self._robot_torques
+        self.curvature = tau_robot - 2.0 * last[1] + last[0] if len(last) == 2 else None
+        last.append(tau_robot)
+        if len(last) > 2:
+            del last[0]
         if self.payload_inertia and callable(phi):
             phi = phi()
         if self.payload_inertia and phi is not None:

@@ -65,3 +65,42 @@ def test_a_misfit_rising_with_the_motion_is_no_change_but_a_new_payload_is():
     assert fired and fired[0] - len(quiet) <= 3
     # the 30-equation level this replaced counted the misfit's rise as evidence
     assert feed(ChangeDetector(level_equations=30), quiet + MOTION_ONSET + quiet) != []
+
+
+def test_with_a_model_error_statistic_the_evidence_is_the_smaller_cusums():
+    """Two statistics per equation: each rescaled by its own level, the CUSUM adds the
+    smaller, so its evidence never exceeds a CUSUM of either alone (checked step by step
+    against two plain detectors), and it fires only where both would."""
+    rng = np.random.default_rng(5)
+    quiet = rng.chisquare(7, 100)
+    # a sharp misfit the model error explains (the plain statistic alone fires on it), then
+    # a misfit rising with the motion that the plain level absorbs, of which the model error
+    # leaves 200 for a few equations (the model-error statistic alone, its level low, fires)
+    sharp = [3, 13, 33, 62, 106, 162, 193, 400, 960, 5779, 6326]
+    left = rng.chisquare(7, len(MOTION_ONSET))
+    left[10:15] = 200.0
+    plain = np.concatenate([quiet, sharp, quiet, MOTION_ONSET, quiet])
+    model = np.minimum(plain, np.concatenate([quiet, rng.chisquare(7, len(sharp)), quiet,
+                                              left, quiet]))  # never above the plain one
+    both, a, b = ChangeDetector(), ChangeDetector(), ChangeDetector()
+    assert feed(ChangeDetector(), plain) != [] and feed(ChangeDetector(), model) != []
+    for c, cm in zip(plain, model, strict=True):
+        assert not both(float(c), float(cm))
+        a(float(c)), b(float(cm))
+        assert both.g <= min(a.g, b.g) + 1e-9
+    # a new payload raises both: it fires
+    assert feed_two(ChangeDetector(), list(quiet) + PAYLOAD_CHANGE,
+                    list(quiet) + [v / 2 for v in PAYLOAD_CHANGE])[0] - len(quiet) <= 3
+    # None or NaN for the second: the plain detector's arithmetic
+    one, two = ChangeDetector(), ChangeDetector()
+    for c in plain:
+        assert one(float(c)) == two(float(c), None)
+        assert one.g == two.g and one.level == two.level == two.level_model
+    twin = ChangeDetector()
+    twin.set_state(both.to_state())
+    assert twin.level_model == both.level_model
+
+
+def feed_two(det, values, model) -> list[int]:
+    pairs = zip(values, model, strict=True)
+    return [i for i, (v, m) in enumerate(pairs) if det(float(v), float(m))]

@@ -13,9 +13,10 @@ from iem.change import ChangeDetector, chi_square
 from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
 from iem.filters import LowPass2
+from iem.gaps import RESTART
 from iem.least_squares import DEFAULT_PRIOR_STD, RecursiveLeastSquares
 from iem.online import OnlineIdentifier
-from iem.physics import PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
+from iem.physics import MODEL_ERROR_GAIN, PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
 from iem.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
 from iem.types import JointState, PayloadEstimate
 from sim.family import test_payloads
@@ -143,6 +144,64 @@ def test_noiseless_equations_hold_on_the_task_path(new_rollout_noiseless):
             Y, r, R = eq
             worst = max(worst, chi_square(r - Y @ PHI, R))
     assert worst < 0.1  # chi-square of 7 unit-variance terms would be about 7
+
+
+def test_the_curvature_is_the_second_difference_of_the_robot_torque(new_rollout_noiseless):
+    """Every equation's ``curvature`` is ``tau_robot`` of the last three equations, second
+    difference, each ``tau_robot`` recomputed with Pinocchio at the equation's filtered
+    state; None for the first two and again after a restart."""
+    from sim.robot import panda_dynamics
+
+    dyn = panda_dynamics()
+    reg = PayloadRegression(cutoff_hz=4.0, every=1, settle=-1, payload_inertia=True,
+                            decimate=10)
+    taus, seen = [], 0
+    for k, x in enumerate(new_rollout_noiseless.features[:3000]):
+        if k == 2000:
+            reg(x, PHI, steps=RESTART)
+            taus = []
+            assert reg.curvature is None
+            continue
+        prev = reg._lp._y
+        eq = reg(x, PHI)
+        if eq is None:
+            continue
+        f, p = reg._lp._y, prev
+        mid = 0.5 * (f + p)
+        taus.append(dyn(mid[:7], mid[7:14], (f[7:14] - p[7:14]) * reg.filter_rate_hz)[0])
+        if len(taus) < 3:
+            assert reg.curvature is None
+        else:
+            np.testing.assert_allclose(reg.curvature, taus[-1] - 2 * taus[-2] + taus[-3],
+                                       atol=1e-12)
+            seen += 1
+    assert seen > 100
+
+
+def test_the_detector_gets_the_equation_with_and_without_its_model_error_the_nis_without():
+    """``_test``: the detector gets ``nu^T S^-1 nu`` and ``nu^T (S + diag((g c)^2))^-1 nu``,
+    the NIS the first over 7, ``S = R + Y P Y^T`` (numpy's own solve here); without a
+    curvature (the first equations) the plain one alone."""
+    X = _hand_made(1500)
+    rng = np.random.default_rng(4)
+    Y, R = rng.normal(size=(7, 10)), np.diag(rng.uniform(0.01, 0.05, 7) ** 2)
+    r, c = Y @ PHI + rng.normal(0.0, 0.3, 7), rng.normal(0.0, 0.1, 7)
+    seen = []
+    model = PhysicsInformedEnsemble(dynamics=FAKE)
+    for x in X:
+        model.observe_one(x, None)
+    model._detector = type("Spy", (ChangeDetector,), {
+        "__call__": lambda self, a, b=None: seen.append((a, b)) or False})()
+    mean, cov = model.posterior()
+    S = R + Y @ cov @ Y.T
+    nu = r - Y @ mean
+    plain = float(nu @ np.linalg.solve(S, nu))
+    judged = float(nu @ np.linalg.solve(S + np.diag((MODEL_ERROR_GAIN * c) ** 2), nu))
+    model._test(Y, r, R, c)
+    model._test(Y, r, R, None)
+    assert model._nis[(model._nis_n - 1) % 50] == pytest.approx(plain / 7.0, rel=1e-9)
+    assert seen[0] == pytest.approx((plain, judged), rel=1e-9) and judged < plain
+    assert seen[1][0] == pytest.approx(plain, rel=1e-9) and seen[1][1] is None
 
 
 @pytest.fixture(scope="module")
