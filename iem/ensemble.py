@@ -299,8 +299,6 @@ class IncrementalEnsemble:
         r = n
         for s in range(0, n, batch):
             q, phi = X[s, :7], Y[s:s + batch]
-            if self.background:
-                _yield()  # a refit's draws are tens of ms: an estimate may be waiting
             for _ in range(self.coverage_draws):
                 x = self._cover(q, phi, rng)
                 X_out[r:r + len(x)], Y_out[r:r + len(x)] = x, phi
@@ -409,10 +407,8 @@ class IncrementalEnsemble:
         run after the bag is closed or its slot reused)."""
         training, kept, gen = self._training, self._kept, self._gen[bag]
 
-        pause = _yield if self.background else None
-
         def job():
-            training.learn(X, Y, iters, pause)
+            training.learn(X, Y, iters)
             if kept is not None:
                 kept.add(X, Y)
             self._publish(bag, gen, training)

@@ -39,8 +39,6 @@ N_IN = 21
 N_OUT = 10
 OUTPUT_MARGIN = 0.25
 """Widening of the training range on each side for the output scaling (fraction of range)."""
-PAUSE_STEPS = 10
-"""SGD steps of :meth:`WeakLearner.learn` between two calls of its ``pause``."""
 SCALE_FLOOR = np.repeat([1e-3, 1e-3, 1e-3], 7)
 """Smallest input scale per feature (rad, rad/s, N·m): guards features constant in a batch."""
 
@@ -139,12 +137,8 @@ class WeakLearner:
         """``dL/da``, ``dL/db`` and ``L`` of the MSE for scaled inputs ``x`` and targets ``t``."""
         return _gradient(self.a, self.b, x, t)
 
-    def learn(self, X, Y, iters: int = 1, pause=None) -> float:
+    def learn(self, X, Y, iters: int = 1) -> float:
         """``iters`` normalised SGD steps on one mini-batch ``(N, 21) -> (N, 10)``.
-
-        ``pause``, if given, is called after every :data:`PAUSE_STEPS` steps (a worker thread
-        passes ``time.sleep(0)``: a new bag's 100-step warm-up otherwise holds the
-        interpreter for about 1.5 ms while an estimate waits).
 
         One fresh draw of input noise per call (if ``input_noise``), shared by its steps:
         drawing it is most of the cost, and across the points of a bag the draws still
@@ -177,8 +171,6 @@ class WeakLearner:
             z *= active  # no gradient through an inactive ReLU
             a -= step * (z.T @ x)
             b -= step * z.sum(axis=0)
-            if pause is not None and i % PAUSE_STEPS == PAUSE_STEPS - 1:
-                pause()
         return loss
 
     # -- offline batch training ----------------------------------------------------------

@@ -19,10 +19,9 @@ Copies: a deep copy or a pickle of a worker is a new idle worker of the same mod
 cannot be copied); :class:`~iem.ensemble.IncrementalEnsemble` drains before it is copied.
 
 The interpreter lock: a Python thread runs numpy's small products holding it, and by default
-holds it up to 5 ms before another thread may take it. So the worker gives it up between jobs,
-every 10 steps of a job's SGD (:data:`iem.learner.PAUSE_STEPS`), between a refit's coverage
-draws and between its mini-batches (``time.sleep(0)``): an estimate waits at most about 0.15
-ms, not a switch interval. It does not make the worker run in
+holds it up to 5 ms before another thread may take it. So the worker gives it up between jobs
+and between the mini-batches of a refit (``time.sleep(0)``): an estimate waits at most one
+mini-batch step (about 0.1 ms), not a switch interval. It does not make the worker run in
 parallel with the estimate path: on a loaded machine it lags (see the README).
 """
 

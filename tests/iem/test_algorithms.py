@@ -321,20 +321,6 @@ def test_algorithm2_matches_an_explicit_loop_on_random_values():
     assert learner.a[7].tobytes() == a7.tobytes() and learner.b[7] == -50.0
 
 
-def test_a_pause_every_ten_steps_changes_no_weight():
-    """``learn(..., pause)``: the pause is called after steps 10, 20, ... (a worker lets a
-    waiting estimate in there) and the weights are those of the same steps without it."""
-    learner = WeakLearner(np.zeros(10), np.ones(10), np.zeros(21), np.ones(21),
-                          input_noise=np.full(21, 0.1), seed=4)
-    twin = learner.copy()
-    X, Y = _hand_batch()
-    calls = []
-    learner.learn(X, Y, iters=25, pause=lambda: calls.append(1))
-    twin.learn(X, Y, iters=25)
-    assert len(calls) == 2
-    assert learner.a.tobytes() == twin.a.tobytes() and learner.b.tobytes() == twin.b.tobytes()
-
-
 def test_copy_is_independent():
     learner = _hand_learner()
     twin = learner.copy()
