@@ -8,6 +8,14 @@ among them) were lost. :class:`BufferedSlcanBus` overrides only that method: it 
 the port holds in one call and splits it at the protocol's terminators (CR, or BEL for an
 error). Everything else, the protocol, the frame parsing and sending, is python-can's own.
 
+On a POSIX serial device (a USB adapter's tty, a pty) it waits on the port's descriptor itself
+and takes everything the kernel holds in one ``os.read``: through pyserial's ``read`` each
+frame took two calls (one blocking for the first byte, one for the rest), each a select, an
+``ioctl`` for ``in_waiting`` and pyserial's timeout bookkeeping. Same errors as pyserial's
+``read``: a device ready with no data is disconnected (``SerialException``), and EAGAIN and
+the like are retried. Ports without a descriptor (``loop://`` and other URL handlers) go
+through pyserial's ``read`` as before.
+
 It relies on private members of python-can's ``slcanBus`` (``_read``, ``_buffer``,
 ``serialPortOrig``, ``_OK``, ``_ERROR``), so pyproject.toml pins python-can to 4.6.x and
 ``tests/firmware_bridge/test_slcan_buffered.py`` fails when a release changes them.
@@ -15,18 +23,29 @@ It relies on private members of python-can's ``slcanBus`` (``_read``, ``_buffer`
 
 from __future__ import annotations
 
+import errno
+import os
+import select
+import time
+
 import serial
 from can.exceptions import error_check
 from can.interfaces.slcan import slcanBus
+
+READ_SIZE = 4096
+"""Most bytes taken from the descriptor in one read (about 30 FD frames' lines)."""
 
 
 class BufferedSlcanBus(slcanBus):
     """``can.interfaces.slcan.slcanBus`` reading the port in blocks, not byte by byte."""
 
     def _read(self, timeout: float | None) -> str | None:
+        port = self.serialPortOrig
+        fd = getattr(port, "fd", None)
+        if isinstance(fd, int) and fd >= 0:
+            return self._read_fd(fd, timeout)
         deadline = serial.Timeout(timeout)
         buf = self._buffer
-        port = self.serialPortOrig
         with error_check("Could not read from serial device"):
             while True:
                 line = self._take_line(buf)
@@ -37,6 +56,33 @@ class BufferedSlcanBus(slcanBus):
                     buf.extend(data)
                 elif deadline.expired():
                     return None
+
+    def _read_fd(self, fd: int, timeout: float | None) -> str | None:
+        """:meth:`_read` on a POSIX descriptor: select on it, then read all it holds."""
+        buf = self._buffer
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with error_check("Could not read from serial device"):
+            while True:
+                line = self._take_line(buf)
+                if line is not None:
+                    return line
+                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+                ready, _, _ = select.select([fd], [], [], wait)
+                if not ready:
+                    if deadline is not None and time.monotonic() >= deadline:
+                        return None
+                    continue
+                try:
+                    data = os.read(fd, READ_SIZE)
+                except OSError as exc:
+                    if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
+                        continue
+                    raise serial.SerialException(f"read failed: {exc}") from exc
+                if not data:
+                    raise serial.SerialException(
+                        "device reports readiness to read but returned no data (device "
+                        "disconnected or multiple access on port?)")
+                buf.extend(data)
 
     def _take_line(self, buf: bytearray) -> str | None:
         """The first complete reply or frame line in ``buf`` (terminator included), removed."""
