@@ -101,7 +101,6 @@ class ChangeDetector:
     def reset(self) -> None:
         self.g = 0.0
         self.last = 0.0
-        self.last_model = 0.0
         self.level = float(self.dof)
         self.level_model = float(self.dof)
         self.n = 0
@@ -119,7 +118,6 @@ class ChangeDetector:
         model = self.last if chi2_model is None else float(chi2_model)
         if not np.isfinite(model):
             model = self.last
-        self.last_model = model
         z = self.last
         if self.level_equations:
             z, self.level = self._rescaled(self.last, self.level)
@@ -150,4 +148,3 @@ class ChangeDetector:
         self.n = int(state.get("n", self.level_equations))
         # a state from before the model error: its level is the plain one's
         self.level_model = float(state.get("level_model", self.level))
-        self.last_model = self.last
