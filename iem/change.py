@@ -118,15 +118,14 @@ class ChangeDetector:
         model = self.last if chi2_model is None else float(chi2_model)
         if not np.isfinite(model):
             model = self.last
-        z = self.last
+        z, z_model = self.last, model
         if self.level_equations:
             z, self.level = self._rescaled(self.last, self.level)
             z_model, self.level_model = self._rescaled(model, self.level_model)
-            z = min(z, z_model)
             self.n += 1
             if self.n <= self.level_equations:
                 return False  # the first equations after a reset only learn the level
-        self.g = max(0.0, self.g + z - self.dof - self.drift)
+        self.g = max(0.0, self.g + min(z, z_model) - self.dof - self.drift)
         return self.g > self.threshold
 
     def _rescaled(self, chi2: float, level: float) -> tuple[float, float]:
