@@ -43,22 +43,11 @@ class BufferedSlcanBus(slcanBus):
         port = self.serialPortOrig
         fd = getattr(port, "fd", None)
         if isinstance(fd, int) and fd >= 0:
-            return self._read_fd(fd, timeout)
-        deadline = serial.Timeout(timeout)
-        buf = self._buffer
-        with error_check("Could not read from serial device"):
-            while True:
-                line = self._take_line(buf)
-                if line is not None:
-                    return line
-                data = port.read(max(1, port.in_waiting))
-                if data:
-                    buf.extend(data)
-                elif deadline.expired():
-                    return None
-
-    def _read_fd(self, fd: int, timeout: float | None) -> str | None:
-        """:meth:`_read` on a POSIX descriptor: select on it, then read all it holds."""
+            def more(wait):
+                return _read_ready(fd, wait)
+        else:  # a URL handler: pyserial's read, with the port's own timeout
+            def more(wait):
+                return port.read(max(1, port.in_waiting))
         buf = self._buffer
         deadline = None if timeout is None else time.monotonic() + timeout
         with error_check("Could not read from serial device"):
@@ -66,23 +55,11 @@ class BufferedSlcanBus(slcanBus):
                 line = self._take_line(buf)
                 if line is not None:
                     return line
-                wait = None if deadline is None else max(0.0, deadline - time.monotonic())
-                ready, _, _ = select.select([fd], [], [], wait)
-                if not ready:
-                    if deadline is not None and time.monotonic() >= deadline:
-                        return None
-                    continue
-                try:
-                    data = os.read(fd, READ_SIZE)
-                except OSError as exc:
-                    if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
-                        continue
-                    raise serial.SerialException(f"read failed: {exc}") from exc
-                if not data:
-                    raise serial.SerialException(
-                        "device reports readiness to read but returned no data (device "
-                        "disconnected or multiple access on port?)")
-                buf.extend(data)
+                data = more(None if deadline is None else max(0.0, deadline - time.monotonic()))
+                if data:
+                    buf.extend(data)
+                elif deadline is not None and time.monotonic() >= deadline:
+                    return None
 
     def _take_line(self, buf: bytearray) -> str | None:
         """The first complete reply or frame line in ``buf`` (terminator included), removed."""
@@ -93,3 +70,22 @@ class BufferedSlcanBus(slcanBus):
         line = bytes(buf[:end]).decode()
         del buf[:end]
         return line
+
+
+def _read_ready(fd: int, wait: float | None) -> bytes:
+    """What a POSIX descriptor holds, once it is readable within ``wait`` s (b"" if it is
+    not, or if the read would block); pyserial's errors for a failed read or a vanished
+    device."""
+    ready, _, _ = select.select([fd], [], [], wait)
+    if not ready:
+        return b""
+    try:
+        data = os.read(fd, READ_SIZE)
+    except OSError as exc:
+        if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
+            return b""
+        raise serial.SerialException(f"read failed: {exc}") from exc
+    if not data:
+        raise serial.SerialException("device reports readiness to read but returned no data "
+                                     "(device disconnected or multiple access on port?)")
+    return data
