@@ -12,7 +12,11 @@ link reader, the learning worker and the checkpoints), peak resident memory of t
 (controller and plug-in together), and the controller's missed deadlines. Targets (issue 12):
 no lost cycles, p99 ≤ 500 µs, at most 0.15 of one core (0.2 with ``--link slcan-pty``).
 ``--json FILE`` writes ``{"cycles", "lost", "latency_us": {"p50", "p99"}, "cpu_share",
-"cpu_share_parts", "peak_rss_mb", ...}``.
+"cpu_share_parts", "peak_rss_mb", "cpu_dma_latency_us", ...}``.
+``--cpu-dma-latency-us US`` holds a CPU wake-up latency limit during the run, as ``[host]
+cpu_dma_latency_us`` does for the service (:mod:`deploy.host`; the JSON's
+``cpu_dma_latency_us`` is the limit held, null for none): the idle cores then poll, and
+their CPU is not in ``cpu_share``.
 
 The controller shares the interpreter (:mod:`deploy.inprocess`), so each frame also waits for
 the controller thread's own work.
@@ -36,13 +40,15 @@ REPO = FsPath(__file__).resolve().parents[1]
 
 
 def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=print,
-            link: str = "virtual") -> dict:
+            link: str = "virtual", cpu_dma_latency_us: int = -1) -> dict:
+    from .config import config_from_dict
     from .training import best_model_kind
 
     kind = kind or best_model_kind()
+    host = {"cpu_dma_latency_us": cpu_dma_latency_us}
+    config_from_dict({"host": host}, where="bench e2e")  # a bad limit fails before training
     if link == "slcan-pty":
-        return _measure_slcan_pty(seconds, kind, seed, log)
-    from .config import config_from_dict
+        return _measure_slcan_pty(seconds, kind, seed, log, host)
     from .inprocess import simulated_cell, virtual_channel
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -51,7 +57,7 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
                      "profile": "fd"},
             "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                       "seed": seed, "checkpoint_period_s": 30.0},
-            "log": {"status_line": "off"},
+            "log": {"status_line": "off"}, "host": host,
         }, where="bench e2e")
         # the controller plays the excitation path back and forth
         with simulated_cell(config, seed=seed) as (controller, service):
@@ -62,7 +68,7 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     return _figures(summary, controller.stats(), link="virtual")
 
 
-def _measure_slcan_pty(seconds: float, kind: str, seed: int, log) -> dict:
+def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) -> dict:
     """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
     from .config import config_from_dict
     from .service import Service
@@ -83,7 +89,7 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log) -> dict:
                 "link": {"kind": "slcan", "channel": pty, "profile": "fd"},
                 "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                           "checkpoint_period_s": 30.0},
-                "log": {"status_line": "off"},
+                "log": {"status_line": "off"}, "host": host,
             }, where="bench e2e")
             service = Service(config, model=model, status=StatusLine(False))
             try:
@@ -126,6 +132,7 @@ def _figures(summary: dict, stats: dict, link: str) -> dict:
         "bags": summary["bags"],
         "model": summary["model"],
         "link": link,
+        "cpu_dma_latency_us": summary["cpu_dma_latency_us"],
     }
 
 
@@ -137,10 +144,15 @@ def configure(parser) -> None:
     parser.add_argument("--link", choices=["virtual", "slcan-pty"], default="virtual",
                         help="virtual: the controller in this process (default); slcan-pty: "
                              "the controller in its own process behind slcan on a pty")
+    parser.add_argument("--cpu-dma-latency-us", type=int, default=-1, metavar="US",
+                        help="hold this CPU wake-up latency limit during the run, as [host] "
+                             "cpu_dma_latency_us does for the service (0 to 1000000 µs; "
+                             "needs write access to /dev/cpu_dma_latency; default -1: none)")
 
 
 def run(args) -> int:
-    f = measure(args.seconds, kind=args.model, link=args.link)
+    f = measure(args.seconds, kind=args.model, link=args.link,
+                cpu_dma_latency_us=args.cpu_dma_latency_us)
     lat = f["latency_us"]
     print(f"cycles processed {f['cycles']}, lost {f['lost']}, skipped {f['skipped']}, "
           f"estimated without learning {f['unlearnt']} (controller published "
@@ -152,6 +164,9 @@ def run(args) -> int:
     print(f"CPU share of the plug-in {f['cpu_share']:.2f} of one core, all its threads "
           f"({parts}; target <= {share_target:g}); peak RSS {f['peak_rss_mb']:.0f} MB")
     print(f"writes {f['writes']}; bags {f['bags']} ({f['model']})")
+    if f["cpu_dma_latency_us"] is not None:
+        print(f"held a CPU wake-up latency limit of {f['cpu_dma_latency_us']} µs: idle cores "
+              "polled instead of sleeping; their CPU is not in the share above")
     if args.json:
         FsPath(args.json).write_text(json.dumps(f, indent=2) + "\n")
     return 0

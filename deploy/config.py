@@ -117,6 +117,16 @@ class Ros2Config:
 
 
 @dataclass(frozen=True)
+class HostConfig:
+    """What the plug-in asks of the cell PC while it runs (``[host]``).
+
+    ``cpu_dma_latency_us``: a CPU wake-up latency limit held while the service runs
+    (:mod:`deploy.host`); -1: none."""
+
+    cpu_dma_latency_us: int = -1
+
+
+@dataclass(frozen=True)
 class CellConfig:
     """Everything ``iem run`` needs."""
 
@@ -126,6 +136,7 @@ class CellConfig:
     gate: GateConfig = field(default_factory=GateConfig)
     log: LogConfig = field(default_factory=LogConfig)
     ros2: Ros2Config = field(default_factory=Ros2Config)
+    host: HostConfig = field(default_factory=HostConfig)
     source: str = "<defaults>"
 
     def link_options(self) -> dict:
@@ -135,7 +146,7 @@ class CellConfig:
 
 
 SECTIONS = {"link": LinkConfig, "model": ModelConfig, "estimate": EstimateConfig,
-            "gate": GateConfig, "log": LogConfig, "ros2": Ros2Config}
+            "gate": GateConfig, "log": LogConfig, "ros2": Ros2Config, "host": HostConfig}
 
 # keys with a restricted set of values, and numeric ranges (lo, hi, lo inclusive)
 CHOICES = {("link", "kind"): LINK_KINDS, ("link", "profile"): PROFILES,
@@ -171,6 +182,7 @@ RANGES = {
 INT_RANGES = {
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
     ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
+    ("host", "cpu_dma_latency_us"): (-1, 1_000_000),  # µs; -1: no limit (deploy.host)
 }
 MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
                 ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm")}

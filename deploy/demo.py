@@ -41,10 +41,11 @@ def demo_path():
 
 
 def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
-             status: bool = True, log=print, arm_file=None) -> dict:
+             status: bool = True, log=print, arm_file=None,
+             cpu_dma_latency_us: int = -1) -> dict:
     """The demo (see the module docstring); ``arm_file``: the plug-in runs on this arm file
     (``iem calibrate``; its model is trained for it). The simulated controller's plant is
-    the nominal arm either way."""
+    the nominal arm either way. ``cpu_dma_latency_us``: as ``[host]`` in ``cell.toml``."""
     from iem.metrics import mae_groups
     from sim.family import default_test_payload
 
@@ -66,6 +67,7 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
         "model": {"path": str(model_file), "kind": kind, "seed": seed,
                   "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
         "log": {"status_line": "on" if status else "off"},
+        "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
     }, where="demo")
     log(f"iem demo: payload {payload.name} ({payload.mass:.3f} kg), path {path.duration:.0f} s "
         f"(excitation, transfer, new task), model {kind}")
@@ -193,6 +195,10 @@ def configure(parser) -> None:
     parser.add_argument("--no-status", action="store_true", help="no live status line")
     parser.add_argument("--arm", metavar="ARM", help="arm file for the plug-in (from "
                         "'iem calibrate'; default: the nominal arm)")
+    parser.add_argument("--cpu-dma-latency-us", type=int, default=-1, metavar="US",
+                        help="hold this CPU wake-up latency limit during the run, as [host] "
+                             "cpu_dma_latency_us does for the service (0 to 1000000 µs; "
+                             "default -1: none)")
 
 
 def run(args) -> int:
@@ -200,5 +206,6 @@ def run(args) -> int:
 
     setup_logging("warning", "text")
     run_demo(args.out, seed=args.seed, kind=args.model, json_path=args.json,
-             status=not args.no_status, arm_file=args.arm)
+             status=not args.no_status, arm_file=args.arm,
+             cpu_dma_latency_us=args.cpu_dma_latency_us)
     return 0

@@ -206,13 +206,22 @@ class Service:
         worker's and the checkpoints' (``cpu_s`` is their sum)."""
         self._checkpoint_cpu_s = 0.0
         self.wall_s = 0.0
+        self.cpu_latency = None
+        """The held CPU wake-up latency limit (``[host] cpu_dma_latency_us``), or None."""
 
     # -- set-up ----------------------------------------------------------------------------
     def open(self) -> Service:
         from sim.robot import PandaModel
 
+        from .host import hold_cpu_latency
         from .training import check_model_arm, check_model_family, load_arm_file, tandem_for
 
+        if self.cpu_latency is None:  # first: a host that refuses it fails before training
+            self.cpu_latency = hold_cpu_latency(self.config.host.cpu_dma_latency_us)
+            if self.cpu_latency is not None:
+                log.info("holding a CPU wake-up latency limit of %d µs on %s (in force: %d "
+                         "µs)", self.cpu_latency.latency_us, self.cpu_latency.device,
+                         self.cpu_latency.effective_us, extra={"event": "cpu_latency"})
         arm, arm_record = load_arm_file(self.config.model.arm or None)
         if self.model is None:
             self.model = load_or_train_model(self.config)
@@ -408,6 +417,9 @@ class Service:
                 ens.stop()
             if self.link is not None:
                 self.link.close()
+            if self.cpu_latency is not None:
+                self.cpu_latency.close()
+                self.cpu_latency = None
             self.notifier.close()
 
     # -- events ----------------------------------------------------------------------------
@@ -527,6 +539,8 @@ class Service:
             "wall_s": self.wall_s,
             "cpu_s": self.cpu_s,
             "cpu_parts": dict(self.cpu_parts),
+            "cpu_dma_latency_us": (None if self.cpu_latency is None
+                                   else self.cpu_latency.latency_us),
         }
 
 
