@@ -163,12 +163,16 @@ class WeakLearner:
         for i in range(iters):
             z = x @ a.T
             z += b
-            active = z > 0.0
-            np.maximum(z, 0.0, out=z)
+            if z.min() > 0.0:  # every ReLU active (the usual case): it is the identity
+                active = None
+            else:
+                active = z > 0.0
+                np.maximum(z, 0.0, out=z)
             z -= t  # residual ReLU(z) - t
             if i == iters - 1:
                 loss = float(np.einsum("ij,ij->", z, z)) / n
-            z *= active  # no gradient through an inactive ReLU
+            if active is not None:
+                z *= active  # no gradient through an inactive ReLU
             a -= step * (z.T @ x)
             b -= step * z.sum(axis=0)
         return loss
