@@ -29,7 +29,7 @@ import select
 import time
 
 import serial
-from can.exceptions import error_check
+from can.exceptions import CanOperationError
 from can.interfaces.slcan import slcanBus
 
 READ_SIZE = 4096
@@ -50,23 +50,28 @@ class BufferedSlcanBus(slcanBus):
                 return port.read(max(1, port.in_waiting))
         buf = self._buffer
         deadline = None if timeout is None else time.monotonic() + timeout
-        with error_check("Could not read from serial device"):
-            while True:
-                line = self._take_line(buf)
-                if line is not None:
-                    return line
+        try:  # python-can's error_check, without a context manager per frame
+            line = self._take_line(buf) if buf else None  # an earlier read's next line
+            while line is None:
                 data = more(None if deadline is None else max(0.0, deadline - time.monotonic()))
                 if data:
                     buf.extend(data)
+                    line = self._take_line(buf)
                 elif deadline is not None and time.monotonic() >= deadline:
                     return None
+            return line
+        except Exception as error:
+            raise CanOperationError("Could not read from serial device") from error
 
     def _take_line(self, buf: bytearray) -> str | None:
         """The first complete reply or frame line in ``buf`` (terminator included), removed."""
-        ends = [i for i in (buf.find(self._OK), buf.find(self._ERROR)) if i >= 0]
-        if not ends:
+        end = buf.find(self._OK)
+        error = buf.find(self._ERROR)
+        if error >= 0 and (end < 0 or error < end):
+            end = error
+        if end < 0:
             return None
-        end = min(ends) + 1
+        end += 1
         line = bytes(buf[:end]).decode()
         del buf[:end]
         return line
