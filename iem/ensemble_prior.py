@@ -98,7 +98,7 @@ class EnsemblePrior:
         """``(mu_p, C_p)`` of the ensemble's estimate at ``x`` alone: its bag's covariance
         (widened for its mass and out of distribution) plus its input noise; None if no bag
         gives a finite estimate."""
-        est = self.ensemble.predict_one(x, flange)
+        est = self.ensemble.predict_raw(x, flange)
         if est.bag < 0 or not np.all(np.isfinite(est.phi)):
             return None
         mean = est.phi

@@ -27,12 +27,15 @@ class InPlaceEnsemble(IncrementalEnsemble):
 
     Same hyper-parameters as :class:`iem.ensemble.IncrementalEnsemble` (``warmup_iters``
     is used only for the very first bag of an untrained model), plus ``center_rate``: the
-    weight of each new point's inputs in the learner's running input mean.
+    weight of each new point's inputs in the learner's running input mean. It holds
+    nothing out of distribution (``ood_hold_s`` 0 by default): the paper's baseline answers
+    with the learner it updates.
     """
 
     name = "old_IEM"
 
     def __init__(self, *args, center_rate: float = 0.05, **kwargs) -> None:
+        kwargs.setdefault("ood_hold_s", 0.0)
         super().__init__(*args, **kwargs)
         self.center_rate = float(center_rate)
 

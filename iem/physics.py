@@ -354,7 +354,7 @@ class PhysicsInformedEnsemble:
             return got[0]
 
         x = np.asarray(x, dtype=float)
-        est = self._ens.learn_predict_one(x, flange, lazy)  # one routing for both
+        est = self._ens.learn_predict_raw(x, flange, lazy)  # one routing for both
         if got and self._ens.open_bag >= 0:
             self.ensemble_prior.calibrate(self._ens.open_bag, *got[0])
         self._observe(x, flange, est)
@@ -389,7 +389,7 @@ class PhysicsInformedEnsemble:
         if not self._ens.n_bags:
             return
         if est is None:
-            est = self._ens.predict_one(x, flange)
+            est = self._ens.predict_raw(x, flange)
         self._routed = (x, est.bag)
         if self.ensemble_prior.add(est, x):
             n = self.ensemble_prior.summary.n

@@ -220,6 +220,58 @@ def test_ood_threshold_is_a_hyper_parameter_and_the_open_bag_is_never_flagged():
         IncrementalEnsemble(ood_threshold=0.0)
 
 
+def test_an_estimate_out_of_distribution_holds_the_last_one_in_it_for_ood_hold_s():
+    model = fitted(ood_hold_s=0.5)
+    raw_model = copy.deepcopy(model)
+    i = 50
+    x, f = DATA.X[i], DATA.F[i]
+    far = x.copy()
+    far[7:14] *= -3.0  # the pose driven the other way, faster: flagged
+    good = model.predict_one(x, f, t=0.0)
+    assert not good.extra["ood"] and "held" not in good.extra
+    # flagged: the last estimate in distribution, flagged, for 0.5 s of estimate time
+    for t in (0.001, 0.2, 0.45):
+        est = model.predict_one(far, f, t=t)
+        raw = raw_model.predict_raw(far, f, t=t)
+        assert est.extra["ood"] and est.extra["held"] and est.bag == raw.bag
+        assert est.extra["ood_score"] == raw.extra["ood_score"]
+        assert np.array_equal(est.phi, good.phi) and not np.array_equal(raw.phi, good.phi)
+    late = model.predict_one(far, f, t=0.55)  # the run of flags outlasted the hold
+    assert late.extra["ood"] and "held" not in late.extra
+    assert np.array_equal(late.phi, raw_model.predict_raw(far, f).phi)
+    # back in distribution: its own estimate, and a new run of flags is held again
+    assert np.array_equal(model.predict_one(x, f, t=0.6).phi, good.phi)
+    assert model.predict_one(far, f, t=0.7).extra["held"]
+    # learn_predict_one holds as predict_one does; the raw twins never hold
+    j = next(j for j in DATA.further_points()
+             if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
+    est = model.learn_predict_one(DATA.X[j], DATA.F[j], lambda: DATA.samples_at(j), t=0.8)
+    assert est.learning and not est.extra["ood"]  # the open bag's: trusted now
+    assert np.array_equal(model.predict_one(far, f, t=0.9).phi, est.phi)
+    assert not model.predict_raw(far, f, t=0.9).extra.get("held")
+    # a new task forgets what was held; nothing to hold: the learner's own, flagged
+    model.reset()
+    est = model.predict_one(far, f, t=1.0)
+    assert est.extra["ood"] and "held" not in est.extra
+
+
+def test_no_hold_with_ood_hold_s_zero_or_before_any_estimate_in_distribution():
+    model = fitted(ood_hold_s=0.0)
+    x, f = DATA.X[50], DATA.F[50]
+    far = x.copy()
+    far[7:14] *= -3.0
+    model.predict_one(x, f, t=0.0)
+    assert np.array_equal(model.predict_one(far, f, t=0.1).phi,
+                          model.predict_raw(far, f, t=0.1).phi)
+    fresh = fitted()
+    est = fresh.predict_one(far, f, t=0.0)
+    assert est.extra["ood"] and "held" not in est.extra
+    assert IncrementalEnsemble(ood_hold_s=2.0).clone().ood_hold_s == 2.0
+    assert loads(dumps(fitted(ood_hold_s=0.25))).ood_hold_s == 0.25
+    with pytest.raises(InvalidInputError, match="ood_hold_s"):
+        IncrementalEnsemble(ood_hold_s=-1.0)
+
+
 # -- the bag budget ------------------------------------------------------------------------
 def test_budget_bounds_the_bags_and_retires_the_least_used():
     small = {"delta": 0.15, "rho": 0.08}  # many small bags
