@@ -144,10 +144,9 @@ def configure(parser) -> None:
     parser.add_argument("--link", choices=["virtual", "slcan-pty"], default="virtual",
                         help="virtual: the controller in this process (default); slcan-pty: "
                              "the controller in its own process behind slcan on a pty")
-    parser.add_argument("--cpu-dma-latency-us", type=int, default=-1, metavar="US",
-                        help="hold this CPU wake-up latency limit during the run, as [host] "
-                             "cpu_dma_latency_us does for the service (0 to 1000000 µs; "
-                             "needs write access to /dev/cpu_dma_latency; default -1: none)")
+    from .host import add_cpu_latency_option
+
+    add_cpu_latency_option(parser)
 
 
 def run(args) -> int:

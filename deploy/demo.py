@@ -195,10 +195,9 @@ def configure(parser) -> None:
     parser.add_argument("--no-status", action="store_true", help="no live status line")
     parser.add_argument("--arm", metavar="ARM", help="arm file for the plug-in (from "
                         "'iem calibrate'; default: the nominal arm)")
-    parser.add_argument("--cpu-dma-latency-us", type=int, default=-1, metavar="US",
-                        help="hold this CPU wake-up latency limit during the run, as [host] "
-                             "cpu_dma_latency_us does for the service (0 to 1000000 µs; "
-                             "default -1: none)")
+    from .host import add_cpu_latency_option
+
+    add_cpu_latency_option(parser)
 
 
 def run(args) -> int:

@@ -117,6 +117,15 @@ class CpuLatencyRequest:
         self.close()
 
 
+def add_cpu_latency_option(parser) -> None:
+    """``--cpu-dma-latency-us US`` of the commands that run the service for a measurement
+    (``iem demo``, ``iem bench e2e``): what ``[host] cpu_dma_latency_us`` sets for it."""
+    parser.add_argument("--cpu-dma-latency-us", type=int, default=-1, metavar="US",
+                        help="hold this CPU wake-up latency limit during the run, as [host] "
+                             f"cpu_dma_latency_us does for the service (0 to {MAX_LATENCY_US} "
+                             f"µs; needs write access to {DEVICE}; default -1: none)")
+
+
 def hold_cpu_latency(latency_us: int, device: str = DEVICE) -> CpuLatencyRequest | None:
     """The configured limit, held; None for -1 (no limit asked)."""
     if latency_us == -1:
