@@ -412,14 +412,14 @@ class Service:
             if self.model is not None:
                 self.checkpoint()
         finally:
+            if self.cpu_latency is not None:  # first: the loop is over, and a failing
+                self.cpu_latency.close()  # worker or link must not keep cores polling
+                self.cpu_latency = None
             ens = self._ensemble()
             if hasattr(ens, "stop"):
                 ens.stop()
             if self.link is not None:
                 self.link.close()
-            if self.cpu_latency is not None:
-                self.cpu_latency.close()
-                self.cpu_latency = None
             self.notifier.close()
 
     # -- events ----------------------------------------------------------------------------
