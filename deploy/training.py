@@ -29,14 +29,14 @@ def best_model_kind() -> str:
     return DEFAULT_MODEL if DEFAULT_MODEL in TRAINABLE else "IEM"
 
 
-DEPLOY_ENSEMBLE = {"coverage": "sim.coverage:other_velocities", "coverage_draws": 1,
-                   "budget_bags": 2000}
+DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities", "budget_bags": 2000}
 """The ensemble settings of a model the plug-in trains (``iem train``, ``train_if_missing``),
-beyond the paper's rule: each bag's learner also trains on samples at its own poses with
-other velocities and accelerations (:mod:`sim.coverage`; a pose met again at other speeds,
-or backwards, read 0.2 kg off instead of 2.9 kg in ``iem bench longrun``), and at most 2,000
-bags (the least-used slot is reused beyond; a model file of about 6 MB that loads in 0.3 s).
-The paper benchmark keeps the paper's rule."""
+beyond the paper's rule: each bag's learner also trains on its own samples driven backwards
+(:mod:`sim.coverage`; exact, on the model's arm: a pose met again the other way read 0.02 kg
+off in ``iem bench longrun``, seed 1, against 0.2 kg with the random other velocities of
+``coverage`` and 2.9 kg with neither; a pose met at another speed is flagged out of
+distribution instead), and at most 2,000 bags (the least-used slot is reused beyond; a model
+file of about 6 MB that loads in 0.3 s). The paper benchmark keeps the paper's rule."""
 
 
 def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
@@ -47,7 +47,9 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
         valid = [k for k in TRAINABLE if k in MODELS]
         raise InvalidInputError(f"model kind {kind!r} cannot be trained here; valid kinds are "
                                 f"{', '.join(valid)}")
-    params = {**DEPLOY_ENSEMBLE, **params}
+    from sim.coverage import reversal_spec
+
+    params = {**DEPLOY_ENSEMBLE, "reversal": reversal_spec(arm_file), **params}
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
         extra = {}
         if arm_file is not None:
@@ -73,28 +75,32 @@ def check_model_family(model, family: str, where: str = "the model") -> None:
 
 def check_model_arm(model, arm_record, where: str = "the model") -> None:
     """Refuse ``model`` unless it was trained for the arm ``arm_record``
-    (:func:`iem.persistence.check_arm`) and the arm file its physics names (its dynamics
-    spec, ``sim.arm:arm_dynamics@PATH``) is still there with the same content."""
+    (:func:`iem.persistence.check_arm`) and every arm file it names is still there with the
+    same content: its physics' (its dynamics spec, ``sim.arm:arm_dynamics@PATH``) and its
+    learners' reversal (``sim.coverage:reversed_velocities@PATH``)."""
     from iem.errors import ModelFileError
     from iem.persistence import check_arm
-
-    check_arm(model, arm_record, where)
-    spec = getattr(model, "dynamics", None)
-    if not isinstance(spec, str) or not spec.startswith("sim.arm:arm_dynamics@"):
-        return
     from sim.arm import load_arm
 
-    named = spec.partition("@")[2]
-    try:
-        crc = load_arm(named).crc32
-    except ModelFileError as exc:
-        raise ModelFileError(f"{where}: its physics names the arm file {named}, which cannot "
-                             f"be used ({exc}); put the arm file back there or retrain with "
-                             f"'iem train --arm ARM --out MODEL'") from exc
-    if arm_record is None or crc != arm_record["crc32"]:
-        raise ModelFileError(f"{where}: its physics names the arm file {named}, whose content "
-                             f"differs from the arm the model was trained for; retrain with "
-                             f"'iem train --arm ARM --out MODEL'")
+    check_arm(model, arm_record, where)
+    ensemble = getattr(model, "ensemble_model", model)
+    named_by = (("its physics", getattr(model, "dynamics", None), "sim.arm:arm_dynamics@"),
+                ("its learners' reversal", getattr(ensemble, "reversal", None),
+                 "sim.coverage:reversed_velocities@"))
+    for what, spec, prefix in named_by:
+        if not isinstance(spec, str) or not spec.startswith(prefix):
+            continue
+        named = spec.partition("@")[2]
+        try:
+            crc = load_arm(named).crc32
+        except ModelFileError as exc:
+            raise ModelFileError(f"{where}: {what} names the arm file {named}, which cannot "
+                                 f"be used ({exc}); put the arm file back there or retrain "
+                                 f"with 'iem train --arm ARM --out MODEL'") from exc
+        if arm_record is None or crc != arm_record["crc32"]:
+            raise ModelFileError(f"{where}: {what} names the arm file {named}, whose content "
+                                 f"differs from the arm the model was trained for; retrain "
+                                 f"with 'iem train --arm ARM --out MODEL'")
 
 
 def load_arm_file(arm_file):

@@ -28,6 +28,7 @@ carry ``"change": True`` (a payload change was detected at this sample) and ``"r
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -41,6 +42,22 @@ Samples = tuple[np.ndarray, np.ndarray] | Callable[[], tuple[np.ndarray, np.ndar
 def resolve(samples: Samples) -> tuple[np.ndarray, np.ndarray]:
     """The ``(X, Y)`` of a samples argument (calling it if it is lazy)."""
     return samples() if callable(samples) else samples
+
+
+def load_factory(spec: str, what: str):
+    """Resolve ``"module:function"`` and call the factory: ``function()``; or
+    ``"module:function@ARG"``: ``function(ARG)`` (e.g. an arm file's path). ``what`` names
+    the setting in the error."""
+    from .errors import InvalidInputError
+
+    target, at, arg = spec.partition("@")
+    try:
+        module, _, attr = target.partition(":")
+        factory = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError, ValueError) as exc:
+        raise InvalidInputError(f"{what} {spec!r} is not 'module:function[@ARG]' naming a "
+                                f"factory: {exc}") from exc
+    return factory(arg) if at else factory()
 
 
 @runtime_checkable

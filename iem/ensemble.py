@@ -61,14 +61,13 @@
 from __future__ import annotations
 
 import copy
-import importlib
 import math
 import threading
 import time
 
 import numpy as np
 
-from .base import Samples, resolve
+from .base import Samples, load_factory, resolve
 from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
 from .reservoir import Reservoir
@@ -130,6 +129,12 @@ class IncrementalEnsemble:
         coverage_draws: other states per point.
         ood_hold_s: longest run of out-of-distribution estimates answered with the last
             estimate that was not (s of estimate time; 0: none held).
+        reversal: ``"module:function[@ARG]"`` of a factory of ``f(X (N, 21)) -> X (N, 21)``,
+            the samples of the same motion driven backwards
+            (``"sim.coverage:reversed_velocities"``, ``...@ARM_FILE`` on a calibrated arm:
+            :mod:`sim.coverage`), or None: each bag's learner is then also trained (at fit
+            and at close, after any coverage) on those, so a pose met again the other way
+            reads as it did the first.
     """
 
     name = "IEM"
@@ -140,7 +145,8 @@ class IncrementalEnsemble:
                  reservoir: int = 100, close_epochs: int | None = None,
                  seed: int = 0, background: bool = False, budget_bags: int | None = None,
                  ood_threshold: float = OOD_THRESHOLD, coverage: str | None = None,
-                 coverage_draws: int = 1, ood_hold_s: float = OOD_HOLD_S) -> None:
+                 coverage_draws: int = 1, ood_hold_s: float = OOD_HOLD_S,
+                 reversal: str | None = None) -> None:
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -167,6 +173,8 @@ class IncrementalEnsemble:
         self._flagged_since: float | None = None  # estimate time of the run's first flag
         self.coverage = None if coverage is None else str(coverage)
         self.coverage_draws = int(coverage_draws)
+        self.reversal = None if reversal is None else str(reversal)
+        self._reverse = self._reversal()  # built now: a bad spec or arm file fails here
         self._cover = None  # the coverage sampler, built when first needed
         self._router = BagRouter(self.delta, self.rho)
         self._learners: list[WeakLearner] = []
@@ -192,7 +200,8 @@ class IncrementalEnsemble:
                 "close_epochs": self.close_epochs, "seed": self.seed,
                 "background": self.background, "budget_bags": self.budget_bags,
                 "ood_threshold": self.ood_threshold, "coverage": self.coverage,
-                "coverage_draws": self.coverage_draws, "ood_hold_s": self.ood_hold_s}
+                "coverage_draws": self.coverage_draws, "ood_hold_s": self.ood_hold_s,
+                "reversal": self.reversal}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -271,7 +280,7 @@ class IncrementalEnsemble:
         the open bag closed without its refit; the pending work stays with the original."""
         new = type(self).__new__(type(self))
         memo[id(self)] = new
-        skip = ("_lock", "_worker", "_cover")
+        skip = ("_lock", "_worker", "_cover", "_reverse")
         if self.background:
             skip += ("_learners", "_kept", "_training", "_open")
             with self._lock:
@@ -283,6 +292,7 @@ class IncrementalEnsemble:
             new._learners = [copy.deepcopy(lr, memo) for lr in published]
             new._open, new._kept, new._training = -1, None, None
         new._cover = None
+        new._reverse = self._reverse  # immutable: shared, not rebuilt (no file read here)
         new._lock = threading.Lock()
         new._worker = LearningWorker(synchronous=not self.background)
         return new
@@ -290,11 +300,12 @@ class IncrementalEnsemble:
     def __getstate__(self) -> dict:
         self.drain()
         return {k: v for k, v in self.__dict__.items()
-                if k not in ("_lock", "_worker", "_cover")}
+                if k not in ("_lock", "_worker", "_cover", "_reverse")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._cover = None
+        self._reverse = self._reversal()
         self._lock = threading.Lock()
         self._worker = LearningWorker(synchronous=not self.background)
 
@@ -303,10 +314,9 @@ class IncrementalEnsemble:
         """``(X, Y)`` plus, if ``coverage``, ``coverage_draws`` other states at each point's
         pose (``batch`` samples per point, in order)."""
         if self.coverage is None or self.coverage_draws <= 0:
-            return X, Y
+            return self._reversed(X, Y)
         if self._cover is None:
-            module, _, attr = self.coverage.partition(":")
-            self._cover = getattr(importlib.import_module(module), attr)()
+            self._cover = load_factory(self.coverage, "coverage")
         rng = np.random.default_rng(seed)
         n = X.shape[0]
         # filled in place, not stacked from a list: a bag's samples are tens of MB, and a
@@ -322,7 +332,16 @@ class IncrementalEnsemble:
                 x = self._cover(q, phi, rng)
                 X_out[r:r + len(x)], Y_out[r:r + len(x)] = x, phi
                 r += len(x)
-        return X_out[:r], Y_out[:r]
+        return self._reversed(X_out[:r], Y_out[:r])
+
+    def _reversal(self):
+        return None if self.reversal is None else load_factory(self.reversal, "reversal")
+
+    def _reversed(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(X, Y)`` and, if ``reversal``, the same samples driven backwards."""
+        if self.reversal is None:
+            return X, Y
+        return np.concatenate((X, self._reverse(X))), np.concatenate((Y, Y))
 
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
         if self._out is None:

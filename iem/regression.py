@@ -31,11 +31,11 @@ payload's share is taken from ``Y``); ``"sim.robot:panda_dynamics"`` is the nomi
 
 from __future__ import annotations
 
-import importlib
 import math
 
 import numpy as np
 
+from .base import load_factory
 from .errors import InvalidInputError
 from .filters import LowPass2, butterworth2
 from .gaps import RESTART, SKIP
@@ -100,14 +100,7 @@ def load_dynamics(spec: str):
     ``"module:function@ARG"`` calls ``function(ARG)`` instead: e.g.
     ``"sim.arm:arm_dynamics@/path/arm.msgpack"``, the calibrated arm of an arm file.
     """
-    target, at, arg = spec.partition("@")
-    try:
-        module, _, attr = target.partition(":")
-        factory = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError) as exc:
-        raise InvalidInputError(f"dynamics {spec!r} is not 'module:function[@ARG]' naming a "
-                                f"factory: {exc}") from exc
-    return factory(arg) if at else factory()
+    return load_factory(spec, "dynamics")
 
 
 class PayloadRegression:

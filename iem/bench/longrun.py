@@ -30,9 +30,9 @@ order: the same poses, every velocity reversed) by a fresh plant, and each model
 at the end of the run, estimates along it with learning off (IEM+phys forgets the payload
 first, as for a new task): ``reverse_mae``.
 
-The models run with :data:`LONGRUN_PARAMS` (coverage training and a bag budget, ``--budget``)
-unless ``--plain`` (the ensemble's defaults, the paper's rule); they train in the cycle
-(``background=False``: seeded runs reproduce) unless ``--background`` (the worker thread:
+The models run with :data:`LONGRUN_PARAMS` (training on the samples driven backwards too,
+and a bag budget, ``--budget``) unless ``--plain`` (the paper's rule: neither); they train in
+the cycle (``background=False``: seeded runs reproduce) unless ``--background`` (the worker thread:
 ``learn_ms`` is then what the cycle itself spends). Last, ``at_budget``: a model
 of ``--budget`` bags (the trained IEM's learners copied onto random poses within the limits)
 saved and loaded: ``load_s``, ``file_mb``, ``route_us`` (p50/p99 over 2,000 random queries)
@@ -72,8 +72,11 @@ ROUTE_EVERY = 10
 DEFAULT_BUDGET = 2000
 ROUTE_SIZES = (2000, 20000, 100000)
 """Bags of the maps the scan and the index are timed on (``route_sizes``)."""
-LONGRUN_PARAMS = {"coverage": "sim.coverage:other_velocities", "coverage_draws": 1}
-"""The ensemble's parameters for long runs (plus ``budget_bags``)."""
+LONGRUN_PARAMS = {"reversal": "sim.coverage:reversed_velocities", "coverage": None}
+"""The ensemble's parameters for long runs (plus ``budget_bags``): the plug-in's
+(:data:`deploy.training.DEPLOY_ENSEMBLE`)."""
+PLAIN_PARAMS = {"reversal": None, "coverage": None, "budget_bags": None}
+"""``--plain``: the paper's rule, none of the plug-in's ensemble settings."""
 
 _QUINTIC_DS = 1.875
 _QUINTIC_DDS = 10.0 / math.sqrt(3.0)
@@ -405,7 +408,8 @@ def configure(parser) -> None:
                         help="train in the worker thread, off the cycle (not reproducible: "
                              "when training lands depends on the machine)")
     parser.add_argument("--plain", action="store_true",
-                        help="the ensemble's defaults: no coverage training, no budget")
+                        help="the paper's rule: no reversed samples, no coverage training, "
+                             "no budget")
     parser.add_argument("--sizes", default=",".join(map(str, ROUTE_SIZES)), metavar="N,N,...",
                         help="bags of the maps on which route µs of the scan and the spatial "
                              "index are compared (default 2000,20000,100000; '' for none)")
@@ -437,7 +441,8 @@ def run(args) -> int:
 
         results = {"route_sizes": route_sizes(PandaModel(), sizes, args.seed)}
     else:
-        params = {} if args.plain else {**LONGRUN_PARAMS, "budget_bags": args.budget}
+        params = (dict(PLAIN_PARAMS) if args.plain
+                  else {**LONGRUN_PARAMS, "budget_bags": args.budget})
         if args.background:
             params["background"] = True
         results = run_longrun(args.minutes, args.seed, params=params, sizes=sizes)

@@ -110,3 +110,27 @@ def test_a_model_whose_arm_file_moved_is_refused_before_it_runs(files, tmp_path)
     arm_file.unlink()
     with pytest.raises(ModelFileError, match="names the arm file"):
         check_model_arm(model, record)
+
+
+def test_the_learners_reversal_is_the_arms_and_a_changed_arm_file_is_refused(files, tmp_path):
+    import shutil
+
+    from deploy.training import check_model_arm
+    from sim.coverage import reversal_spec
+
+    arm_file = tmp_path / "arm.msgpack"
+    shutil.copy(files / "arm.msgpack", arm_file)
+    assert main(["train", "--kind", "IEM", "--arm", str(arm_file),
+                 "--out", str(tmp_path / "model.msgpack")]) == 0
+    model = load_model(tmp_path / "model.msgpack")
+    assert model.reversal == reversal_spec(arm_file)
+    assert load_model(files / "model.msgpack").ensemble_model.reversal == reversal_spec(
+        files / "arm.msgpack")
+    record = arm_record(load_arm(arm_file), arm_file)
+    check_model_arm(model, record)
+    save_arm(ArmParams.nominal(), arm_file)  # same path, another arm
+    with pytest.raises(ModelFileError, match=r"reversal names the arm file .*content differs"):
+        check_model_arm(model, record)
+    arm_file.unlink()
+    with pytest.raises(ModelFileError, match="does not exist"):
+        load_model(tmp_path / "model.msgpack")

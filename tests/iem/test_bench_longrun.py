@@ -11,6 +11,7 @@ import pytest
 
 from iem.bench.longrun import (
     LIMIT_FRACTION,
+    LONGRUN_PARAMS,
     MARGIN,
     parse_sizes,
     random_segments,
@@ -85,8 +86,7 @@ def test_sizes_option_takes_bag_counts_and_names_what_is_valid():
 @pytest.mark.slow
 def test_sixty_minutes_hold_the_targets():
     res = run_longrun(minutes=60.0, seed=0, log=lambda *a: None,
-                      params={"coverage": "sim.coverage:other_velocities",
-                              "budget_bags": 2000})
+                      params={**LONGRUN_PARAMS, "budget_bags": 2000})
     assert res["false_alarms"]["IEM+phys"] == 0
     assert res["max_window_mae"]["IEM+phys"]["mass"] <= 0.005
     assert res["reverse_mae"]["IEM+phys"]["mass"] <= 0.005

@@ -1,15 +1,25 @@
 """Coverage samples: the training family at a bag's poses with other velocities, checked
-against Pinocchio's RNEA with each payload; an ensemble trained with them covers a reversed
-motion its plain twin does not."""
+against Pinocchio's RNEA with each payload; the reversed samples, checked against the tandem
+simulators at the reversed state (with an arm's friction too); an ensemble trained with them
+reads a reversed motion its plain twin does not."""
 
 from __future__ import annotations
 
-import numpy as np
+import copy
 
+import numpy as np
+import pytest
+
+from iem.base import load_factory
 from iem.ensemble import IncrementalEnsemble
-from sim.coverage import OtherVelocities
-from sim.family import training_phi
+from iem.errors import InvalidInputError, ModelFileError
+from sim.arm import save_arm
+from sim.coverage import OtherVelocities, reversal_spec, reversed_velocities
+from sim.family import default_test_payload, training_phi
+from sim.paths import excitation_path
+from sim.plant import RealityGap
 from sim.robot import PandaModel
+from sim.tandem import TandemSimulators
 
 
 def test_samples_are_the_family_torques_at_a_state_within_the_limits():
@@ -48,3 +58,73 @@ def test_coverage_is_a_hyper_parameter_and_changes_only_training():
     assert Xc.shape == (4 + 2 * 2 * 2, 21) and Yc.shape == (12, 10)
     np.testing.assert_array_equal(Xc[:4], np.vstack([X[:2], X[2:]]))
     assert plain._covered(X, np.vstack([Y, Y]), 2, [0])[0] is X
+
+
+@pytest.mark.parametrize("gap", [None, 3])
+def test_reversed_samples_are_the_tandem_at_the_reversed_state(gap, tmp_path):
+    """Against the tandem simulators (Pinocchio's RNEA, the arm's friction and offsets) at
+    (q, -dq, ddq): on the nominal arm and on a calibrated-style arm with friction."""
+    arm = None if gap is None else RealityGap(seed=gap).realise()
+    model = PandaModel(arm=arm)
+    phi = training_phi()[:6]
+    tandem = TandemSimulators(phi, model=model)
+    if arm is None:
+        reverse = reversed_velocities()
+    else:
+        save_arm(arm, tmp_path / "arm.msgpack")
+        reverse = load_factory(reversal_spec(tmp_path / "arm.msgpack"), "reversal")
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        q, dq, ddq = model.random_state(rng)
+        X, _ = tandem.samples(q, dq, ddq)
+        back, _ = tandem.samples(q, -dq, ddq)
+        np.testing.assert_allclose(reverse(X), back, rtol=0, atol=1e-9)
+        if arm is not None:  # friction is odd: the torques do change
+            assert np.abs(back[:, 14:] - X[:, 14:]).max() > 0.05
+
+
+def test_reversal_is_a_hyper_parameter_that_doubles_the_training(tmp_path):
+    spec = "sim.coverage:reversed_velocities"
+    ens = IncrementalEnsemble(seed=0, reversal=spec)
+    assert ens.params()["reversal"] == spec
+    assert type(ens)(**ens.params()).params() == ens.params()
+    assert IncrementalEnsemble.from_state(ens.to_state()).reversal == spec
+    assert copy.deepcopy(ens)._reverse is ens._reverse  # immutable, shared
+    X = np.arange(2 * 21, dtype=float).reshape(2, 21)
+    Y = training_phi()[:2]
+    Xr, Yr = ens._covered(X, Y, 2, [0])
+    assert Xr.shape == (4, 21)
+    np.testing.assert_array_equal(Xr[:2], X)
+    np.testing.assert_array_equal(Xr[2:, 7:14], -X[:, 7:14])
+    np.testing.assert_array_equal(Xr[2:, [*range(7), *range(14, 21)]],
+                                  X[:, [*range(7), *range(14, 21)]])
+    np.testing.assert_array_equal(Yr, np.vstack([Y, Y]))
+    with pytest.raises(InvalidInputError, match=r"reversal 'sim\.coverage:nothing'"):
+        IncrementalEnsemble(reversal="sim.coverage:nothing")
+    with pytest.raises(ModelFileError, match="does not exist"):
+        IncrementalEnsemble(reversal=reversal_spec(tmp_path / "missing.msgpack"))
+
+
+def test_a_bag_trained_with_the_reversal_reads_the_motion_driven_backwards():
+    """Bags fitted on the excitation path; the test payload's samples along it read with
+    every velocity reversed (the torques of the frictionless arm are the same): the plain
+    twin is far off, the reversal reads them as it reads the path forwards."""
+    path = excitation_path().slice(0, 6.0)
+    kin = PandaModel()
+    tandem = TandemSimulators(training_phi(), model=kin)
+    flange = kin.flange_positions(path.q)
+    test = TandemSimulators(default_test_payload().to_phi()[None, :], model=kin)
+    idx = np.arange(0, len(path.q), 5)
+    X = np.vstack([test.samples(path.q[i], path.dq[i], path.ddq[i])[0] for i in idx])
+    back = X.copy()
+    back[:, 7:14] *= -1.0
+    truth = default_test_payload().mass
+    err = {}
+    for name, reversal in (("plain", None), ("reversal", "sim.coverage:reversed_velocities")):
+        ens = IncrementalEnsemble(seed=0, reversal=reversal).fit(
+            path.q, flange, lambda i: tandem.samples(path.q[i], path.dq[i], path.ddq[i]))
+        err[name] = [np.abs(ens.predict_many(Z, flange[idx])[:, 0] - truth).mean()
+                     for Z in (X, back)]
+    forward, backward = err["reversal"]
+    assert backward < 1.5 * forward + 0.01, err
+    assert err["plain"][1] > 5 * backward, err
