@@ -21,6 +21,11 @@
   when it closes its learner is trained on that sample once more, by the offline training
   of the initial bags (``fit_epochs``), before it is frozen. The estimates made while the
   bag formed are unchanged; ``reservoir = 0`` turns this off (the paper's rule alone).
+- Training beyond the path (both off by default, the paper's rule): ``reversal`` adds each
+  training sample driven backwards (exact for rigid-body torques, :mod:`sim.coverage`), so
+  a pose met again the other way reads as it did; ``coverage`` adds samples at the same
+  poses with random other velocities and accelerations (it also costs the closed bags their
+  fit to their own motion: see the README, "Long runs").
 - Estimate (Eq. 1-2): the output is that of the learner of the bag the point falls in, or,
   outside every bag, of the nearest bag (``n_s = 1`` for that bag, 0 for the others).
 - Learning off the cycle (``background=True``): the cycle only routes, appends the copied

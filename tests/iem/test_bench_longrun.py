@@ -91,3 +91,15 @@ def test_sixty_minutes_hold_the_targets():
     assert res["max_window_mae"]["IEM+phys"]["mass"] <= 0.005
     assert res["reverse_mae"]["IEM+phys"]["mass"] <= 0.005
     assert max(res["bags_end"].values()) <= 2000
+
+
+def test_plain_is_the_papers_rule_and_the_default_is_what_iem_train_makes():
+    from deploy.training import DEPLOY_ENSEMBLE, make_model
+    from iem.bench.longrun import PLAIN_PARAMS
+
+    plain = make_model("IEM", **PLAIN_PARAMS).params()
+    assert (plain["reversal"], plain["coverage"], plain["budget_bags"]) == (None, None, None)
+    made = make_model("IEM").params()
+    longrun = make_model("IEM", **LONGRUN_PARAMS, budget_bags=2000).params()
+    assert made == longrun
+    assert made["reversal"] == DEPLOY_ENSEMBLE["reversal"] and made["coverage"] is None
