@@ -32,9 +32,9 @@ def best_model_kind() -> str:
 DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities", "budget_bags": 2000}
 """The ensemble settings of a model the plug-in trains (``iem train``, ``train_if_missing``),
 beyond the paper's rule: each bag's learner also trains on its own samples driven backwards
-(:mod:`sim.coverage`; exact, on the model's arm: a pose met again the other way read 0.02 kg
-off in ``iem bench longrun``, seed 1, against 0.2 kg with the random other velocities of
-``coverage`` and 2.9 kg with neither; a pose met at another speed is flagged out of
+(:mod:`sim.coverage`; exact, on the model's arm: the first minute of ``iem bench longrun``,
+seed 1, driven backwards read 0.021 kg off, against 0.20 kg with the random other velocities
+of ``coverage`` and 1.5 kg with neither; a pose met at another speed is flagged out of
 distribution instead), and at most 2,000 bags (the least-used slot is reused beyond; a model
 file of about 6 MB that loads in 0.3 s). The paper benchmark keeps the paper's rule."""
 
