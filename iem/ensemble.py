@@ -317,7 +317,8 @@ class IncrementalEnsemble:
     # -- training ------------------------------------------------------------------------
     def _covered(self, X: np.ndarray, Y: np.ndarray, batch: int, seed) -> tuple:
         """``(X, Y)`` plus, if ``coverage``, ``coverage_draws`` other states at each point's
-        pose (``batch`` samples per point, in order)."""
+        pose (``batch`` samples per point, in order); then, if ``reversal``, all of those
+        driven backwards (:meth:`_reversed`)."""
         if self.coverage is None or self.coverage_draws <= 0:
             return self._reversed(X, Y)
         if self._cover is None:
