@@ -69,8 +69,12 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
         return None
     extra = getattr(estimate, "extra", None) or {}
     if extra.get("ood"):
-        return ("out_of_distribution", f"the learner's input lies {extra.get('ood_score', 0):.3g}"
-                " standard deviations beyond what its bag was trained on")
+        why = (f"the learner's input lies {extra.get('ood_score', 0):.3g} standard deviations "
+               "beyond what its bag was trained on")
+        if "velocity_score" in extra:
+            why += (f" (its joint velocities score {extra['velocity_score']:.3g} against the "
+                    "bag's training velocities)")
+        return ("out_of_distribution", why)
     if extra.get("unverified"):
         return ("unverified", "the estimate starts from a payload file and has not yet been "
                               "tested against enough live data")

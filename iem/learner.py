@@ -31,6 +31,8 @@ the stored learner always has the form above.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .errors import InvalidInputError
@@ -50,6 +52,16 @@ def _gradient(a: np.ndarray, b: np.ndarray, x: np.ndarray, t: np.ndarray):
     loss = float((r * r).sum() / x.shape[0])
     r = np.where(z > 0.0, r, 0.0) * (2.0 / x.shape[0])
     return r.T @ x, r.sum(axis=0), loss
+
+
+def velocity_precision(DQ: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """The inverse of the covariance of joint velocities ``DQ`` ``(N, 7)`` plus the noise's
+    variance ``noise**2`` (7; at least :data:`SCALE_FLOOR`'s, so it is always invertible)."""
+    DQ = np.asarray(DQ, dtype=float)
+    floor = np.maximum(np.asarray(noise, dtype=float), SCALE_FLOOR[7:14])
+    d = DQ - DQ.mean(axis=0)
+    cov = d.T @ d / max(1, len(DQ)) + np.diag(floor ** 2)
+    return np.linalg.inv(cov)
 
 
 def rng_state(rng: np.random.Generator) -> dict:
@@ -102,6 +114,9 @@ class WeakLearner:
         self._rng = np.random.default_rng(seed)
         self.a = np.zeros((N_OUT, N_IN))
         self.b = np.full(N_OUT, 0.5)
+        self.dq_precision: np.ndarray | None = None
+        """Inverse covariance (7x7) of the training inputs' joint velocities plus the input
+        noise's variance, set by :meth:`fit`; None for a learner trained only online."""
         self._refresh()
 
     def _refresh(self) -> None:
@@ -109,6 +124,16 @@ class WeakLearner:
         self._span = self.hi - self.lo
         self._noise_scaled = (None if self.input_noise is None
                               else self.input_noise * self._inv_scale)
+
+    def velocity_score(self, X) -> float:
+        """How far the joint velocities of input ``X = [q, dq, tau]`` lie from those of the
+        training inputs, knowing how they go together: ``sqrt(d^T P d / 7)`` with ``d`` the
+        velocities less their training mean and ``P`` :attr:`dq_precision` (about 1 for a
+        training input; 0 without ``dq_precision``)."""
+        if self.dq_precision is None:
+            return 0.0
+        d = np.asarray(X, dtype=float)[7:14] - self.center[7:14]
+        return math.sqrt(max(0.0, float(d @ self.dq_precision @ d)) / 7.0)
 
     # -- prediction ----------------------------------------------------------------------
     def predict_one(self, X) -> np.ndarray:
@@ -199,6 +224,7 @@ class WeakLearner:
         center = X.mean(axis=0)
         scale = np.sqrt(X.var(axis=0) + noise ** 2)
         learner = cls(lo, hi, center, scale, lr=lr, input_noise=input_noise, seed=seed)
+        learner.dq_precision = velocity_precision(X[:, 7:14], noise[7:14])
         inv = learner._inv_scale
         x_all = X - center
         x_all *= inv  # in place: one bag-sized temporary fewer (the same arithmetic)
@@ -236,6 +262,7 @@ class WeakLearner:
                             seed=self.seed if seed is None else seed)
         other.a = self.a.copy()
         other.b = self.b.copy()
+        other.dq_precision = self.dq_precision  # never changed in place: shared
         if seed is None:
             other._rng.bit_generator.state = self._rng.bit_generator.state
         return other
@@ -244,6 +271,7 @@ class WeakLearner:
         """A copy for a new bag: same weights and scale, the new bag's input ``center``."""
         other = self.copy(seed=seed)
         other.center = np.array(center, dtype=float).reshape(N_IN)
+        other.dq_precision = None  # the velocities it knows are the other bag's
         return other
 
     # -- persistence ---------------------------------------------------------------------
@@ -255,6 +283,7 @@ class WeakLearner:
             "input_noise": None if self.input_noise is None else self.input_noise.tolist(),
             "seed": self.seed, "rng": rng_state(self._rng),
             "a": self.a.tolist(), "b": self.b.tolist(),
+            "dq_precision": None if self.dq_precision is None else self.dq_precision.tolist(),
         }
 
     @classmethod
@@ -264,7 +293,10 @@ class WeakLearner:
         learner.a = np.array(state["a"], dtype=float).reshape(N_OUT, N_IN)
         learner.b = np.array(state["b"], dtype=float).reshape(N_OUT)
         set_rng_state(learner._rng, state["rng"])
+        prec = state.get("dq_precision")  # absent from files made before it
+        learner.dq_precision = None if prec is None else np.array(prec, float).reshape(7, 7)
         return learner
 
     def nbytes(self) -> int:
-        return self.a.nbytes + self.b.nbytes + self.center.nbytes + self.scale.nbytes
+        return (self.a.nbytes + self.b.nbytes + self.center.nbytes + self.scale.nbytes
+                + (0 if self.dq_precision is None else self.dq_precision.nbytes))
