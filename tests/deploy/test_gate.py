@@ -474,3 +474,14 @@ def test_a_load_the_link_could_not_send_is_not_the_written_one(caplog):
     assert caplog.records[-1].event == "load_send_failed"
     # no hammering: the next try waits for the rate limit
     assert gate.decide(t + 0.5, phi_of()).reason == "rate_limited"
+
+
+def test_the_out_of_distribution_reason_names_the_velocity_score():
+    from types import SimpleNamespace
+
+    from deploy.gate_checks import model_doubt
+
+    est = SimpleNamespace(extra={"ood": True, "ood_score": 2.2, "velocity_score": 84.5},
+                          std=None)
+    reason, why = model_doubt(est, None)
+    assert reason == "out_of_distribution" and "84.5" in why and "velocities" in why

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from iem import checks
-from iem.ensemble import OOD_THRESHOLD, IncrementalEnsemble
+from iem.ensemble import OOD_THRESHOLD, VELOCITY_THRESHOLD, IncrementalEnsemble
 from iem.errors import InvalidInputError
 from iem.persistence import dumps, loads
 from iem.router import BagRouter
@@ -206,6 +206,61 @@ def test_training_inputs_are_in_distribution_and_reversed_velocities_are_not():
     assert np.mean(reversed_) > 0.9
     est = model.predict_one(DATA.X[50], DATA.F[50])
     assert est.extra["ood"] is False
+
+
+def test_the_velocity_score_is_a_mahalanobis_distance_to_the_training_velocities():
+    """Against an independent computation (the covariance of the bag's training velocities
+    plus the noise's variance, inverted by solve): training inputs score about 1; a visit of
+    the same pose with the velocities in another combination, each within its range, scores
+    above the threshold and is flagged."""
+    model = fitted()
+    i = DATA.fit_points[len(DATA.fit_points) // 2]
+    bag = model.router.route(DATA.X[i, :7], DATA.F[i])[0]
+    learner = model.learner(bag)
+    assert learner.dq_precision is not None
+    train = [DATA.samples_at(j)[0] for j in DATA.fit_points
+             if model.router.route(DATA.X[j, :7], DATA.F[j])[0] == bag][:: model.fit_stride]
+    V = np.vstack(train)[:, 7:14]
+    sig = np.maximum(model.input_noise[7:14], 1e-3)
+    cov = np.cov(V.T, bias=True) + np.diag(sig ** 2)
+    x = DATA.X[i].copy()
+    d = x[7:14] - V.mean(axis=0)
+    assert learner.velocity_score(x) == pytest.approx(np.sqrt(d @ np.linalg.solve(cov, d) / 7),
+                                                      rel=1e-6)
+    # over the training inputs the mean square is tr((S + N)^-1 S) / 7 <= 1 (N the noise)
+    assert np.mean([learner.velocity_score(v) ** 2 for v in np.vstack(train)]) <= 1.0 + 1e-9
+    # each velocity within its training range, the combination never seen: one joint's
+    # velocity swapped for another's
+    other = x.copy()
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    other[7:14] = np.where(np.arange(7) % 2 == 0, lo, hi)
+    est = model.predict_one(other, DATA.F[i])
+    assert est.bag == bag and not est.learning
+    assert est.extra["velocity_score"] == pytest.approx(learner.velocity_score(other))
+    assert est.extra["ood_score"] <= OOD_THRESHOLD  # every input within its scale, yet
+    assert est.extra["velocity_score"] > VELOCITY_THRESHOLD and est.extra["ood"]
+    assert model.predict_one(DATA.X[i], DATA.F[i]).extra["ood"] is False
+    # off: no score, and the same input is flagged only by the per-input score
+    plain = fitted(velocity_threshold=None)
+    est = plain.predict_one(other, DATA.F[i])
+    assert "velocity_score" not in est.extra
+    assert est.extra["ood"] == (est.extra["ood_score"] > OOD_THRESHOLD)
+    assert plain.clone().velocity_threshold is None
+    assert loads(dumps(fitted(velocity_threshold=2.5))).velocity_threshold == 2.5
+    with pytest.raises(InvalidInputError, match="velocity_threshold"):
+        IncrementalEnsemble(velocity_threshold=0.0)
+
+
+def test_learners_keep_their_velocities_through_copies_and_files_not_for_another_bag():
+    model = fitted()
+    learner = model.learner(0)
+    again = type(learner).from_state(learner.to_state())
+    np.testing.assert_array_equal(again.dq_precision, learner.dq_precision)
+    assert learner.copy().dq_precision is learner.dq_precision
+    assert learner.copy_for(learner.center + 0.1).dq_precision is None
+    old = learner.to_state()
+    old.pop("dq_precision")  # a file made before the score: no score, no flag from it
+    assert type(learner).from_state(old).velocity_score(DATA.X[0] * 5) == 0.0
 
 
 def test_ood_threshold_is_a_hyper_parameter_and_the_open_bag_is_never_flagged():
