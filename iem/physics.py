@@ -182,7 +182,9 @@ class PhysicsInformedEnsemble:
         if self.project_budget < 0:
             raise InvalidInputError(f"project_budget must be >= 0 Newton steps per sample "
                                     f"(0: at once), got {project_budget}")
-        self._ens = IncrementalEnsemble(**self.ensemble)
+        # the physics governs out of distribution through the per-input score's inflation;
+        # the velocity score serves only the IEM's own hold and the gate: not scored here
+        self._ens = IncrementalEnsemble(**{"velocity_threshold": None, **self.ensemble})
         self._reg = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq, self.cutoff_hz,
                                       self.rate_hz, every=1, settle=-1, payload_inertia=True,
                                       decimate=self.update_every)

@@ -249,6 +249,12 @@ def test_the_velocity_score_is_a_mahalanobis_distance_to_the_training_velocities
     assert loads(dumps(fitted(velocity_threshold=2.5))).velocity_threshold == 2.5
     with pytest.raises(InvalidInputError, match="velocity_threshold"):
         IncrementalEnsemble(velocity_threshold=0.0)
+    # IEM+phys does not use the flag (its physics governs through the per-input score)
+    from iem.physics import PhysicsInformedEnsemble
+
+    assert PhysicsInformedEnsemble().ensemble_model.velocity_threshold is None
+    assert PhysicsInformedEnsemble(ensemble={"velocity_threshold": 3.0}).ensemble_model.params()[
+        "velocity_threshold"] == 3.0
 
 
 def test_learners_keep_their_velocities_through_copies_and_files_not_for_another_bag():
