@@ -95,39 +95,40 @@ def test_the_arm_record_is_covered_by_the_model_files_crc(tmp_path):
     assert getattr(loads(dumps(IncrementalEnsemble())), "trained_arm", None) is None
 
 
-def test_a_model_whose_arm_file_moved_is_refused_before_it_runs(files, tmp_path):
+def trained_on_a_copy_of_the_arm(files, tmp_path, kind: str):
+    """``(model, arm_file, record)``: a model of ``kind`` trained by ``iem train --arm`` on a
+    copy of the fixture's arm file in ``tmp_path``, accepted by ``check_model_arm``."""
     import shutil
 
     from deploy.training import check_model_arm
 
     arm_file = tmp_path / "arm.msgpack"
     shutil.copy(files / "arm.msgpack", arm_file)
-    assert main(["train", "--kind", "IEM+phys", "--arm", str(arm_file),
+    assert main(["train", "--kind", kind, "--arm", str(arm_file),
                  "--out", str(tmp_path / "model.msgpack")]) == 0
     model = load_model(tmp_path / "model.msgpack")
     record = arm_record(load_arm(arm_file), arm_file)
     check_model_arm(model, record)
+    return model, arm_file, record
+
+
+def test_a_model_whose_arm_file_moved_is_refused_before_it_runs(files, tmp_path):
+    from deploy.training import check_model_arm
+
+    model, arm_file, record = trained_on_a_copy_of_the_arm(files, tmp_path, "IEM+phys")
     arm_file.unlink()
     with pytest.raises(ModelFileError, match="names the arm file"):
         check_model_arm(model, record)
 
 
 def test_the_learners_reversal_is_the_arms_and_a_changed_arm_file_is_refused(files, tmp_path):
-    import shutil
-
     from deploy.training import check_model_arm
     from sim.coverage import reversal_spec
 
-    arm_file = tmp_path / "arm.msgpack"
-    shutil.copy(files / "arm.msgpack", arm_file)
-    assert main(["train", "--kind", "IEM", "--arm", str(arm_file),
-                 "--out", str(tmp_path / "model.msgpack")]) == 0
-    model = load_model(tmp_path / "model.msgpack")
+    model, arm_file, record = trained_on_a_copy_of_the_arm(files, tmp_path, "IEM")
     assert model.reversal == reversal_spec(arm_file)
     assert load_model(files / "model.msgpack").ensemble_model.reversal == reversal_spec(
         files / "arm.msgpack")
-    record = arm_record(load_arm(arm_file), arm_file)
-    check_model_arm(model, record)
     save_arm(ArmParams.nominal(), arm_file)  # same path, another arm
     with pytest.raises(ModelFileError, match=r"reversal names the arm file .*content differs"):
         check_model_arm(model, record)
