@@ -64,11 +64,12 @@
   back. :meth:`predict_raw` and :meth:`learn_predict_raw` give the learners' own estimates
   (IEM+phys takes those, with their scores: its physics governs there).
 - Bounded growth (``budget_bags``): once the ensemble holds that many bags, a point that fits
-  no bag does not add a bag: the least-used closed bag (fewest points joined; the oldest of
-  equals) is retired and its slot starts the new bag (see :meth:`_retire_for`). What is lost
-  is the retired bag's learner; a later visit there routes to the nearest remaining bag
-  (flagged out of distribution when far) or forms a bag again. Bag indices stay stable; a
-  reused slot's :meth:`slot_generation` goes up by one.
+  no bag does not add a bag: another bag is retired and its slot starts the new bag. Which
+  one is :class:`iem.budget.BagBudget`'s policy: the oldest of the bags formed last, on
+  probation (``probation_bags``), unless the motion came back to them; what the model knew
+  before stays. What is lost is the retired bag's learner; a later visit there routes to the
+  nearest remaining bag (flagged out of distribution when far) or forms a bag again. Bag
+  indices stay stable; a reused slot's :meth:`slot_generation` goes up by one.
 """
 
 from __future__ import annotations
@@ -81,6 +82,7 @@ import time
 import numpy as np
 
 from .base import Samples, load_factory, resolve
+from .budget import BagBudget
 from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
 from .reservoir import Reservoir
@@ -134,8 +136,10 @@ class IncrementalEnsemble:
         seed: seed of everything random (the noise of each learner).
         background: train in a worker thread, off the estimate path (see the module
             docstring); False: at once, in the caller's thread (deterministic).
-        budget_bags: largest number of bags (None: unbounded); beyond it the least-used
-            closed bag's slot is reused.
+        budget_bags: largest number of bags (None: unbounded); beyond it another bag's slot
+            is reused (:mod:`iem.budget`).
+        probation_bags: the budget's probation pool (None: 10 % of ``budget_bags``; 0: the
+            least-used bag is retired, whatever its age); only with ``budget_bags``.
         ood_threshold: the out-of-distribution threshold of :meth:`ood_score`.
         coverage: ``"module:function"`` of a factory of ``f(q, phi (K, 10), rng) -> X (K,
             21)``, the training family's samples at pose ``q`` with another velocity and
@@ -167,7 +171,8 @@ class IncrementalEnsemble:
                  ood_threshold: float = OOD_THRESHOLD, coverage: str | None = None,
                  coverage_draws: int = 1, ood_hold_s: float = OOD_HOLD_S,
                  reversal: str | None = None,
-                 velocity_threshold: float | None = VELOCITY_THRESHOLD) -> None:
+                 velocity_threshold: float | None = VELOCITY_THRESHOLD,
+                 probation_bags: int | None = None) -> None:
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -182,8 +187,11 @@ class IncrementalEnsemble:
         self.seed = int(seed)
         self.background = bool(background)
         self.budget_bags = None if budget_bags is None else int(budget_bags)
-        if self.budget_bags is not None and self.budget_bags < 2:
-            raise InvalidInputError(f"budget_bags must be None or >= 2, got {budget_bags}")
+        self.probation_bags = None if probation_bags is None else int(probation_bags)
+        if self.budget_bags is None and self.probation_bags is not None:
+            raise InvalidInputError(f"probation_bags={probation_bags} needs a budget_bags")
+        self._budget = (None if self.budget_bags is None
+                        else BagBudget(self.budget_bags, self.probation_bags))
         self.ood_threshold = float(ood_threshold)
         if not self.ood_threshold > 0:
             raise InvalidInputError(f"ood_threshold must be > 0, got {ood_threshold}")
@@ -209,8 +217,6 @@ class IncrementalEnsemble:
         self._kept: Reservoir | None = None
         self._training: WeakLearner | None = None  # the open bag's learner, the jobs' own
         self._out: tuple[np.ndarray, np.ndarray] | None = None
-        self.retired = 0
-        """Bags retired to stay within the budget."""
         self.skipped_points = 0
         """Points of the open bag not learnt from because the worker was too far behind."""
         self._lock = threading.Lock()
@@ -227,7 +233,8 @@ class IncrementalEnsemble:
                 "background": self.background, "budget_bags": self.budget_bags,
                 "ood_threshold": self.ood_threshold, "coverage": self.coverage,
                 "coverage_draws": self.coverage_draws, "ood_hold_s": self.ood_hold_s,
-                "reversal": self.reversal, "velocity_threshold": self.velocity_threshold}
+                "reversal": self.reversal, "velocity_threshold": self.velocity_threshold,
+                "probation_bags": self.probation_bags}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""
@@ -250,6 +257,16 @@ class IncrementalEnsemble:
     def learner(self, bag: int) -> WeakLearner:
         """The learner bag ``bag`` estimates with now (published learners never change)."""
         return self._learners[bag]
+
+    @property
+    def retired(self) -> int:
+        """Bags retired to stay within the budget."""
+        return 0 if self._budget is None else self._budget.retired
+
+    @property
+    def budget(self) -> BagBudget | None:
+        """The budget's bookkeeping (which bags are on probation), or None: unbounded."""
+        return self._budget
 
     def slot_generation(self, bag: int) -> int:
         """How many times slot ``bag`` was reused for a new bag (budget): anything kept per
@@ -436,19 +453,20 @@ class IncrementalEnsemble:
             self._worker.submit(self._training_job(bag, X, Y, self.iters))
         else:
             self.close()  # the path left the open bag: it is closed for good
+            if self._budget is not None:
+                self._budget.revisited(bag)  # the motion came back: kept
         return bag
 
     def _start_bag(self, q, flange, nearest: int, X, Y) -> int:
         """A new open bag at the point: its learner is a copy of the nearest bag's (it
         estimates with that copy until the warm-up lands)."""
-        if self.budget_bags is not None and len(self._router) >= self.budget_bags:
-            bag = self._retire_for(nearest)
+        if self._budget is not None and self._budget.full(len(self._router)):
+            bag = self._budget.victim(self._router.counts, self._open)
             learner = self._new_learner(X, Y, bag, nearest)
             with self._lock:
                 self._gen[bag] += 1
                 self._router.replace(bag, q, flange)
                 self._learners[bag] = learner
-            self.retired += 1
         else:
             bag = len(self._router)
             learner = self._new_learner(X, Y, bag, nearest)
@@ -456,6 +474,8 @@ class IncrementalEnsemble:
                 self._router.new_bag(q, flange)
                 self._learners.append(learner)
                 self._gen.append(0)
+        if self._budget is not None:
+            self._budget.admit(bag, len(self._router))
         gen = self._gen[bag]
         if gen:  # a reused slot: its own noise, not the retired bag's
             learner._rng = np.random.default_rng([self.seed, bag, 4, gen])
@@ -479,14 +499,6 @@ class IncrementalEnsemble:
             self._publish(bag, gen, training)
 
         return job
-
-    def _retire_for(self, nearest: int) -> int:
-        """The slot a new bag takes at the budget: the least-used closed bag (fewest points
-        joined, the lowest index of equals), never the open one."""
-        counts = self._router._counts[: len(self._router)].astype(float)
-        if self._open >= 0:
-            counts[self._open] = np.inf
-        return int(np.argmin(counts))
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
         """:meth:`learn_one` then :meth:`predict_one` with one routing instead of two.
@@ -617,7 +629,8 @@ class IncrementalEnsemble:
                 "learners": [lr.to_state() for lr in self._learners], "open": self._open,
                 "kept": None if self._kept is None else self._kept.to_state(),
                 "out": None if self._out is None else [v.tolist() for v in self._out],
-                "gen": list(self._gen), "retired": self.retired}
+                "gen": list(self._gen),
+                **(self._budget.to_state() if self._budget is not None else {"retired": 0})}
 
     @classmethod
     def from_state(cls, state: dict):
@@ -631,7 +644,8 @@ class IncrementalEnsemble:
         if len(model._gen) != len(model._learners):
             raise InvalidInputError(f"model state has {len(model._learners)} bags but "
                                     f"{len(model._gen)} slot generations")
-        model.retired = int(state.get("retired", 0))
+        if model._budget is not None:
+            model._budget.load_state(state, len(model._learners))
         model._open = int(state["open"])
         if not -1 <= model._open < len(model._learners):
             raise InvalidInputError(f"model state's open bag {model._open} is not one of its "

@@ -334,24 +334,24 @@ def test_no_hold_with_ood_hold_s_zero_or_before_any_estimate_in_distribution():
 
 
 # -- the bag budget ------------------------------------------------------------------------
-def test_budget_bounds_the_bags_and_retires_the_least_used():
+def test_budget_bounds_the_bags_and_retires_the_least_used_without_probation():
     small = {"delta": 0.15, "rho": 0.08}  # many small bags
     free = fitted(**small)
     learn(free, DATA.train_points() + DATA.further_points())
     budget = free.n_bags - 5
-    model = fitted(budget_bags=budget, **small)
+    model = fitted(budget_bags=budget, probation_bags=0, **small)
     retired_counts = []
-    orig = model._retire_for
+    orig = model.budget.victim
 
-    def spy(nearest):
-        victim = orig(nearest)
+    def spy(counts, open_bag):
+        victim = orig(counts, open_bag)
         counts = model.router.counts.astype(float)
         counts[model.open_bag] = np.inf
         assert counts[victim] == counts.min()
         retired_counts.append(int(model.router.counts[victim]))
         return victim
 
-    model._retire_for = spy
+    model.budget.victim = spy
     for i in DATA.train_points() + DATA.further_points():
         model.learn_one(DATA.X[i], DATA.F[i], lambda i=i: DATA.samples_at(i))
         assert model.n_bags <= budget
@@ -359,6 +359,7 @@ def test_budget_bounds_the_bags_and_retires_the_least_used():
     assert sum(model.slot_generation(b) for b in range(model.n_bags)) == model.retired
     loaded = loads(dumps(model))
     assert loaded.retired == model.retired and loaded.params()["budget_bags"] == budget
+    assert loaded.budget.probation == 0
     np.testing.assert_array_equal(loaded.predict_many(DATA.X, DATA.F),
                                   model.predict_many(DATA.X, DATA.F))
     with pytest.raises(InvalidInputError, match="budget_bags"):
