@@ -18,12 +18,13 @@ a few seconds, rather than scoring it alone) and model: ``bags``, ``nbytes``, th
 ``rss_mb`` (both models and the plant live in it), ``route_us`` (p50/p99 of the model's
 :meth:`BagRouter.route` on every 10th sample, timed apart from the estimator;
 ``route_cpu_us`` the same in this thread's CPU time, which leaves out the time the machine
-ran other work), ``estimate_us`` (p50/p99 of ``predict_one``), ``learn_ms`` (median, max and
-total of the ``learn_one`` calls that learnt from a point, and how many) and ``mae`` per
-group (mass, com, inertia) of the smoothed estimate against the true payload; ``changes``:
-payload changes reported (false alarms: the payload never changes); ``ood_share``: the share
-of estimates flagged out of distribution (``extra["ood"]``; the IEM's own estimates carry
-it).
+ran other work), ``retired`` and ``promoted`` (the budget's bags retired and promoted from
+probation so far, :mod:`iem.budget`), ``estimate_us`` (p50/p99 of ``predict_one``),
+``learn_ms`` (median, max and total of the ``learn_one`` calls that learnt from a point, and
+how many) and ``mae`` per group (mass, com, inertia) of the smoothed estimate against the
+true payload; ``changes``: payload changes reported (false alarms: the payload never
+changes); ``ood_share``: the share of estimates flagged out of distribution
+(``extra["ood"]``; the IEM's own estimates carry it).
 
 Then the first minute of the motion is driven backwards (every segment reversed, in reverse
 order: the same poses, every velocity reversed) by a fresh plant, and each model, as it is
@@ -181,8 +182,11 @@ class _Feed:
         learn_ms = np.array(o.learn_times)[learnt] * 1e3 if learnt.any() else np.array([])
         est_us = np.array(o.predict_times) * 1e6
         route_us = np.array(self.route_s) * 1e6
+        budget = getattr(getattr(self.model, "ensemble_model", self.model), "budget", None)
         out = {
             "bags": int(self.model.n_bags), "nbytes": int(self.model.nbytes()),
+            "retired": 0 if budget is None else budget.retired,
+            "promoted": 0 if budget is None else budget.promoted,
             "rss_mb": rss_mb(),
             "route_us": _pct(route_us),
             "route_cpu_us": _pct(np.array(self.route_cpu_s) * 1e6),
@@ -403,7 +407,8 @@ def configure(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of motion, noise, learners")
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="BAGS",
-                        help="bag budget of the ensemble (default 2000)")
+                        help="bag budget of the ensemble (default 2000; its newest 10 %% "
+                             "are on probation, iem/budget.py)")
     parser.add_argument("--background", action="store_true",
                         help="train in the worker thread, off the cycle (not reproducible: "
                              "when training lands depends on the machine)")

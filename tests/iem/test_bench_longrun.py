@@ -66,7 +66,8 @@ def test_results_have_the_keys_of_the_issue(tmp_path):
         assert set(res[key]["IEM"]) == {"mass", "com", "inertia"}
     assert res["false_alarms"]["IEM"] is None and res["false_alarms"]["IEM+phys"] >= 0
     w = res["windows"][0]["IEM"]
-    assert {"bags", "nbytes", "rss_mb", "route_us", "estimate_us", "learn_ms", "mae"} <= set(w)
+    assert {"bags", "nbytes", "rss_mb", "route_us", "estimate_us", "learn_ms", "mae",
+            "retired", "promoted"} <= set(w)
     assert res["at_budget"]["bags"] == 50
     assert [r["bags"] for r in res["route_sizes"]] == [70, 150]
     for row in res["route_sizes"]:
