@@ -158,9 +158,13 @@ class _Feed:
         self.online.learnt.clear()
 
     @property
+    def ensemble(self):
+        """The model's ensemble (IEM+phys's own, or the IEM itself)."""
+        return getattr(self.model, "ensemble_model", self.model)
+
+    @property
     def router(self):
-        ens = getattr(self.model, "ensemble_model", self.model)
-        return ens.router
+        return self.ensemble.router
 
     def step(self, state: JointState, k: int) -> None:
         est, smoothed = self.online.step(state)
@@ -182,7 +186,7 @@ class _Feed:
         learn_ms = np.array(o.learn_times)[learnt] * 1e3 if learnt.any() else np.array([])
         est_us = np.array(o.predict_times) * 1e6
         route_us = np.array(self.route_s) * 1e6
-        budget = getattr(getattr(self.model, "ensemble_model", self.model), "budget", None)
+        budget = self.ensemble.budget
         out = {
             "bags": int(self.model.n_bags), "nbytes": int(self.model.nbytes()),
             "retired": 0 if budget is None else budget.retired,
