@@ -23,7 +23,9 @@ calls it at the first sample of a stream and after every long gap), and ``gap(k)
 the next sample comes ``k >= 2`` nominal cycles after the last one (``k - 1`` were lost; the
 signal filters bridge them: :mod:`iem.gaps`). An estimate's ``extra`` may
 carry ``"change": True`` (a payload change was detected at this sample) and ``"reset": True``
-(earlier estimates are about another payload: the caller restarts any smoothing).
+(earlier estimates are about another payload, or superseded: IEM+phys says it of its
+estimates from its prior alone, already a mean, and of its first one with the physics; the
+caller restarts any smoothing).
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ The level follows a misfit that rises at most 30 % per equation; a 60-minute run
 still met one that rose faster (3, 13, 33, 62, 106, ... at 1,838 s, up to 6,326), as steeply
 as a change: the regression's own error where the arm's torque bends sharply (the filtered
 equations of a perfect arm miss by 0.1-0.3 N·m there). So each equation is also judged with
-a model error for it in its covariance (:data:`iem.physics.MODEL_ERROR_GAIN`: 3 x the second
+a model error for it in its covariance (:data:`iem.innovation.MODEL_ERROR_GAIN`: 3 x the second
 difference of the robot model's torque over the last three equations), a second statistic
 ``chi2_model <= chi2`` with a level of its own. Judged by that statistic alone (commit
 b89d90c), the detector lost that alarm but raised 3 false alarms in seed 0's 10 minutes, 2

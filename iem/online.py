@@ -15,8 +15,10 @@ one: its signal filters interpolate the missing inputs; the smoothing decays by 
 a sample that is not newer than the last one used (a duplicate, a frame overtaken by newer
 ones) is counted in ``skipped`` and changes nothing: the last estimate is returned again.
 
-An estimate whose ``extra`` holds ``"reset": True`` (e.g. a detected payload change) restarts
-the smoothing at that estimate, so the old payload's estimates do not linger in the output.
+An estimate whose ``extra`` holds ``"reset": True`` (a detected payload change; IEM+phys's
+estimates from its prior alone, and its first with the physics) restarts the smoothing at
+that estimate, so the old payload's estimates, or the superseded ones, do not linger in the
+output.
 When the state filter starts afresh (the first sample of a stream, the first after a gap longer
 than its ``max_gap_s`` or a time stamp that goes backwards, or after
 :meth:`OnlineIdentifier.resume`), the estimator's own signal filters restart too, through its

@@ -51,6 +51,14 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   ``holdoff_s`` are skipped (the filter still holds the old payload's torque), and the
   estimate of that sample carries ``extra = {"change": True, "reset": True}`` so the caller
   restarts its smoothing (:class:`iem.online.OnlineIdentifier` does).
+- **Before the physics, no smoothing**: until the regression's first equation after a
+  start or a change (its filter settles for about 0.3 s), an estimate is the prior alone,
+  the mean of the ensemble's estimates since then. Those estimates, and the first whose
+  posterior holds an equation, carry ``extra = {"reset": True}``: the caller's smoothing
+  restarts at each, so it adds no lag to what is already a mean, and starts from the physics
+  instead of averaging it with the prior's estimates (at the demo's start the ensemble reads
+  1.44 kg for 1.615 over that 0.3 s, and the smoothing had carried its first, lower,
+  readings on for about 0.6 s more).
 
 ``observe_one(x, flange)`` does everything but train the ensemble: the payload part of
 ``learn_one`` for a frozen model (the benchmark's runs on the ensemble's own training path).
@@ -65,12 +73,13 @@ import math
 import numpy as np
 
 from .base import Samples, resolve
-from .change import ChangeDetector, chi_square
-from .consistency import EPS, project_steps
+from .consistency import EPS
 from .ensemble import IncrementalEnsemble
 from .ensemble_prior import EnsemblePrior
 from .errors import InvalidInputError
+from .innovation import MODEL_ERROR_GAIN, NIS_WINDOW, InnovationTest
 from .least_squares import DEFAULT_PRIOR_STD
+from .live_projection import SpreadProjection
 from .posterior import EquationWindow, Posterior, combine, prior_inflation
 from .regression import PayloadRegression
 from .sensor import DEFAULT_SENSOR
@@ -89,30 +98,8 @@ LIVE_PROJECT_BUDGET = 4
 about 0.15 ms here; the longest projection (200 steps) is then spread over about 70 samples
 (those of each 10 that form, test or refresh do no steps), instead of stalling one cycle for
 up to 4 ms."""
-MODEL_ERROR_GAIN = 3.0
-"""The change detector's model error: the standard deviation of an equation's error per
-joint is this times the second difference of the robot model's torque over the last three
-equations (:attr:`iem.regression.PayloadRegression.curvature`, 10 ms apart by default).
-
-A 4 Hz low-pass does not commute with the arm's nonlinear dynamics: where the arm's torque
-bends sharply (a fast start from rest), the filtered equations of a perfect arm miss by
-0.1-0.3 N·m against a filtered noise of 0.01-0.02 N·m (``bench longrun`` seed 1, 1,838 s,
-chi² up to 6,326 with 184,000 equations in the window: its 60-minute run's false alarm). Of
-the kinematic measures tried (the first and second differences of the model torque, the
-mass matrix times the jerk, ``|ddq|``), the second difference predicts the miss best
-(correlation 0.61 with ``|nu|``). Kinematic only, so a payload change does not raise it.
-Judged by it alone, the detector raised false alarms elsewhere (seed 0's 10 minutes: 3):
-with the sharp bends explained away, the level stayed low and the rest of the misfit
-counted. So the detector gets both statistics and adds the smaller
-(:class:`iem.change.ChangeDetector`): evidence only where both see it. The gain was chosen
-on that stretch (seed 1, 1,830-1,900 s) with payload changes of 20, 48 and 275 g injected at
-1,850 s: the CUSUM's largest evidence on the fixed payload 294 -> 32 (threshold 300); 48 g
-detected after 90 ms (70 by the noise alone), 275 g after 30 ms (30), 20 g by neither. The
-NIS and the estimate's weights keep the noise alone."""
 SPREAD_WAIT = 3
 """Samples a due posterior refresh may wait for one without other heavy work (spread)."""
-NIS_WINDOW = 50
-"""Equations over which :attr:`PhysicsInformedEnsemble.nis` is averaged (0.5 s by default)."""
 
 
 class PhysicsInformedEnsemble:
@@ -191,13 +178,14 @@ class PhysicsInformedEnsemble:
         self._weight = self._reg.correlation_weight
         self._holdoff_n = (self._reg.settle * self.update_every if self.holdoff_s < 0
                            else round(self.holdoff_s * self.rate_hz))
-        self._detector = ChangeDetector(7, self.drift, self.threshold)
+        self._innovation = InnovationTest(self.drift, self.threshold)
+        self._spread = SpreadProjection()
         self._floor = np.square(PRIOR_FLOOR)
         self.ensemble_prior = EnsemblePrior(self._ens)
         """The ensemble as the prior: its bags' calibration and the summary since a change."""
         self._window = EquationWindow()
-        self._nis = np.zeros(NIS_WINDOW)
-        self._routed: tuple[np.ndarray, int] | None = None  # (x observed last, its bag)
+        self._observed_x = np.full(21, math.nan)  # the last sample observed (a copy) and
+        self._observed_bag = -2  # its bag (-2: none), so that predict_one at it routes once
         self.reset()
 
     def params(self) -> dict:
@@ -260,7 +248,7 @@ class PhysicsInformedEnsemble:
     def _forget(self) -> None:
         self._window.clear()
         self.ensemble_prior.summary.clear()
-        self._detector.reset()
+        self._innovation.reset()
         self._changed = False
         self._post: Posterior | None = None
         self._stale = False  # new equations or estimates since _post: refresh it
@@ -268,16 +256,9 @@ class PhysicsInformedEnsemble:
         self._busy = False  # this sample did heavy work (spread: the rest waits)
         self._queued = None  # spread: an equation formed, tested at the next sample
         self._since_refresh = 0
-        self._nis_n = 0
-        self._nis_value = math.nan
         self._initial: tuple[np.ndarray, np.ndarray] | None = None
-        self._shown: tuple[Posterior, np.ndarray] | None = None  # (posterior, its phi)
-        self._pending = None  # (posterior, its projection in progress) with a budget
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_pending"] = None  # a projection in progress: a copy starts it again
-        return state
+        self._spread.clear()  # what a live link's estimates show
+        self._data_shown = False  # an estimate with equations was given since the change
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -312,7 +293,7 @@ class PhysicsInformedEnsemble:
         """The mean normalised innovation squared per degree of freedom of the last
         :data:`NIS_WINDOW` equations (about 1 while the data agree with the model; NaN
         before the first): the gate's check that the data fit the physics."""
-        return self._nis_value
+        return self._innovation.nis
 
     @property
     def ensemble_model(self) -> IncrementalEnsemble:
@@ -320,9 +301,10 @@ class PhysicsInformedEnsemble:
         return self._ens
 
     def nbytes(self) -> int:
-        state = (self._window.info, self._window.eta, self._nis, self._reg._acc)
-        return (self._ens.nbytes() + self.ensemble_prior.nbytes()
-                + sum(a.nbytes for a in state) + 8 * 10 * 10 * 3)  # the posterior's matrices
+        state = (self._window.info, self._window.eta, self._reg._acc)
+        return (self._ens.nbytes() + self.ensemble_prior.nbytes() + self._innovation.nbytes()
+                + sum(a.nbytes for a in state)
+                + Posterior.nbytes())
 
     def fit(self, Q, F, samples_at) -> PhysicsInformedEnsemble:
         """The ensemble's initial bags and learners, then each bag's error covariance on the
@@ -365,6 +347,8 @@ class PhysicsInformedEnsemble:
         """:meth:`learn_one` then :meth:`predict_one` (the point is routed once)."""
         x = np.asarray(x, dtype=float)
         self.learn_one(x, flange, samples)
+        if self._observed_bag > -2:  # its bag, as just routed
+            return self._predict(self._observed_bag, t, x, flange)
         return self.predict_one(x, flange, t)
 
     def observe_one(self, x, flange) -> None:
@@ -387,12 +371,13 @@ class PhysicsInformedEnsemble:
                     self._take(equation)
         if self._holdoff > 0:
             self._holdoff = max(0, self._holdoff - steps)
-        self._routed = None
+        self._observed_bag = -2
         if not self._ens.n_bags:
             return
         if est is None:
             est = self._ens.predict_raw(x, flange)
-        self._routed = (x, est.bag)
+        self._observed_x[:] = x
+        self._observed_bag = est.bag
         if self.ensemble_prior.add(est, x):
             n = self.ensemble_prior.summary.n
             if self._window.empty and (n % self.update_every == 1 or self.update_every == 1):
@@ -437,35 +422,15 @@ class PhysicsInformedEnsemble:
         return None if post is None else post.mean
 
     def _test(self, Y, r, R, curvature=None) -> bool:
-        """Innovation test of one equation against the current posterior (whose prior the
-        data have already inflated if they contradict it): its whitened innovation goes into
-        :attr:`nis`, and, from the window's :data:`DETECT_AFTER`-th equation on, into the
-        change detector (before, a conflict is the prior's, not a new payload's), with the
-        same innovation judged with the equation's model error,
-        ``S + diag((MODEL_ERROR_GAIN * curvature)²)`` (:data:`MODEL_ERROR_GAIN`)."""
+        """Test one equation against the current posterior (whose prior the data have
+        already inflated if they contradict it, :class:`iem.innovation.InnovationTest`): its
+        NIS always, the change detector from the window's :data:`DETECT_AFTER`-th equation
+        on (before, a conflict is the prior's, not a new payload's)."""
         post = self._posterior()
         if post is None:
             return False
-        nu = r - Y @ post.mean
-        S = R + Y @ post.cov @ Y.T
-        S = 0.5 * (S + S.T)
-        try:
-            chi2 = chi_square(nu, S)
-        except np.linalg.LinAlgError:
-            return False
-        self._nis[self._nis_n % NIS_WINDOW] = chi2 / 7.0
-        self._nis_n += 1
-        self._nis_value = float(self._nis[:min(self._nis_n, NIS_WINDOW)].mean())
-        if self._window.m < DETECT_AFTER:
-            return False
-        chi2_model = None
-        if curvature is not None:
-            S[np.diag_indices(7)] += np.square(MODEL_ERROR_GAIN * curvature)
-            try:
-                chi2_model = chi_square(nu, S)
-            except np.linalg.LinAlgError:
-                chi2_model = None  # the plain statistic alone
-        return self._detector(chi2, chi2_model)
+        return self._innovation(Y, r, R, post.mean, post.cov,
+                                self._window.m >= DETECT_AFTER, curvature)
 
     def _prior(self, x=None, flange=None):
         """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary
@@ -531,55 +496,44 @@ class PhysicsInformedEnsemble:
     def _estimate(self, post: Posterior, t: float, bag: int = -1,
                   learning: bool = False) -> PayloadEstimate:
         extra = {"change": True, "reset": True} if self._changed else {}
-        if self._nis_n:
-            extra["nis"] = self._nis_value
+        if self._innovation.count:
+            extra["nis"] = self._innovation.nis
         if self._initial is not None and self._window.m < DETECT_AFTER:
             extra["unverified"] = True
         shown, phi = self._projected(post)
+        # the prior alone is already the mean of the ensemble's estimates since the change,
+        # and the first estimate with the physics supersedes it: the caller's smoothing
+        # restarts at each of them (it would add only lag to a mean)
+        if not self._data_shown:
+            extra["reset"] = True
+            self._data_shown = bool(shown.equations)
         return PayloadEstimate(t=t, phi=phi, std=shown.std, bag=bag, learning=learning,
                                extra=extra)
 
     def _projected(self, post: Posterior) -> tuple[Posterior, np.ndarray]:
         """The posterior an estimate shows and its consistent phi: ``post`` projected at
-        once, or, with a ``project_budget``, ``project_budget`` more Newton steps of the
-        oldest projection in progress (the last finished one is shown meanwhile)."""
+        once, or, with a ``project_budget``, spread (:class:`iem.live_projection.
+        SpreadProjection`: the last finished projection is shown meanwhile)."""
         if self.project_budget <= 0:
             return post, post.phi
-        shown = self._shown
-        if shown is not None and shown[0] is post:
-            return shown
-        if shown is None:  # nothing shown since the start or a change: at once
-            self._pending = None
-            self._shown = (post, post.phi)
-            return self._shown
-        if self._busy and self.spread:
-            return shown  # this sample did its heavy work: the steps go on at the next
-        if self._pending is None:
-            self._pending = (post, project_steps(post.mean, post.precision, eps=post.eps))
-        target, steps = self._pending
-        for _ in range(self.project_budget):
-            try:
-                next(steps)
-            except StopIteration as done:
-                phi = done.value
-                phi.flags.writeable = False
-                self._shown, self._pending = (target, phi), None
-                break
-        return self._shown
+        return self._spread.show(post, self.project_budget, self._busy and self.spread)
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)
         if x.shape != (21,):
             raise InvalidInputError(f"x must be [q, dq, tau] with 21 values, got {x.shape}")
-        bag, learning = -1, False
+        bag = -1
         if self._ens.n_bags:
-            seen = self._routed
-            if seen is not None and seen[0] is x:
-                bag = seen[1]  # the very array just observed (the online loop's case)
+            if self._observed_bag > -2 and (self._observed_x == x).all():
+                bag = self._observed_bag  # the sample just observed (the online loop's case)
             else:
                 inside, nearest = self._ens.router.route(x[:7], flange)
                 bag = inside if inside >= 0 else nearest
-            learning = bag == self._ens.open_bag
+        return self._predict(bag, t, x, flange)
+
+    def _predict(self, bag: int, t: float, x, flange) -> PayloadEstimate:
+        """The estimate at ``x``, whose bag (-1: none) is known."""
+        learning = bag >= 0 and bag == self._ens.open_bag
         post = self._posterior()
         if post is None:
             prior = self._prior(x, flange)
@@ -606,8 +560,9 @@ class PhysicsInformedEnsemble:
                 "calib_gen": list(self.ensemble_prior.calib_gen),
                 "regression": self._reg.to_state(),
                 **self._window.to_state(), **self.ensemble_prior.summary.to_state(),
-                "detector": self._detector.to_state(), "changed": self._changed,
+                "detector": self._innovation.detector.to_state(), "changed": self._changed,
                 "post": None if self._post is None else self._post.to_state(),
+                "data_shown": self._data_shown,
                 "holdoff": self._holdoff, "changes": self.changes,
                 "initial": None if self._initial is None else [
                     self._initial[0].tolist(), self._initial[1].tolist()]}
@@ -625,10 +580,11 @@ class PhysicsInformedEnsemble:
         model._reg.set_state(state["regression"])
         model._window.set_state(state)
         prior.summary.set_state(state)
-        model._detector.set_state(state["detector"])
+        model._innovation.detector.set_state(state["detector"])
         model._changed = bool(state["changed"])
         if state["post"] is not None:
-            model._post = Posterior.from_state(state["post"], model.eps)
+            model._post = Posterior.from_state(state["post"], model.eps, model._window.m)
+        model._data_shown = bool(state.get("data_shown", model._window.m > 0))
         model._holdoff = int(state["holdoff"])
         model.changes = int(state["changes"])
         initial = state.get("initial")  # files from before start_from have none

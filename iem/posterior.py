@@ -128,6 +128,7 @@ class Posterior:
         cov: posterior covariance (10x10).
         precision: its inverse (10x10), the projection's metric.
         inflation: the factor the data put on the prior's covariance (1: they agree).
+        equations: how many equations it holds (0: the prior alone).
     """
 
     mean: np.ndarray
@@ -135,6 +136,7 @@ class Posterior:
     precision: np.ndarray
     inflation: float = 1.0
     eps: float = EPS
+    equations: int = 0
     _phi: np.ndarray | None = field(default=None, repr=False)
     _std: np.ndarray | None = field(default=None, repr=False)
 
@@ -155,14 +157,30 @@ class Posterior:
             self._std.flags.writeable = False
         return self._std
 
-    def to_state(self) -> list:
-        return [self.mean.tolist(), self.cov.tolist(), self.precision.tolist(), self.inflation]
+    @staticmethod
+    def nbytes(n: int = 10) -> int:
+        """Bytes a posterior of ``n`` parameters holds: mean, projected phi and std (``n``
+        floats each), covariance and precision (``n x n`` each); what a model reserves for
+        one whether it has been made yet or not."""
+        return np.dtype(float).itemsize * (3 * n + 2 * n * n)
+
+    def to_state(self) -> dict:
+        return {"mean": self.mean.tolist(), "cov": self.cov.tolist(),
+                "precision": self.precision.tolist(), "inflation": self.inflation,
+                "equations": self.equations}
 
     @classmethod
-    def from_state(cls, state, eps: float = EPS) -> Posterior:
-        mean, cov, precision = (np.array(v, dtype=float) for v in state[:3])
+    def from_state(cls, state, eps: float = EPS, equations: int = 0) -> Posterior:
+        """From :meth:`to_state`'s dict, or the list ``[mean, cov, precision, inflation]``
+        of files from before it (their ``equations`` given by the caller)."""
+        if isinstance(state, dict):
+            values = [state["mean"], state["cov"], state["precision"]]
+            inflation, equations = state["inflation"], state["equations"]
+        else:
+            values, inflation = state[:3], state[3]
+        mean, cov, precision = (np.array(v, dtype=float) for v in values)
         return cls(mean.reshape(10), cov.reshape(10, 10), precision.reshape(10, 10),
-                   float(state[3]), eps)
+                   float(inflation), eps, int(equations))
 
 
 def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
@@ -178,4 +196,4 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
     precision = 0.5 * (precision + precision.T)
     cov = sym_inv(precision)
     mean = cov @ (prec_p @ mu_p + window.eta)
-    return Posterior(mean, cov, precision, inflation, eps)
+    return Posterior(mean, cov, precision, inflation, eps, window.m)

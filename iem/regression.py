@@ -174,7 +174,7 @@ class PayloadRegression:
         """Second difference of the robot model's torque ``tau_robot`` over the last three
         equations (7, N·m), None until three consecutive equations since the start: how
         sharply the arm's own torque bends, which sets the error of the filtered equations
-        (:data:`iem.physics.MODEL_ERROR_GAIN`)."""
+        (:data:`iem.innovation.MODEL_ERROR_GAIN`)."""
 
     @property
     def settled(self) -> bool:

@@ -97,7 +97,9 @@ def test_estimate_is_the_projected_posterior_with_its_std():
     mean, cov = model.posterior()
     np.testing.assert_allclose(est.std, np.sqrt(np.diag(cov)))
     np.testing.assert_allclose(est.phi, project(mean, np.linalg.inv(cov)), rtol=1e-9)
-    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"nis"}
+    # the first estimate with equations restarts the smoothing; the next says only its NIS
+    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"nis", "reset"}
+    assert set(model.predict_one(X[-1], None).extra) == {"nis"}
     assert 0.0 < est.extra["nis"] < 3.0  # the hand-made data fit the model
 
 
@@ -179,9 +181,9 @@ def test_the_curvature_is_the_second_difference_of_the_robot_torque(new_rollout_
 
 
 def test_the_detector_gets_the_equation_with_and_without_its_model_error_the_nis_without():
-    """``_test``: the detector gets ``nu^T S^-1 nu`` and ``nu^T (S + diag((g c)^2))^-1 nu``,
-    the NIS the first over 7, ``S = R + Y P Y^T`` (numpy's own solve here); without a
-    curvature (the first equations) the plain one alone."""
+    """``_test`` (:class:`iem.innovation.InnovationTest`): the detector gets ``nu^T S^-1 nu``
+    and ``nu^T (S + diag((g c)^2))^-1 nu``, the NIS the first over 7, ``S = R + Y P Y^T``
+    (numpy's own solve here); without a curvature (the first equations) the plain one alone."""
     X = _hand_made(1500)
     rng = np.random.default_rng(4)
     Y, R = rng.normal(size=(7, 10)), np.diag(rng.uniform(0.01, 0.05, 7) ** 2)
@@ -190,7 +192,7 @@ def test_the_detector_gets_the_equation_with_and_without_its_model_error_the_nis
     model = PhysicsInformedEnsemble(dynamics=FAKE)
     for x in X:
         model.observe_one(x, None)
-    model._detector = type("Spy", (ChangeDetector,), {
+    model._innovation.detector = type("Spy", (ChangeDetector,), {
         "__call__": lambda self, a, b=None: seen.append((a, b)) or False})()
     mean, cov = model.posterior()
     S = R + Y @ cov @ Y.T
@@ -199,7 +201,7 @@ def test_the_detector_gets_the_equation_with_and_without_its_model_error_the_nis
     judged = float(nu @ np.linalg.solve(S + np.diag((MODEL_ERROR_GAIN * c) ** 2), nu))
     model._test(Y, r, R, c)
     model._test(Y, r, R, None)
-    assert model._nis[(model._nis_n - 1) % 50] == pytest.approx(plain / 7.0, rel=1e-9)
+    assert model._innovation.last_nis == pytest.approx(plain / 7.0, rel=1e-9)
     assert seen[0] == pytest.approx((plain, judged), rel=1e-9) and judged < plain
     assert seen[1][0] == pytest.approx(plain, rel=1e-9) and seen[1][1] is None
 
@@ -295,6 +297,72 @@ def test_a_wrong_prior_is_inflated_until_the_data_agree():
     mean, cov = model.posterior()
     assert model.prior_inflation > 100 and model.changes == 0  # no payload change either
     assert np.all(np.abs(mean - PHI) < 3 * np.sqrt(np.diag(cov)))
+
+
+def test_the_prior_alone_and_the_first_estimate_with_equations_restart_the_smoothing():
+    """Until the regression's first equation, IEM+phys shows the ensemble's summary alone,
+    already a mean: each such estimate, and the first whose posterior holds equations, says
+    ``reset`` (the caller's smoothing restarts there), none after it, for each payload; a
+    copy restored from its state does not say it again."""
+    X = _hand_made(900)
+    F = DATA.F[np.arange(len(X)) % DATA.n]
+    model = _trained(update_every=10)
+    for task in range(2):
+        resets, equations = [], []
+        for x, f in zip(X, F, strict=True):
+            model.observe_one(x, f)
+            est = model.predict_one(x, f)
+            resets.append(bool(est.extra.get("reset")))
+            equations.append(model._posterior().equations)
+        first = equations.index(next(m for m in equations if m > 0))
+        assert first >= model._reg.settle * model._reg.decimate  # the prior alone till it settled
+        assert resets == [k <= first for k in range(len(X))], task
+        model.reset()  # a new task: its payload's first equation restarts the smoothing too
+    for x, f in zip(X[:400], F[:400], strict=True):
+        model.observe_one(x, f)
+        model.predict_one(x, f)
+    restored = PhysicsInformedEnsemble.from_state(model.to_state())
+    assert restored._posterior().equations == model._posterior().equations > 0
+    assert not any(restored.predict_one(x, f).extra.get("reset")
+                   for x, f in zip(X[400:], F[400:], strict=True))
+
+
+def test_a_posterior_saved_as_a_list_still_loads_and_its_size_is_what_it_holds():
+    """Model files from before the posterior's state was a dict hold it as a list."""
+    from iem.posterior import Posterior
+
+    post = Posterior(PHI.copy(), np.eye(10), np.eye(10), 2.0, equations=7)
+    state = post.to_state()
+    old = [state["mean"], state["cov"], state["precision"], state["inflation"]]
+    for saved, equations in ((state, 7), (old, 3)):
+        back = Posterior.from_state(saved, equations=3)
+        np.testing.assert_array_equal(back.mean, PHI)
+        assert back.inflation == 2.0 and back.equations == equations
+    # phi and std are made on first use; the size a model reserves counts them
+    held = (post.mean, post.cov, post.precision, post.phi, post.std)
+    assert Posterior.nbytes() == sum(a.nbytes for a in held)
+
+
+def test_an_estimate_is_routed_by_the_samples_values_not_its_array():
+    """``predict_one`` reuses the bag ``observe_one`` found only for the same values: a
+    caller that refills one buffer with the next sample gets that sample's own bag."""
+    model = _trained()
+    router = model.ensemble_model.router
+
+    def bag_of(x, f):
+        inside, nearest = router.route(x[:7], f)
+        return inside if inside >= 0 else nearest
+
+    far_x, far_f = DATA.X[0].copy(), DATA.F[0] + 1.0
+    far_x[:7] += 1.0  # far from the fitted bags: the ensemble starts a bag there
+    model.ensemble_model.learn_one(far_x, far_f, DATA.samples_at(0))
+    near = bag_of(DATA.X[0], DATA.F[0])
+    far = bag_of(far_x, far_f)
+    buf = DATA.X[0].copy()
+    model.observe_one(buf, DATA.F[0])
+    assert model.predict_one(buf.copy(), DATA.F[0]).bag == near  # a copy: the same bag
+    buf[:] = far_x  # the same array, the next sample's values
+    assert model.predict_one(buf, far_f).bag == far != near
 
 
 def test_bad_parameters_are_errors():
@@ -515,13 +583,14 @@ def _spread_run(model, X, F, monkeypatch):
     """Feed ``X`` sample by sample; per sample the heavy jobs done (equations formed,
     equations tested, posterior refreshes, Newton steps of the projection), every posterior
     made, and the estimates."""
+    import iem.live_projection as live
     import iem.physics as physics
     from iem.regression import PayloadRegression as Reg
 
     jobs = {"formed": 0, "tested": 0, "refreshed": 0, "newton": 0}
     made = []
     filt, take, comb, steps = Reg._filter, PhysicsInformedEnsemble._take, physics.combine, \
-        physics.project_steps
+        live.project_steps
 
     def counted_filter(self, *a, **k):
         out = filt(self, *a, **k)
@@ -551,7 +620,7 @@ def _spread_run(model, X, F, monkeypatch):
     monkeypatch.setattr(Reg, "_filter", counted_filter)
     monkeypatch.setattr(PhysicsInformedEnsemble, "_take", counted_take)
     monkeypatch.setattr(physics, "combine", counted_combine)
-    monkeypatch.setattr(physics, "project_steps", counted_steps)
+    monkeypatch.setattr(live, "project_steps", counted_steps)
     per_sample, estimates = [], []
     for x, f in zip(X, F, strict=True):
         before = dict(jobs)
