@@ -23,6 +23,8 @@ from sim.family import default_test_payload
 from sim.paths import new_task_path
 
 SECONDS = 1.5
+MAX_GAP_S = 1e-3
+"""The longest gap between two recorded frames: one controller period (1 kHz)."""
 _channels = itertools.count()
 
 
@@ -38,7 +40,16 @@ def record_sim(out, profile: str, path=None, seed: int = 0) -> int:
         controller.run(cycles=len(path))
         writer = can.Logger(str(out))
         try:
+            stamp = last = None
             while (msg := recorder.recv(0)) is not None:
+                # The controller ran without real time, so the bus's wall-clock stamps only
+                # give the order: a stall of this shared machine between two frames of one
+                # cycle would read, in the replay, as a controller silence that forgets the
+                # cycle in flight (CI lost one so). Write them on a steady clock instead:
+                # no gap longer than one controller period.
+                stamp = msg.timestamp if stamp is None else \
+                    stamp + min(msg.timestamp - last, MAX_GAP_S)
+                last, msg.timestamp = msg.timestamp, stamp
                 writer.on_message_received(msg)
         finally:
             writer.stop()
@@ -93,6 +104,26 @@ def test_replay_twice_gives_identical_estimates_one_per_cycle(tmp_path, replay_m
     assert not first["frames"]["dropped"] and first["frames"]["lost"] == 0
     assert est1.csv_text() == est2.csv_text()
     assert first["gate"] == second["gate"]  # the gate runs on the recorded clock
+
+
+def test_a_stall_inside_a_recorded_cycle_costs_that_cycle_only(tmp_path, replay_model):
+    """What CI met before the recordings were written on a steady clock: 0.15 s between two
+    frames of one classic cycle is a controller silence, as the live link would have seen
+    it. The cycle in flight is forgotten and counted lost; every other cycle is estimated."""
+    out, stalled = tmp_path / "bus.blf", tmp_path / "stalled.blf"
+    published = record_sim(out, "classic")
+    frames = list(can.LogReader(str(out)))
+    per_cycle = len(frames) // published
+    writer = can.Logger(str(stalled))
+    try:
+        for k, msg in enumerate(frames):
+            msg.timestamp += 0.15 * (k >= 100 * per_cycle + per_cycle // 2)
+            writer.on_message_received(msg)
+    finally:
+        writer.stop()
+    summary, est = replay(stalled, profile="classic", model=replay_model, log=lambda _: None)
+    assert summary["frames"]["lost"] == 1 and len(est) == published - 1
+    assert summary["frames"]["dropped"] == {"orphaned": per_cycle}
 
 
 def test_cli_writes_csv_json_and_keeps_the_model_file(tmp_path, fd_log, replay_model_file,
