@@ -28,6 +28,29 @@ def trained_model_file(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def trained_phys_model_file(tmp_path_factory) -> Path:
+    """The deployed kind, IEM+phys, trained as lightly: its estimates are projected onto
+    physically consistent parameters, so the gate's decisions over a real-time run do not
+    hang on whether the paper's IEM happened to give a consistent inertia at an instant."""
+    from deploy.training import train_initial_model
+    from iem.persistence import save_model
+
+    model = train_initial_model("IEM+phys", seed=0, log=lambda *a: None, fit_epochs=3,
+                                fit_stride=20)
+    path = tmp_path_factory.mktemp("model") / "trained-phys.msgpack"
+    save_model(model, path)
+    return path
+
+
+@pytest.fixture
+def phys_model_file(trained_phys_model_file, tmp_path) -> Path:
+    """A private copy of the trained IEM+phys model that a test may overwrite."""
+    path = tmp_path / "model-phys.msgpack"
+    shutil.copyfile(trained_phys_model_file, path)
+    return path
+
+
 @pytest.fixture
 def model_file(trained_model_file, tmp_path) -> Path:
     """A private copy of the trained model that a test may overwrite."""

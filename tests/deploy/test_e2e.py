@@ -78,9 +78,11 @@ def assert_identified_and_acknowledged(summary, controller, est) -> None:
     np.testing.assert_allclose(load.com, TRUTH.com, atol=0.005)
 
 
-def test_identifies_and_writes_back_over_the_virtual_bus(model_file):
+def test_identifies_and_writes_back_over_the_virtual_bus(phys_model_file):
+    model_file = phys_model_file
     initial_bags = load_model(model_file).n_bags
     summary, controller, _, est = run_in_process(model_file)
+    assert summary["model"] == "IEM+phys"
     assert_identified_and_acknowledged(summary, controller, est)
     assert summary["frames"]["lost"] == 0
     assert summary["bags"] > initial_bags  # the new task formed bags
@@ -207,14 +209,18 @@ def test_faults_cost_little_accuracy_and_every_bad_frame_is_counted(model_file, 
     assert m_f <= m_c + 0.01 and c_f <= c_c + 0.005, ((m_c, c_c), (m_f, c_f))
 
 
-def test_silent_controller_stops_writes_and_they_resume(model_file, caplog):
+def test_silent_controller_stops_writes_and_they_resume(phys_model_file, caplog):
+    """IEM+phys: its estimates are always consistent, so the gate's decisions during the
+    silence say why nothing is written (with the paper's IEM, an inconsistent inertia at
+    the instant the controller fell silent made them all ``inconsistent`` instead)."""
     from firmware_bridge.faults import FaultSpec
 
     caplog.set_level(logging.INFO, logger="iem")
     gate = {"min_change_mass_kg": 0.0, "min_change_com_m": 0.0, "max_rate_hz": 5.0,
             "stable_window_s": 0.2, "stable_mass_kg": 0.05, "stable_com_m": 0.01}
     summary, _, _, _ = run_in_process(
-        model_file, faults=FaultSpec(silence_at=3.0, silence_for=1.0), seconds=6.0, gate=gate)
+        phys_model_file, faults=FaultSpec(silence_at=3.0, silence_for=1.0), seconds=6.0,
+        gate=gate)
     # (a host starved by other jobs can add a short silence of its own: take the one of
     # about the injected length)
     assert summary["silences"] >= 1
