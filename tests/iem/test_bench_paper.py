@@ -33,6 +33,8 @@ def test_schema(results):
     assert t["predict_us_median"] > 0 and t["learn_ms_per_point_median"] > 0
     # the cycle as the plug-in runs it (training in the worker) beside the inline figure
     assert 0 < t["phys_cycle_us_median"] <= t["phys_cycle_us_p99"]
+    assert 0 < t["phys_cycle_paced_us_median"] <= t["phys_cycle_paced_us_p99"]
+    assert t["phys_cycle_cpu_us_mean"] > 0 and t["phys_cycle_paced_cpu_us_mean"] > 0
     assert t["phys_us_per_sample_median"] > 0
     assert r["bags"]["after_excitation"] >= 3
     assert r["bags"]["after_new_path"] > r["bags"]["after_excitation"]
