@@ -21,11 +21,9 @@
   when it closes its learner is trained on that sample once more, by the offline training
   of the initial bags (``fit_epochs``), before it is frozen. The estimates made while the
   bag formed are unchanged; ``reservoir = 0`` turns this off (the paper's rule alone).
-- Training beyond the path (both off by default, the paper's rule): ``reversal`` adds each
-  training sample driven backwards (exact for rigid-body torques, :mod:`sim.coverage`), so
-  a pose met again the other way reads as it did; ``coverage`` adds samples at the same
-  poses with random other velocities and accelerations (it also costs the closed bags their
-  fit to their own motion: see the README, "Long runs").
+- Training beyond the path (:mod:`iem.augment`, both off by default, the paper's rule):
+  ``reversal`` adds each training sample driven backwards, ``coverage`` samples at the same
+  poses with other velocities and accelerations.
 - Estimate (Eq. 1-2): the output is that of the learner of the bag the point falls in, or,
   outside every bag, of the nearest bag (``n_s = 1`` for that bag, 0 for the others).
 - Learning off the cycle (``background=True``): the cycle only routes, appends the copied
@@ -41,28 +39,12 @@
   saved model has no pending work (it is finished, never dropped). A deep copy of a
   background ensemble (a checkpoint taken in the cycle) does not wait: it holds the
   published learners, with the open bag closed without its refit.
-- Out of distribution: each learner standardises its inputs (``center``, ``scale``: the
-  mean and standard deviation of its training inputs). :meth:`ood_score` is the largest
-  ``|x - center| / scale`` over the 21 inputs; above ``ood_threshold`` (default
-  :data:`OOD_THRESHOLD`) an estimate of a closed bag carries ``extra["ood"] = True``. So
-  does one whose joint velocities score above ``velocity_threshold`` (default
-  :data:`VELOCITY_THRESHOLD`; ``extra["velocity_score"]``): a Mahalanobis distance to the
-  learner's training velocities (:meth:`iem.learner.WeakLearner.velocity_score`), which
-  knows how they go together. A bag's samples lie on one stretch of path, along one
-  direction of motion (and its reverse); a later visit at another velocity has each
-  velocity within range but not the combination, and a learner without the acceleration
-  among its inputs reads such a visit kilograms off (over 1 kg for 98 % of the closed-bag
-  estimates of ``iem bench longrun`` on seed 3). The open
-  bag's estimates are never flagged: its learner trains on the very point (its copied
-  scale is another bag's, so its score says little). Every estimate carries
-  ``extra["ood_score"]``. A flagged estimate is not the IEM's answer: :meth:`predict_one`
-  and :meth:`learn_predict_one` then give the last estimate that was not flagged
-  (``extra["held"] = True``, still flagged), for at most ``ood_hold_s`` of estimate time in a
-  row; after that, or with none to hold, the learner's own. A learner far outside its
-  training inputs is wrong by kilograms (12-15 kg on average in the long run's flagged
-  estimates), while the payload rarely changes within the second it takes the path to come
-  back. :meth:`predict_raw` and :meth:`learn_predict_raw` give the learners' own estimates
-  (IEM+phys takes those, with their scores: its physics governs there).
+- Out of distribution (:mod:`iem.ood_hold`): an estimate of a closed bag whose input lies
+  beyond its learner's training inputs (``ood_threshold``, ``velocity_threshold``) carries
+  ``extra["ood"] = True``; :meth:`predict_one` and :meth:`learn_predict_one` then give the
+  last estimate that was not flagged, for at most ``ood_hold_s``. :meth:`predict_raw` and
+  :meth:`learn_predict_raw` give the learners' own estimates (IEM+phys takes those, with
+  their scores: its physics governs there).
 - Bounded growth (``budget_bags``): once the ensemble holds that many bags, a point that fits
   no bag does not add a bag: another bag is retired and its slot starts the new bag. Which
   one is :class:`iem.budget.BagBudget`'s policy: the oldest of the bags formed last, on
@@ -81,10 +63,12 @@ import time
 
 import numpy as np
 
-from .base import Samples, load_factory, resolve
+from .augment import TrainingAugment
+from .base import Samples, resolve
 from .budget import BagBudget
 from .errors import InvalidInputError
 from .learner import N_IN, WeakLearner, output_range
+from .ood_hold import OOD_HOLD_S, OOD_THRESHOLD, VELOCITY_THRESHOLD, OodHold
 from .reservoir import Reservoir
 from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
 from .sensor import DEFAULT_SENSOR
@@ -98,20 +82,6 @@ SENSOR_NOISE = DEFAULT_SENSOR.sigmas
 MAX_PENDING = 256
 """Most training jobs a background ensemble lets wait: beyond, the steps of points that join
 the open bag are skipped (counted in ``skipped_points``); new bags and refits always go."""
-
-OOD_THRESHOLD = 4.0
-"""Default largest ``|x - center| / scale`` of an input (in its learner's standard
-deviations) that is in distribution; tuned in ``iem bench longrun`` (see the README)."""
-
-VELOCITY_THRESHOLD = 4.0
-"""Default largest :meth:`iem.learner.WeakLearner.velocity_score` of an input that is in
-distribution (about 1 for the learner's own training inputs)."""
-
-OOD_HOLD_S = 2.0
-"""Default longest run of flagged estimates, in s of estimate time, for which the IEM gives
-the last estimate not flagged instead; set from ``iem bench longrun``'s seed 3 with the
-velocity score (1 s let a 2.7 kg error through there; 2 s or more did not; see the README)."""
-
 
 def _yield() -> None:
     """Let another thread (the estimate path) take the interpreter, if one waits."""
@@ -192,24 +162,9 @@ class IncrementalEnsemble:
             raise InvalidInputError(f"probation_bags={probation_bags} needs a budget_bags")
         self._budget = (None if self.budget_bags is None
                         else BagBudget(self.budget_bags, self.probation_bags))
-        self.ood_threshold = float(ood_threshold)
-        if not self.ood_threshold > 0:
-            raise InvalidInputError(f"ood_threshold must be > 0, got {ood_threshold}")
-        self.velocity_threshold = (None if velocity_threshold is None
-                                   else float(velocity_threshold))
-        if self.velocity_threshold is not None and not self.velocity_threshold > 0:
-            raise InvalidInputError(f"velocity_threshold must be None or > 0, got "
-                                    f"{velocity_threshold}")
-        self.ood_hold_s = float(ood_hold_s)
-        if not self.ood_hold_s >= 0:
-            raise InvalidInputError(f"ood_hold_s must be >= 0, got {ood_hold_s}")
-        self._trusted: np.ndarray | None = None  # the last estimate not flagged
-        self._flagged_since: float | None = None  # estimate time of the run's first flag
-        self.coverage = None if coverage is None else str(coverage)
-        self.coverage_draws = int(coverage_draws)
-        self.reversal = None if reversal is None else str(reversal)
-        self._reverse = self._reversal()  # built now: a bad spec or arm file fails here
-        self._cover = None  # the coverage sampler, built when first needed
+        self._ood = OodHold(ood_threshold, velocity_threshold, ood_hold_s)
+        # built now: a bad reversal spec or arm file fails here
+        self._augment = TrainingAugment(coverage, coverage_draws, reversal)
         self._router = BagRouter(self.delta, self.rho)
         self._learners: list[WeakLearner] = []
         self._gen: list[int] = []  # per slot: how many times it was reused
@@ -241,6 +196,30 @@ class IncrementalEnsemble:
         return type(self)(**self.params())
 
     # -- views ---------------------------------------------------------------------------
+    @property
+    def ood_threshold(self) -> float:
+        return self._ood.threshold
+
+    @property
+    def velocity_threshold(self) -> float | None:
+        return self._ood.velocity_threshold
+
+    @property
+    def ood_hold_s(self) -> float:
+        return self._ood.hold_s
+
+    @property
+    def coverage(self) -> str | None:
+        return self._augment.coverage
+
+    @property
+    def coverage_draws(self) -> int:
+        return self._augment.draws
+
+    @property
+    def reversal(self) -> str | None:
+        return self._augment.reversal
+
     @property
     def n_bags(self) -> int:
         return len(self._router)
@@ -323,7 +302,7 @@ class IncrementalEnsemble:
         the open bag closed without its refit; the pending work stays with the original."""
         new = type(self).__new__(type(self))
         memo[id(self)] = new
-        skip = ("_lock", "_worker", "_cover", "_reverse")
+        skip = ("_lock", "_worker")
         if self.background:
             skip += ("_learners", "_kept", "_training", "_open")
             with self._lock:
@@ -334,8 +313,6 @@ class IncrementalEnsemble:
         if self.background:
             new._learners = [copy.deepcopy(lr, memo) for lr in published]
             new._open, new._kept, new._training = -1, None, None
-        new._cover = None
-        new._reverse = self._reverse  # immutable: shared, not rebuilt (no file read here)
         new._lock = threading.Lock()
         new._worker = LearningWorker(synchronous=not self.background)
         return new
@@ -343,50 +320,14 @@ class IncrementalEnsemble:
     def __getstate__(self) -> dict:
         self.drain()
         return {k: v for k, v in self.__dict__.items()
-                if k not in ("_lock", "_worker", "_cover", "_reverse")}
+                if k not in ("_lock", "_worker")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._cover = None
-        self._reverse = self._reversal()
         self._lock = threading.Lock()
         self._worker = LearningWorker(synchronous=not self.background)
 
     # -- training ------------------------------------------------------------------------
-    def _covered(self, X: np.ndarray, Y: np.ndarray, batch: int, seed) -> tuple:
-        """``(X, Y)`` plus, if ``coverage``, ``coverage_draws`` other states at each point's
-        pose (``batch`` samples per point, in order); then, if ``reversal``, all of those
-        driven backwards (:meth:`_reversed`)."""
-        if self.coverage is None or self.coverage_draws <= 0:
-            return self._reversed(X, Y)
-        if self._cover is None:
-            self._cover = load_factory(self.coverage, "coverage")
-        rng = np.random.default_rng(seed)
-        n = X.shape[0]
-        # filled in place, not stacked from a list: a bag's samples are tens of MB, and a
-        # list of per-point arrays beside its stacked copy doubled the peak (and the heap
-        # it leaves behind)
-        X_out = np.empty((n * (1 + self.coverage_draws), X.shape[1]))
-        Y_out = np.empty((X_out.shape[0], Y.shape[1]))
-        X_out[:n], Y_out[:n] = X, Y
-        r = n
-        for s in range(0, n, batch):
-            q, phi = X[s, :7], Y[s:s + batch]
-            for _ in range(self.coverage_draws):
-                x = self._cover(q, phi, rng)
-                X_out[r:r + len(x)], Y_out[r:r + len(x)] = x, phi
-                r += len(x)
-        return self._reversed(X_out[:r], Y_out[:r])
-
-    def _reversal(self):
-        return None if self.reversal is None else load_factory(self.reversal, "reversal")
-
-    def _reversed(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(X, Y)`` and, if ``reversal``, the same samples driven backwards."""
-        if self.reversal is None:
-            return X, Y
-        return np.concatenate((X, self._reverse(X))), np.concatenate((Y, Y))
-
     def _new_learner(self, X: np.ndarray, Y: np.ndarray, bag: int, nearest: int) -> WeakLearner:
         if self._out is None:
             self._out = output_range(Y)
@@ -423,7 +364,7 @@ class IncrementalEnsemble:
             if self._out is None:
                 self._out = output_range(Y)
             batch = Y.shape[0] // len(idx)
-            X, Y = self._covered(X, Y, batch, [self.seed, bag, 5])
+            X, Y = self._augment(X, Y, batch, [self.seed, bag, 5])
             self._learners.append(WeakLearner.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
                 seed=[self.seed, bag], epochs=self.fit_epochs, batch=batch,
@@ -530,7 +471,7 @@ class IncrementalEnsemble:
         def refit():
             if len(kept) < 2:
                 return
-            X, Y = self._covered(*kept.stacked(), kept.batch(), [*seed, 5])
+            X, Y = self._augment(*kept.stacked(), kept.batch(), [*seed, 5])
             learner = WeakLearner.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise, seed=seed,
                 epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr,
@@ -556,41 +497,20 @@ class IncrementalEnsemble:
     def _estimate(self, x: np.ndarray, bag: int, t: float) -> PayloadEstimate:
         learner = self._learners[bag]  # one read: the learner published now
         z = learner.scaled(x)  # scaled once for the score and the estimate
-        score = max(float(z.max()), -float(z.min()))  # the largest |z|
         learning = bag == self._open  # the open bag trains on this very point: not flagged
-        extra = {"ood_score": score}
-        ood = False
-        if not learning:
-            ood = score > self.ood_threshold
-            if self.velocity_threshold is not None:
-                vscore = learner.velocity_score(x)
-                extra["velocity_score"] = vscore
-                ood = ood or vscore > self.velocity_threshold
-        extra["ood"] = ood
         return PayloadEstimate(t=t, phi=learner.predict_scaled(z), bag=bag, learning=learning,
-                               extra=extra)
+                               extra=self._ood.flags(learner, z, x, learning))
 
     def reset(self) -> None:
         """A new task, perhaps with another payload: nothing is held until an estimate is
         in distribution again (what was learnt stays). A restart of the signal stream alone
         keeps the hold (a silence is not a new payload; it lasts ``ood_hold_s`` at most)."""
-        self._trusted = None
-        self._flagged_since = None
+        self._ood.reset()
 
     def _held(self, est: PayloadEstimate) -> PayloadEstimate:
         """``est``, or, if it is flagged out of distribution, the last estimate that was not
-        (see the module docstring)."""
-        if not est.extra.get("ood"):
-            if est.bag >= 0:
-                self._trusted = est.phi.copy()
-                self._flagged_since = None
-            return est
-        if self._flagged_since is None:
-            self._flagged_since = est.t
-        if self._trusted is None or est.t - self._flagged_since >= self.ood_hold_s:
-            return est
-        return PayloadEstimate(t=est.t, phi=self._trusted.copy(), bag=est.bag,
-                               learning=est.learning, extra={**est.extra, "held": True})
+        (:mod:`iem.ood_hold`)."""
+        return self._ood.held(est)
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         """The estimate at ``x`` (held while out of distribution, see the module docstring)."""

@@ -6,6 +6,7 @@ reads a reversed motion its plain twin does not."""
 from __future__ import annotations
 
 import copy
+import pickle
 
 import numpy as np
 import pytest
@@ -54,10 +55,10 @@ def test_coverage_is_a_hyper_parameter_and_changes_only_training():
     X = np.zeros((4, 21))
     X[:, :7] = 0.3
     Y = training_phi()[:2]
-    Xc, Yc = covered._covered(np.vstack([X[:2], X[2:]]), np.vstack([Y, Y]), 2, [0])
+    Xc, Yc = covered._augment(np.vstack([X[:2], X[2:]]), np.vstack([Y, Y]), 2, [0])
     assert Xc.shape == (4 + 2 * 2 * 2, 21) and Yc.shape == (12, 10)
     np.testing.assert_array_equal(Xc[:4], np.vstack([X[:2], X[2:]]))
-    assert plain._covered(X, np.vstack([Y, Y]), 2, [0])[0] is X
+    assert plain._augment(X, np.vstack([Y, Y]), 2, [0])[0] is X
 
 
 @pytest.mark.parametrize("gap", [None, 3])
@@ -89,10 +90,11 @@ def test_reversal_is_a_hyper_parameter_that_doubles_the_training(tmp_path):
     assert ens.params()["reversal"] == spec
     assert type(ens)(**ens.params()).params() == ens.params()
     assert IncrementalEnsemble.from_state(ens.to_state()).reversal == spec
-    assert copy.deepcopy(ens)._reverse is ens._reverse  # immutable, shared
+    assert copy.deepcopy(ens)._augment.reverse is ens._augment.reverse  # immutable, shared
+    assert pickle.loads(pickle.dumps(ens)).reversal == spec  # the spec, built again
     X = np.arange(2 * 21, dtype=float).reshape(2, 21)
     Y = training_phi()[:2]
-    Xr, Yr = ens._covered(X, Y, 2, [0])
+    Xr, Yr = ens._augment(X, Y, 2, [0])
     assert Xr.shape == (4, 21)
     np.testing.assert_array_equal(Xr[:2], X)
     np.testing.assert_array_equal(Xr[2:, 7:14], -X[:, 7:14])
