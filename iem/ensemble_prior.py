@@ -50,6 +50,16 @@ class EnsemblePrior:
         err = self.ensemble.learner(bag).predict_many(X) - Y
         self.calib.add(bag, err, Y)
 
+    def calibrate_trained(self) -> None:
+        """Add the errors of the points the ensemble has learnt since the last call (its
+        :meth:`~iem.ensemble.IncrementalEnsemble.trained_errors`: the learner after each
+        point, on the point's samples; measured in the learning worker, added here, in the
+        caller's thread, so the covariances are only ever changed by it)."""
+        for bag, gen, err, Y in self.ensemble.trained_errors():
+            self.current(bag)
+            if self.calib_gen[bag] == gen:  # the slot was not reused since
+                self.calib.add(bag, err, Y)
+
     def ood_factor(self, est) -> float:
         """How much less sure an ensemble estimate is than its bag's calibration says:
         ``(score / threshold)²`` once its input lies beyond the bag's training distribution

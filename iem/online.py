@@ -33,6 +33,7 @@ numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 
@@ -73,11 +74,22 @@ class OnlineIdentifier:
         self.raw: PayloadEstimate | None = None
         self._smoothed: np.ndarray | None = None
         self._steps = 1
-        self.learned_points = 0
+        self._learned = 0
+        self._learned_lock = threading.Lock()
         self.timed = timed
         self.learn_times: list[float] = []
         self.predict_times: list[float] = []
         self.learnt: list[bool] = []
+
+    @property
+    def learned_points(self) -> int:
+        """Points learnt from: whose tandem samples were made (by the estimator's learning
+        worker, for a point that joins a bag being formed)."""
+        return self._learned
+
+    def _count_learned(self) -> None:
+        with self._learned_lock:  # the cycle and the learning worker both count
+            self._learned += 1
 
     @property
     def skipped(self) -> int:
@@ -114,24 +126,22 @@ class OnlineIdentifier:
         self._steps = max(steps, 1)
         flange = self.flange_position(state.q)
         if self.learn:
-            tandem = self.tandem
+            tandem, count = self.tandem, self._count_learned
             asked = []
 
-            def samples():
+            def samples():  # may be called later, in the estimator's learning worker
                 asked.append(True)
+                count()
                 return tandem(q, dq, ddq)
 
             combined = None if self.timed else getattr(self.estimator, "learn_predict_one", None)
             if combined is not None:
-                raw = combined(x, flange, samples, t=state.t)
-                self.learned_points += bool(asked)
-                return self._finish(raw)
+                return self._finish(combined(x, flange, samples, t=state.t))
             t0 = time.perf_counter()
             self.estimator.learn_one(x, flange, samples)
             if self.timed:
                 self.learn_times.append(time.perf_counter() - t0)
                 self.learnt.append(bool(asked))
-            self.learned_points += bool(asked)
         elif hasattr(self.estimator, "observe_one"):
             self.estimator.observe_one(x, flange)
         t0 = time.perf_counter()

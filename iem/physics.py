@@ -72,7 +72,7 @@ import math
 
 import numpy as np
 
-from .base import Samples, resolve
+from .base import Samples
 from .consistency import EPS
 from .ensemble import IncrementalEnsemble
 from .ensemble_prior import EnsemblePrior
@@ -172,6 +172,7 @@ class PhysicsInformedEnsemble:
         # the physics governs out of distribution through the per-input score's inflation;
         # the velocity score serves only the IEM's own hold and the gate: not scored here
         self._ens = IncrementalEnsemble(**{"velocity_threshold": None, **self.ensemble})
+        self._ens.report_errors = True  # the prior's calibration: every learnt point
         self._reg = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq, self.cutoff_hz,
                                       self.rate_hz, every=1, settle=-1, payload_inertia=True,
                                       decimate=self.update_every)
@@ -330,17 +331,9 @@ class PhysicsInformedEnsemble:
     # -- estimator seam ------------------------------------------------------------------
     def learn_one(self, x, flange, samples: Samples) -> None:
         """The ensemble learns the point (Algorithms 1-2); then :meth:`observe_one`."""
-        got: list = []
-
-        def lazy():
-            if not got:
-                got.append(resolve(samples))
-            return got[0]
-
         x = np.asarray(x, dtype=float)
-        est = self._ens.learn_predict_raw(x, flange, lazy)  # one routing for both
-        if got and self._ens.open_bag >= 0:
-            self.ensemble_prior.calibrate(self._ens.open_bag, *got[0])
+        est = self._ens.learn_predict_raw(x, flange, samples)  # one routing for both
+        self.ensemble_prior.calibrate_trained()  # each learnt point's errors, as they land
         self._observe(x, flange, est)
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
@@ -571,6 +564,7 @@ class PhysicsInformedEnsemble:
     def from_state(cls, state: dict):
         model = cls(**state["params"])
         model._ens = IncrementalEnsemble.from_state(state["ensemble"])
+        model._ens.report_errors = True
         prior = model.ensemble_prior = EnsemblePrior(model._ens)
         prior.calib.set_state(state)
         prior.calib_gen = [int(g) for g in state.get("calib_gen", [])]

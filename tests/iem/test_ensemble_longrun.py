@@ -69,6 +69,59 @@ def test_background_learns_exactly_what_synchronous_learns():
     back.stop()
 
 
+def test_the_samples_of_a_point_joining_the_open_bag_are_made_in_the_worker():
+    """Making a point's tandem samples is learning: in the background, only a new bag's (its
+    learner's centre needs them) are made in the caller's thread."""
+    model = fitted(background=True)
+    made_in: list[tuple[int, str]] = []
+
+    def lazy(i):
+        def samples():
+            made_in.append((i, threading.current_thread().name))
+            return DATA.samples_at(i)
+        return samples
+
+    bags_before = model.n_bags
+    for i in DATA.train_points():
+        model.learn_one(DATA.X[i], DATA.F[i], lazy(i))
+    model.drain()
+    assert model.n_bags > bags_before
+    threads = {name for _, name in made_in}
+    assert threads == {threading.current_thread().name, "iem-learning"}
+    assert sum(name == threading.current_thread().name for _, name in made_in) == (
+        model.n_bags - bags_before)  # one per new bag
+    model.stop()
+
+
+def test_each_learnt_point_reports_its_learners_errors_once_in_order():
+    sync, back = fitted(), fitted(background=True)
+    for m in (sync, back):
+        m.report_errors = True
+    reports = {}
+    for name, m in (("sync", sync), ("back", back)):
+        got = []
+        for i in DATA.train_points():
+            m.learn_one(DATA.X[i], DATA.F[i], lambda i=i: DATA.samples_at(i))
+            if name == "sync":  # inline: a learnt point's errors are there at once
+                errs = m.trained_errors()
+                assert len(errs) == (m.open_bag >= 0)  # it started or joined the open bag
+                for bag, gen, err, _ in errs:
+                    X, Y0 = DATA.samples_at(i)
+                    assert bag == m.open_bag and gen == m.slot_generation(bag)
+                    np.testing.assert_array_equal(err, m.learner(bag).predict_many(X) - Y0)
+                got += errs
+            else:
+                m.drain()
+                got += m.trained_errors()
+        reports[name] = got
+    assert len(reports["sync"]) == len(reports["back"]) > 3
+    for a, b in zip(reports["sync"], reports["back"], strict=True):
+        assert a[:2] == b[:2]
+        np.testing.assert_array_equal(a[2], b[2])
+    assert back.trained_errors() == [] and not fitted().trained_errors()  # off by default
+    back.stop()
+
+
 def test_new_bag_estimates_with_its_copied_learner_until_its_training_lands():
     model = fitted(background=True)
     before = model.n_bags

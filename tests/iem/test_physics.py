@@ -252,6 +252,32 @@ def test_bag_covariance_is_the_learners_error_on_its_samples():
                                rtol=1e-9)
 
 
+def test_learnt_points_calibrate_the_prior_as_inline_with_the_learning_in_the_worker():
+    """In the background the learnt points' samples and errors are made in the worker and
+    the bag covariances updated in the cycle as they land: after the same points, drained,
+    the covariances are the inline ones."""
+    inline, back = _trained(), _trained()
+    back.ensemble_model.set_background(True)
+    count = {"inline": 0, "back": 0}
+    for name, model in (("inline", inline), ("back", back)):
+        for i in DATA.train_points():
+            def samples(i=i, name=name):
+                count[name] += 1
+                return DATA.samples_at(i)
+            model.learn_one(DATA.X[i], DATA.F[i], samples)
+            if name == "back":
+                model.ensemble_model.drain()
+        model.ensemble_prior.calibrate_trained()
+    assert count["inline"] == count["back"] > 3
+    for bag in range(inline.n_bags):
+        assert inline.ensemble_prior.calib.measured(bag) == back.ensemble_prior.calib.measured(
+            bag)
+        if inline.ensemble_prior.calib.measured(bag):
+            np.testing.assert_array_equal(back.ensemble_prior.bag_cov(bag),
+                                          inline.ensemble_prior.bag_cov(bag))
+    back.ensemble_model.stop()
+
+
 def test_prior_inflation_is_the_maximum_likelihood_scale():
     """1 while the data agree with the prior; the likelihood's maximiser (checked on a grid)
     when they show the prior's mean far off."""
