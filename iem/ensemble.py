@@ -36,9 +36,11 @@
   learner's centre; a lock keeps the two threads off the simulators' robot model at once).
   With ``report_errors``, each job also measures the published learner's errors on its
   point's samples and queues them (:meth:`trained_errors`, IEM+phys's calibration). On the
-  demo's new task (2026-11-23, this VM) the cycle thread's CPU per sample inside a forming
-  bag was 350-390 µs when the samples and the calibration were made in the cycle, and the
-  latency p99 4.5 and 39 ms; 1.5 and 1.8 ms since. A closed bag's learner is never trained
+  demo's new task (2026-11-23, a 2-vCPU VM) the cycle thread's CPU per sample inside a
+  forming bag was 350-390 µs when the samples and the calibration were made in the cycle,
+  290-305 µs since (other samples: 160-260 µs, as loaded as the machine was); the demo's
+  latency p99, two runs each, alternating, 4.5 and 39 ms before, 1.5 and 1.8 ms since. A
+  closed bag's learner is never trained
   again. While more than
   :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
   in ``skipped_points``): a worker that falls behind holds bounded memory. ``background=False`` (the
