@@ -39,7 +39,9 @@
   demo's new task (2026-11-23, a 2-vCPU VM) the cycle thread's CPU per sample inside a
   forming bag was 350-390 µs when the samples and the calibration were made in the cycle,
   290-305 µs since (other samples: 160-260 µs, as loaded as the machine was); the demo's
-  latency p99, two runs each, alternating, 4.5 and 39 ms before, 1.5 and 1.8 ms since. A
+  latency p99, two runs each, alternating, 4.5 and 39 ms before, 1.5 and 1.8 ms since.
+  Where the worker cannot keep up, the calibration of the points it reaches late lands late
+  (README, "Learning off the cycle": it moved the long run's figures both ways). A
   closed bag's learner is never trained
   again. While more than
   :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
