@@ -41,13 +41,12 @@
   290-305 µs since (other samples: 160-260 µs, as loaded as the machine was); the demo's
   latency p99, two runs each, alternating, 4.5 and 39 ms before, 1.5 and 1.8 ms since.
   Where the worker cannot keep up, the calibration of the points it reaches late lands late
-  (README, "Learning off the cycle": it moved the long run's figures both ways). A
-  closed bag's learner is never trained
-  again. While more than
-  :data:`MAX_PENDING` jobs wait, points that join the open bag are not learnt from (counted
-  in ``skipped_points``): a worker that falls behind holds bounded memory. ``background=False`` (the
-  default) runs the same jobs at once in the caller's thread: seeded runs reproduce bit for
-  bit. :meth:`drain` waits for pending work; saving (:meth:`to_state`) drains first, so a
+  (README, "Learning off the cycle": it moved the long run's figures both ways). A closed
+  bag's learner is never trained again. While more than :data:`MAX_PENDING` jobs wait,
+  points that join the open bag are not learnt from (counted in ``skipped_points``): a
+  worker that falls behind holds bounded memory. ``background=False`` (the default) runs
+  the same jobs at once in the caller's thread: seeded runs reproduce bit for bit.
+  :meth:`drain` waits for pending work; saving (:meth:`to_state`) drains first, so a
   saved model has no pending work (it is finished, never dropped). A deep copy of a
   background ensemble (a checkpoint taken in the cycle) does not wait: it holds the
   published learners, with the open bag closed without its refit.
