@@ -482,12 +482,10 @@ class IncrementalEnsemble:
         since the last call, in order: the bag's learner as published after the point, on
         the point's own samples (only with :attr:`report_errors`; IEM+phys calibrates its
         prior with them). Taken in the caller's thread; the worker only queues them."""
-        out = []
-        while True:
-            try:
-                out.append(self._errors.get_nowait())
-            except queue.Empty:
-                return out
+        errors, out = self._errors, []
+        while not errors.empty():  # one consumer: what it saw is there (no exception per
+            out.append(errors.get_nowait())  # cycle for an empty queue, the usual case)
+        return out
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
         """:meth:`learn_one` then :meth:`predict_one` with one routing instead of two.
