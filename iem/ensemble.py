@@ -469,11 +469,9 @@ class IncrementalEnsemble:
             if kept is not None:
                 kept.add(X, Y)
             self._publish(bag, gen, training)
-            if self.report_errors:
+            if self.report_errors and self._gen[bag] == gen:  # not a retired bag's job
                 Y = np.asarray(Y, dtype=float)
-                learner = self._learners[bag]
-                if self._gen[bag] == gen:  # not a job of a retired bag
-                    self._errors.put((bag, gen, learner.predict_many(X) - Y, Y))
+                self._errors.put((bag, gen, self._learners[bag].predict_many(X) - Y, Y))
 
         return job
 
@@ -493,7 +491,7 @@ class IncrementalEnsemble:
         The bag Algorithm 1 put the point in is the bag :meth:`predict_one` would route it
         to: a joined bag's mean only moved toward the point, and a new bag's mean is it.
         """
-        return self._held(self.learn_predict_raw(x, flange, samples, t))
+        return self._ood.held(self.learn_predict_raw(x, flange, samples, t))
 
     def learn_predict_raw(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
         """:meth:`learn_predict_one` without the hold: the learner's own estimate."""
@@ -553,14 +551,9 @@ class IncrementalEnsemble:
         keeps the hold (a silence is not a new payload; it lasts ``ood_hold_s`` at most)."""
         self._ood.reset()
 
-    def _held(self, est: PayloadEstimate) -> PayloadEstimate:
-        """``est``, or, if it is flagged out of distribution, the last estimate that was not
-        (:mod:`iem.ood_hold`)."""
-        return self._ood.held(est)
-
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         """The estimate at ``x`` (held while out of distribution, see the module docstring)."""
-        return self._held(self.predict_raw(x, flange, t))
+        return self._ood.held(self.predict_raw(x, flange, t))
 
     def predict_raw(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         """The estimate of the bag's learner at ``x``, flagged but never held."""

@@ -480,11 +480,9 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
         timing["phys_cycle_us_median"] = cycle["median"]
         timing["phys_cycle_us_p99"] = cycle["p99"]
         timing["phys_cycle_cpu_us_mean"] = cycle["cpu_mean"]
-    if paced is not None:
         timing["phys_cycle_paced_us_median"] = paced["median"]
         timing["phys_cycle_paced_us_p99"] = paced["p99"]
         timing["phys_cycle_paced_cpu_us_mean"] = paced["cpu_mean"]
-    if cycle is not None and paced is not None:
         log(f"timing     IEM+phys per sample, learning inline "
             f"{timing['phys_us_per_sample_median']:.0f} µs (median); one cycle, training in "
             f"the worker: back to back {cycle['median']:.0f} / {cycle['p99']:.0f} µs "

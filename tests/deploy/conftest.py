@@ -16,47 +16,47 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="session")
-def trained_model_file(tmp_path_factory) -> Path:
-    """An IEM trained on the excitation path (a light training, to keep tests quick)."""
+def _trained_file(kind: str, tmp_path_factory) -> Path:
+    """A model of ``kind`` trained on the excitation path (lightly, to keep tests quick),
+    saved once per session."""
     from deploy.training import train_initial_model
     from iem.persistence import save_model
 
-    model = train_initial_model("IEM", seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20)
+    model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20)
     path = tmp_path_factory.mktemp("model") / "trained.msgpack"
     save_model(model, path)
     return path
 
 
+def _private_copy(trained: Path, tmp_path: Path, name: str) -> Path:
+    """A copy of a trained model file that one test may overwrite."""
+    path = tmp_path / name
+    shutil.copyfile(trained, path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def trained_model_file(tmp_path_factory) -> Path:
+    """The paper's IEM."""
+    return _trained_file("IEM", tmp_path_factory)
+
+
 @pytest.fixture(scope="session")
 def trained_phys_model_file(tmp_path_factory) -> Path:
-    """The deployed kind, IEM+phys, trained as lightly: its estimates are projected onto
-    physically consistent parameters, so the gate's decisions over a real-time run do not
-    hang on whether the paper's IEM happened to give a consistent inertia at an instant."""
-    from deploy.training import train_initial_model
-    from iem.persistence import save_model
-
-    model = train_initial_model("IEM+phys", seed=0, log=lambda *a: None, fit_epochs=3,
-                                fit_stride=20)
-    path = tmp_path_factory.mktemp("model") / "trained-phys.msgpack"
-    save_model(model, path)
-    return path
-
-
-@pytest.fixture
-def phys_model_file(trained_phys_model_file, tmp_path) -> Path:
-    """A private copy of the trained IEM+phys model that a test may overwrite."""
-    path = tmp_path / "model-phys.msgpack"
-    shutil.copyfile(trained_phys_model_file, path)
-    return path
+    """The deployed kind, IEM+phys: its estimates are projected onto physically consistent
+    parameters, so the gate's decisions over a real-time run do not hang on whether the
+    paper's IEM happened to give a consistent inertia at an instant."""
+    return _trained_file("IEM+phys", tmp_path_factory)
 
 
 @pytest.fixture
 def model_file(trained_model_file, tmp_path) -> Path:
-    """A private copy of the trained model that a test may overwrite."""
-    path = tmp_path / "model.msgpack"
-    shutil.copyfile(trained_model_file, path)
-    return path
+    return _private_copy(trained_model_file, tmp_path, "model.msgpack")
+
+
+@pytest.fixture
+def phys_model_file(trained_phys_model_file, tmp_path) -> Path:
+    return _private_copy(trained_phys_model_file, tmp_path, "model-phys.msgpack")
 
 
 def cell_config(model_path, link: dict, **sections) -> dict:
