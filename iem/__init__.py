@@ -1,4 +1,5 @@
 """The learning core: bag router, weak learners, the incremental ensemble and its baselines.
 
-numpy only: nothing here imports hardware, MuJoCo or Pinocchio.
+numpy only at import: nothing here imports hardware, MuJoCo or Pinocchio. The per-sample
+kernels (:mod:`iem.kernels`) compile with numba when first run.
 """

@@ -540,10 +540,12 @@ class IncrementalEnsemble:
 
     def _estimate(self, x: np.ndarray, bag: int, t: float) -> PayloadEstimate:
         learner = self._learners[bag]  # one read: the learner published now
-        z = learner.scaled(x)  # scaled once for the score and the estimate
         learning = bag == self._open  # the open bag trains on this very point: not flagged
-        return PayloadEstimate(t=t, phi=learner.predict_scaled(z), bag=bag, learning=learning,
-                               extra=self._ood.flags(learner, z, x, learning))
+        ood = self._ood
+        phi, score, vscore = learner.estimate(
+            x, not learning and ood.velocity_threshold is not None)
+        return PayloadEstimate(t=t, phi=phi, bag=bag, learning=learning,
+                               extra=ood.flags(score, vscore, learning))
 
     def reset(self) -> None:
         """A new task, perhaps with another payload: nothing is held until an estimate is

@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 
+from . import kernels
 from .errors import InvalidInputError
 
 N_IN = 21
@@ -43,6 +44,7 @@ OUTPUT_MARGIN = 0.25
 """Widening of the training range on each side for the output scaling (fraction of range)."""
 SCALE_FLOOR = np.repeat([1e-3, 1e-3, 1e-3], 7)
 """Smallest input scale per feature (rad, rad/s, N·m): guards features constant in a batch."""
+_NO_PRECISION = np.zeros((7, 7))
 
 
 def _gradient(a: np.ndarray, b: np.ndarray, x: np.ndarray, t: np.ndarray):
@@ -137,19 +139,23 @@ class WeakLearner:
 
     # -- prediction ----------------------------------------------------------------------
     def predict_one(self, X) -> np.ndarray:
-        """phi (10) for one input ``X = [q, dq, tau]`` (21)."""
-        return self.predict_scaled((np.asarray(X, dtype=float) - self.center) * self._inv_scale)
+        """phi (10) for one input ``X = [q, dq, tau]`` (21): :meth:`estimate`'s phi."""
+        return self.estimate(np.asarray(X, dtype=float), False)[0]
 
-    def scaled(self, X) -> np.ndarray:
-        """The input as the network sees it: ``(X - center) / scale`` (21)."""
-        return (np.asarray(X, dtype=float) - self.center) * self._inv_scale
-
-    def predict_scaled(self, x: np.ndarray) -> np.ndarray:
-        """:meth:`predict_one` of an input already :meth:`scaled` (the estimate path scales
-        once for the estimate and its out-of-distribution score)."""
-        y = self.a @ x + self.b
-        np.maximum(y, 0.0, out=y)
-        return self.lo + y * self._span
+    def estimate(self, X: np.ndarray, velocity: bool) -> tuple[np.ndarray, float, float]:
+        """The cycle's one call: ``(phi, score, velocity_score)`` at input ``X`` (21 floats):
+        ``phi = lo + ReLU(a x + b) * (hi - lo)`` with ``x = (X - center) / scale``, the
+        largest ``|x|`` and, if ``velocity``, :meth:`velocity_score` (else 0.0), in one
+        compiled pass (:func:`iem.kernels.learner_estimate`; the tests hold it to
+        :meth:`predict_many`'s NumPy)."""
+        if X.shape != (N_IN,):  # the kernel reads 21 unchecked
+            raise InvalidInputError(f"X must be [q, dq, tau] with {N_IN} values, got {X.shape}")
+        phi = np.empty(N_OUT)
+        prec = self.dq_precision
+        score, vscore = kernels.learner_estimate(
+            self.a, self.b, self.center, self._inv_scale, self.lo, self._span,
+            _NO_PRECISION if prec is None else prec, velocity and prec is not None, X, phi)
+        return phi, score, vscore
 
     def predict_many(self, X) -> np.ndarray:
         """phi ``(N, 10)`` for inputs ``(N, 21)``."""
@@ -174,6 +180,9 @@ class WeakLearner:
         x0 = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
         t = (np.asarray(Y, dtype=float) - self.lo) / self._span
         n = x0.shape[0]
+        if x0.shape != (n, N_IN) or t.shape != (n, N_OUT):  # the kernel reads them unchecked
+            raise InvalidInputError(f"learn needs X (N, {N_IN}) and Y (N, {N_OUT}), got "
+                                    f"{x0.shape} and {t.shape}")
         iters = int(iters)
         norm2 = float(np.einsum("ij,ij->", x0, x0)) / n
         x = x0
@@ -183,24 +192,17 @@ class WeakLearner:
             x = x0 + noise
             norm2 += float(self._noise_scaled @ self._noise_scaled)
         step = 2.0 * self.lr / ((norm2 + 1.0) * n)  # alpha times the MSE's 2/N
-        a, b = self.a, self.b
-        loss = float("nan")
-        for i in range(iters):
-            z = x @ a.T
-            z += b
-            if z.min() > 0.0:  # every ReLU active (the usual case): it is the identity
-                active = None
-            else:
-                active = z > 0.0
-                np.maximum(z, 0.0, out=z)
-            z -= t  # residual ReLU(z) - t
-            if i == iters - 1:
-                loss = float(np.einsum("ij,ij->", z, z)) / n
-            if active is not None:
-                z *= active  # no gradient through an inactive ReLU
-            a -= step * (z.T @ x)
-            b -= step * z.sum(axis=0)
-        return loss
+        if iters <= 0:
+            return float("nan")
+        # compiled (iem.kernels.sgd_steps): as NumPy calls, each step's dozen calls cost more
+        # than their arithmetic (tests/iem/test_kernels.py holds it to the NumPy steps)
+        return kernels.sgd_steps(self._own(), self.b, np.ascontiguousarray(x), t, step, iters)
+
+    def _own(self) -> np.ndarray:
+        """The weights ``a`` as the SGD kernel takes them (float64, C order), in place."""
+        if not self.a.flags.c_contiguous:
+            self.a = np.ascontiguousarray(self.a)
+        return self.a
 
     # -- offline batch training ----------------------------------------------------------
     @classmethod

@@ -39,6 +39,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from . import kernels
 from .base import Estimator
 from .filters import StateFilter
 from .gaps import RESTART, SKIP
@@ -65,6 +66,7 @@ class OnlineIdentifier:
                  tandem: Callable | None, learn: bool = True,
                  state_filter: StateFilter | None = None,
                  smoother: ExponentialSmoother | None = None, timed: bool = False) -> None:
+        kernels.load()  # compiled now, so the first cycle does not wait for it
         self.estimator = estimator
         self.flange_position = flange_position
         self.tandem = tandem

@@ -77,17 +77,15 @@ class OodHold:
         self._trusted: np.ndarray | None = None  # the last estimate not flagged
         self._flagged_since: float | None = None  # estimate time of the run's first flag
 
-    def flags(self, learner, z: np.ndarray, x: np.ndarray, learning: bool) -> dict:
-        """The ``extra`` of the estimate of ``learner`` at input ``x``, ``z`` its
-        :meth:`~iem.learner.WeakLearner.scaled` form; ``learning``: the open bag's (never
-        flagged)."""
-        score = max(float(z.max()), -float(z.min()))  # the largest |z|
+    def flags(self, score: float, vscore: float, learning: bool) -> dict:
+        """The ``extra`` of an estimate whose input scores ``score`` (the largest ``|z|``) and
+        ``vscore`` (:meth:`~iem.learner.WeakLearner.velocity_score`); ``learning``: the open
+        bag's (never flagged)."""
         extra = {"ood_score": score}
         ood = False
         if not learning:
             ood = score > self.threshold
             if self.velocity_threshold is not None:
-                vscore = learner.velocity_score(x)
                 extra["velocity_score"] = vscore
                 ood = ood or vscore > self.velocity_threshold
         extra["ood"] = ood
