@@ -22,9 +22,12 @@ NumPy it stands in for.
 
 from __future__ import annotations
 
+import logging
 import threading
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 _KERNELS = ("route_join_small", "learner_estimate", "sgd_steps", "mass_bin_add",
             "lowpass2_step", "ema_step")
@@ -34,7 +37,10 @@ _lock = threading.Lock()
 
 def load() -> None:
     """Compile the kernels, or load them from numba's cache (about 1 s with the cache, 4 s
-    without, here; once per process, whichever thread asks first)."""
+    without, here; once per process, whichever thread asks first). Where numba finds no
+    writable cache directory (``NUMBA_CACHE_DIR``, beside this module, the user's cache
+    directory) they are compiled without one, with a warning: a start takes longer, and
+    nothing fails."""
     with _lock:
         if not _loaded:
             _compile()
@@ -60,8 +66,17 @@ def _compile() -> None:
         "ema_step": nb.boolean(f1, r1, nb.int64, nb.float64),
     }
     module = globals()
-    for name in _KERNELS:
-        module[name] = nb.njit(signatures[name], cache=True)(module["_" + name])
+    try:
+        compiled = {name: nb.njit(signatures[name], cache=True)(module["_" + name])
+                    for name in _KERNELS}
+    except RuntimeError as exc:  # no writable place for numba's cache (a read-only
+        if "no locator" not in str(exc):  # install, no home directory: a hardened unit)
+            raise
+        log.warning("numba cannot cache the compiled kernels (%s): they are compiled at "
+                    "every start (a few seconds). Set NUMBA_CACHE_DIR to a writable "
+                    "directory (deploy/iem.service sets it to its state directory).", exc)
+        compiled = {name: nb.njit(signatures[name])(module["_" + name]) for name in _KERNELS}
+    module.update(compiled)
     _loaded = True
 
 

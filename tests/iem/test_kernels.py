@@ -213,3 +213,24 @@ def test_the_filter_and_smoothing_kernels_are_their_numpy():
     assert smoother(y).tobytes() == ref.tobytes()
     with pytest.raises(InvalidInputError, match="averages 10 values"):
         smoother(np.zeros(9))
+
+
+def test_without_a_writable_cache_the_kernels_compile_with_a_warning():
+    """A hardened unit has a read-only install and no home: numba then finds no place for
+    its cache. The kernels still compile (uncached) and compute; the warning says what to
+    set. (A locator list that never applies stands for it: numba reads it at import.)"""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import logging, numpy as np; logging.basicConfig(level=logging.WARNING); "
+            "from iem import kernels; kernels.load(); "
+            "r = np.zeros((2, 10)); c = np.ones(2, dtype=np.int64); "
+            "print(kernels.route_join_small(r, c, 2, np.zeros(7), np.zeros(3), 1.0, 1.0))")
+    env = {**os.environ, "NUMBA_CACHE_LOCATOR_CLASSES": "IPythonCacheLocator"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "(0, 0)"
+    assert "numba cannot cache the compiled kernels" in out.stderr
+    assert "NUMBA_CACHE_DIR" in out.stderr
