@@ -105,6 +105,10 @@ def _route_join_small(means, counts, n, q, flange, delta2, rho2):
         for j in range(7):
             d = means[i, j] - q[j]
             s += d * d
+        if s != s:  # NaN: NumPy's argmin names the first NaN, and it qualifies for nothing
+            nearest = i
+            best = s
+            break
         if s < best:
             best = s
             nearest = i

@@ -234,3 +234,17 @@ def test_without_a_writable_cache_the_kernels_compile_with_a_warning():
     assert out.stdout.strip() == "(0, 0)"
     assert "numba cannot cache the compiled kernels" in out.stderr
     assert "NUMBA_CACHE_DIR" in out.stderr
+
+
+def test_route_join_of_a_nan_point_decides_as_numpy():
+    """A NaN point (never from a link, whose decoders refuse it) joins nothing and names
+    the nearest bag as NumPy's argmin does (the first NaN distance): no bag moves."""
+    router = BagRouter()
+    for i in range(3):
+        router.new_bag(np.full(7, 0.1 * i), np.zeros(3))
+    q = np.full(7, 0.1)
+    q[2] = math.nan
+    split = copy.deepcopy(router)
+    assert router.route_join(q, np.zeros(3)) == split.route(q, np.zeros(3)) == (-1, 0)
+    assert router.q_means.tobytes() == split.q_means.tobytes()
+    assert router.counts.tolist() == [1, 1, 1]
