@@ -109,7 +109,7 @@ def _route_join_small(means, counts, n, q, flange, delta2, rho2):
             nearest = i
             best = s
             break
-        if s < best:
+        if s < best or nearest < 0:  # (an infinite point: the first, as argmin)
             best = s
             nearest = i
     sx = 0.0

@@ -190,7 +190,7 @@ class BagRouter:
             raise InvalidInputError(f"a point is q (7) and flange (3), got {q.shape} and "
                                     f"{flange.shape}")
         bag, nearest = kernels.route_join_small(self._means, self._counts, n, q, flange,
-                                        self._delta2, self._rho2)
+                                                self._delta2, self._rho2)
         if bag >= 0:
             self._mirror(bag)
         return bag, nearest

@@ -248,3 +248,5 @@ def test_route_join_of_a_nan_point_decides_as_numpy():
     assert router.route_join(q, np.zeros(3)) == split.route(q, np.zeros(3)) == (-1, 0)
     assert router.q_means.tobytes() == split.q_means.tobytes()
     assert router.counts.tolist() == [1, 1, 1]
+    q[2] = math.inf  # every distance infinite: the first bag, as argmin
+    assert router.route_join(q, np.zeros(3)) == split.route(q, np.zeros(3)) == (-1, 0)
