@@ -66,6 +66,7 @@ def _compile() -> None:
         "ema_step": nb.boolean(f1, r1, nb.int64, nb.float64),
     }
     module = globals()
+    module["_flange_d2"] = nb.njit(inline="always")(_flange_d2_py)  # inlined in the kernel
     try:
         compiled = {name: nb.njit(signatures[name], cache=True)(module["_" + name])
                     for name in _KERNELS}
@@ -98,42 +99,27 @@ def _route_join_small(means, counts, n, q, flange, delta2, rho2):
     point, or -1, and the nearest bag in joint space (ties: the lowest index). If the point
     is in a bag, that bag's means move toward it and its count grows by one (Algorithm 1).
     """
-    nearest = -1
-    best = np.inf
+    d2q = np.empty(n)  # squared joint-space distances, each computed once
     for i in range(n):
         s = 0.0
         for j in range(7):
             d = means[i, j] - q[j]
             s += d * d
-        if s != s:  # NaN: NumPy's argmin names the first NaN, and it qualifies for nothing
-            nearest = i
-            best = s
+        d2q[i] = s
+    nearest = 0
+    for i in range(1, n):  # argmin: the first of equals, and the first NaN if any
+        if d2q[nearest] != d2q[nearest]:
             break
-        if s < best or nearest < 0:  # (an infinite point: the first, as argmin)
-            best = s
+        if d2q[i] < d2q[nearest] or d2q[i] != d2q[i]:
             nearest = i
-    sx = 0.0
-    for j in range(7, 10):
-        d = means[nearest, j] - flange[j - 7]
-        sx += d * d
     bag = -1
-    if best < delta2 and sx < rho2:
+    if d2q[nearest] < delta2 and _flange_d2(means, nearest, flange) < rho2:
         bag = nearest  # the usual case: the nearest bag qualifies
     else:
         best_in = np.inf
         for i in range(n):
-            s = 0.0
-            for j in range(7):
-                d = means[i, j] - q[j]
-                s += d * d
-            if not s < delta2 or not s < best_in:
-                continue
-            sx = 0.0
-            for j in range(7, 10):
-                d = means[i, j] - flange[j - 7]
-                sx += d * d
-            if sx < rho2:
-                best_in = s
+            if d2q[i] < delta2 and d2q[i] < best_in and _flange_d2(means, i, flange) < rho2:
+                best_in = d2q[i]
                 bag = i
         if bag < 0:
             return -1, nearest
@@ -144,6 +130,18 @@ def _route_join_small(means, counts, n, q, flange, delta2, rho2):
         means[bag, 7 + j] += (flange[j] - means[bag, 7 + j]) / k
     counts[bag] = k
     return bag, nearest
+
+
+def _flange_d2_py(means, i, flange):
+    """Squared Cartesian distance of ``flange`` to bag ``i``'s flange mean."""
+    s = 0.0
+    for j in range(3):
+        d = means[i, 7 + j] - flange[j]
+        s += d * d
+    return s
+
+
+_flange_d2 = _flange_d2_py  # until load() compiles it (to be inlined in the kernel)
 
 
 def _learner_estimate(a, b, center, inv_scale, lo, span, dq_precision, velocity, x,
