@@ -54,7 +54,7 @@ class LowPass2:
         b0, b1, b2 = self.b
         _, a1, a2 = self.a
         # one sample as one product: [y, z1', z2'] = M @ [x, z1, z2] (transposed direct
-        # form II), in one compiled call (iem.kernels.lowpass2_step)
+        # form II; each small numpy call costs about a µs, so one product beats nine)
         self._m = np.array([[b0, 1.0, 0.0], [b1 - a1 * b0, -a1, 1.0], [b2 - a2 * b0, -a2, 0.0]])
         self._s = np.zeros((3, self.channels))  # rows: the input, z1, z2
         self._x: np.ndarray | None = None  # the last input
@@ -78,10 +78,16 @@ class LowPass2:
         self._s[1], self._s[2] = value
 
     def _step(self, x: np.ndarray) -> np.ndarray:
-        if x.shape != (self.channels,):  # the kernel reads them unchecked
+        if x.shape != (self.channels,):  # (the kernel reads them unchecked)
             raise InvalidInputError(f"the filter takes {self.channels} channels, got "
                                     f"{x.shape}")
-        return kernels.lowpass2_step(self._m, self._s, x)  # compiled: s[0] = x; out = m @ s
+        if kernels.active:  # compiled (iem.kernels): the same products
+            return kernels.lowpass2_step(self._m, self._s, x)
+        s = self._s
+        s[0] = x
+        out = self._m @ s
+        s[1:] = out[1:]
+        return out[0]
 
     def __call__(self, x, steps: int = 1) -> np.ndarray:
         x = np.asarray(x, dtype=float)

@@ -1,4 +1,4 @@
-"""Compiled kernels of the per-sample numerics (numba), compiled when first needed.
+"""Compiled kernels of the per-sample numerics (numba): an opt-in, ``IEM_KERNELS=numba``.
 
 A cycle at 1 kHz is a burst of a hundred small interpreter and NumPy calls that starts cold
 every millisecond: the same step costs about three times its back-to-back cost when it is
@@ -6,33 +6,70 @@ fed at 1 kHz (README, the hot path's seventh and eighth passes). Where the work 
 dozen multiply-adds on a handful of small arrays, one compiled call does it in a fraction
 of what the NumPy calls' dispatch alone costs, back to back and cold alike.
 
+The price is memory: numba, scipy.linalg and LLVM add about 120 MB of resident memory,
+which takes ``iem bench longrun``'s 60-minute run past its 300 MB target. So the NumPy code
+beside each caller (``iem.router``, ``iem.learner``, ``iem.prior_summary``,
+``iem.filters``, ``iem.smoothing``) is the default and the description; with the
+environment variable ``IEM_KERNELS=numba`` (numba installed: ``pip install '.[fast]'``)
+:data:`active` is true and the callers call these kernels instead. The tests
+(``tests/iem/test_kernels.py``) hold each kernel to its NumPy: to the bit where the
+arithmetic is the same (the routing, the SGD, whose products are the same BLAS calls, the
+mass-bin table), within 1e-12 elsewhere.
+
 The kernels are written here as plain Python over arrays; :func:`load` compiles them with
 numba (explicit signatures, so no call waits for type inference) or loads them from
-numba's cache beside this module (a read-only install caches in the user's cache
-directory). Importing this module imports nothing but NumPy (the ``iem`` core's rule:
-numba brings scipy and LLVM with it): the callers call ``kernels.<name>``, which compiles
-everything on the first call, and :class:`iem.online.OnlineIdentifier` calls :func:`load`
-when it is made, so no cycle waits for a compiler.
+numba's cache beside this module (or ``NUMBA_CACHE_DIR``; a read-only install caches in the
+user's cache directory). Importing this module imports nothing but NumPy (the ``iem``
+core's rule); :class:`iem.online.OnlineIdentifier` calls :func:`load` when it is made, if
+the kernels are on, so no cycle waits for a compiler.
 
 Every array a kernel takes is float64 (int64 for counts), of any layout, read-only where
 the kernel only reads it; kernels do not check shapes (their callers do), and allocate
-nothing but what they return. The tests (``tests/iem/test_kernels.py``) hold each to the
-NumPy it stands in for.
+nothing but what they return.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import threading
 
 import numpy as np
 
+from .errors import InvalidInputError
+
 log = logging.getLogger(__name__)
+
+ENV = "IEM_KERNELS"
+"""The environment variable that chooses the per-sample numerics: ``numpy`` (the default)
+or ``numba`` (these kernels)."""
+CHOICES = ("numpy", "numba")
+
+
+def _choice() -> bool:
+    value = os.environ.get(ENV, "numpy").strip().lower() or "numpy"
+    if value not in CHOICES:
+        raise InvalidInputError(f"{ENV}={os.environ[ENV]!r}: the per-sample numerics are "
+                                f"one of {', '.join(CHOICES)} (default numpy)")
+    return value == "numba"
+
+
+active = _choice()
+"""True: the callers use the compiled kernels (``IEM_KERNELS=numba``, or :func:`set_active`)."""
 
 _KERNELS = ("route_join_small", "learner_estimate", "sgd_steps", "mass_bin_add",
             "lowpass2_step", "ema_step")
 _loaded = False
 _lock = threading.Lock()
+
+
+def set_active(on: bool) -> None:
+    """Use the compiled kernels (compiling them now) or the NumPy code, from the next call
+    (a process normally chooses once, by :data:`ENV`)."""
+    global active
+    if on:
+        load()
+    active = bool(on)
 
 
 def load() -> None:
@@ -48,7 +85,12 @@ def load() -> None:
 
 def _compile() -> None:
     global _loaded
-    import numba as nb
+    try:
+        import numba as nb
+    except ImportError as exc:
+        raise InvalidInputError(f"{ENV}=numba needs numba, which is not installed here "
+                                f"(pip install '.[fast]'), or unset {ENV} for the NumPy "
+                                f"code") from exc
 
     f1 = nb.float64[:]  # written to
     f2 = nb.float64[:, :]

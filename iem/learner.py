@@ -145,17 +145,25 @@ class WeakLearner:
     def estimate(self, X: np.ndarray, velocity: bool) -> tuple[np.ndarray, float, float]:
         """The cycle's one call: ``(phi, score, velocity_score)`` at input ``X`` (21 floats):
         ``phi = lo + ReLU(a x + b) * (hi - lo)`` with ``x = (X - center) / scale``, the
-        largest ``|x|`` and, if ``velocity``, :meth:`velocity_score` (else 0.0), in one
-        compiled pass (:func:`iem.kernels.learner_estimate`; the tests hold it to
-        :meth:`predict_many`'s NumPy)."""
-        if X.shape != (N_IN,):  # the kernel reads 21 unchecked
+        largest ``|x|`` (the out-of-distribution score) and, if ``velocity``,
+        :meth:`velocity_score` (else 0.0). Compiled with :mod:`iem.kernels` (one pass; the
+        tests hold it to this NumPy)."""
+        if X.shape != (N_IN,):  # (the kernel reads 21 unchecked)
             raise InvalidInputError(f"X must be [q, dq, tau] with {N_IN} values, got {X.shape}")
-        phi = np.empty(N_OUT)
         prec = self.dq_precision
-        score, vscore = kernels.learner_estimate(
-            self.a, self.b, self.center, self._inv_scale, self.lo, self._span,
-            _NO_PRECISION if prec is None else prec, velocity and prec is not None, X, phi)
-        return phi, score, vscore
+        if kernels.active:
+            phi = np.empty(N_OUT)
+            score, vscore = kernels.learner_estimate(
+                self.a, self.b, self.center, self._inv_scale, self.lo, self._span,
+                _NO_PRECISION if prec is None else prec, velocity and prec is not None, X,
+                phi)
+            return phi, score, vscore
+        x = (X - self.center) * self._inv_scale
+        y = self.a @ x + self.b
+        np.maximum(y, 0.0, out=y)
+        score = max(float(x.max()), -float(x.min()))  # the largest |x|
+        return (self.lo + y * self._span, score,
+                self.velocity_score(X) if velocity else 0.0)
 
     def predict_many(self, X) -> np.ndarray:
         """phi ``(N, 10)`` for inputs ``(N, 21)``."""
@@ -180,7 +188,7 @@ class WeakLearner:
         x0 = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
         t = (np.asarray(Y, dtype=float) - self.lo) / self._span
         n = x0.shape[0]
-        if x0.shape != (n, N_IN) or t.shape != (n, N_OUT):  # the kernel reads them unchecked
+        if x0.shape != (n, N_IN) or t.shape != (n, N_OUT):  # (the kernel reads them unchecked)
             raise InvalidInputError(f"learn needs X (N, {N_IN}) and Y (N, {N_OUT}), got "
                                     f"{x0.shape} and {t.shape}")
         iters = int(iters)
@@ -192,11 +200,28 @@ class WeakLearner:
             x = x0 + noise
             norm2 += float(self._noise_scaled @ self._noise_scaled)
         step = 2.0 * self.lr / ((norm2 + 1.0) * n)  # alpha times the MSE's 2/N
-        if iters <= 0:
-            return float("nan")
-        # compiled (iem.kernels.sgd_steps): as NumPy calls, each step's dozen calls cost more
-        # than their arithmetic (tests/iem/test_kernels.py holds it to the NumPy steps)
-        return kernels.sgd_steps(self._own(), self.b, np.ascontiguousarray(x), t, step, iters)
+        if kernels.active and iters > 0:  # compiled (iem.kernels): the same steps, whose
+            # NumPy calls cost more than their arithmetic
+            return kernels.sgd_steps(self._own(), self.b, np.ascontiguousarray(x), t, step,
+                                     iters)
+        a, b = self.a, self.b
+        loss = float("nan")
+        for i in range(iters):
+            z = x @ a.T
+            z += b
+            if z.min() > 0.0:  # every ReLU active (the usual case): it is the identity
+                active = None
+            else:
+                active = z > 0.0
+                np.maximum(z, 0.0, out=z)
+            z -= t  # residual ReLU(z) - t
+            if i == iters - 1:
+                loss = float(np.einsum("ij,ij->", z, z)) / n
+            if active is not None:
+                z *= active  # no gradient through an inactive ReLU
+            a -= step * (z.T @ x)
+            b -= step * z.sum(axis=0)
+        return loss
 
     def _own(self) -> np.ndarray:
         """The weights ``a`` as the SGD kernel takes them (float64, C order), in place."""

@@ -66,7 +66,8 @@ class OnlineIdentifier:
                  tandem: Callable | None, learn: bool = True,
                  state_filter: StateFilter | None = None,
                  smoother: ExponentialSmoother | None = None, timed: bool = False) -> None:
-        kernels.load()  # compiled now, so the first cycle does not wait for it
+        if kernels.active:
+            kernels.load()  # compiled now, so the first cycle does not wait for it
         self.estimator = estimator
         self.flange_position = flange_position
         self.tandem = tandem

@@ -75,12 +75,17 @@ class BagCalibration:
         self._sum[bag] += errors.T @ errors
         self._n[bag] += errors.shape[0]
         self._cov.pop(bag, None)
-        if truth is not None:  # compiled: np.add.at's sums by searchsorted's bins
+        if truth is not None:
             mass = np.asarray(truth, dtype=float)[:, 0]
-            if mass.shape[0] != errors.shape[0]:  # the kernel reads them unchecked
+            if mass.shape[0] != errors.shape[0]:  # (the kernel reads them unchecked)
                 raise InvalidInputError(f"errors {errors.shape} and truth "
                                         f"{np.shape(truth)} differ in samples")
-            kernels.mass_bin_add(self._bin_sq, self._bin_n, _EDGES, mass, errors)
+            if kernels.active:  # compiled (iem.kernels): the same sums
+                kernels.mass_bin_add(self._bin_sq, self._bin_n, _EDGES, mass, errors)
+                return
+            k = np.searchsorted(MASS_BINS, mass, side="right")
+            np.add.at(self._bin_sq, k, np.square(errors))
+            self._bin_n += np.bincount(k, minlength=self._bin_n.size)
 
     def scale(self, mass: float) -> np.ndarray | None:
         """Per parameter, the factor on a calibrated standard deviation for a payload of

@@ -175,24 +175,38 @@ class BagRouter:
     def route_join(self, q, flange) -> tuple[int, int]:
         """:meth:`route`, then, if the point is inside a bag, :meth:`join` it: Algorithm 1
         without the new bag (the caller decides what a point outside every bag starts).
-        Returns :meth:`route`'s ``(bag, nearest)``. One compiled pass over the bags for both
-        on a small map (the online cycle's case)."""
+        Returns :meth:`route`'s ``(bag, nearest)``. One pass over the bags for both on a
+        small map (the online cycle's case)."""
         n = self._n
         if n > _SMALL or n == 0:
             bag, nearest = self.route(q, flange)
             if bag >= 0:
                 self.join(bag, q, flange)
             return bag, nearest
-        # compiled: the same decision and means as route then join (iem.kernels; the tests
-        # hold it to them)
         q, flange = _floats(q), _floats(flange)
-        if q.shape != (7,) or flange.shape != (3,):  # the kernel reads 7 and 3 unchecked
+        if q.shape != (7,) or flange.shape != (3,):  # (the kernel reads 7 and 3 unchecked)
             raise InvalidInputError(f"a point is q (7) and flange (3), got {q.shape} and "
                                     f"{flange.shape}")
-        bag, nearest = kernels.route_join_small(self._means, self._counts, n, q, flange,
-                                                self._delta2, self._rho2)
-        if bag >= 0:
-            self._mirror(bag)
+        if kernels.active:  # compiled (iem.kernels): the same decision and means
+            bag, nearest = kernels.route_join_small(self._means, self._counts, n, q, flange,
+                                                    self._delta2, self._rho2)
+            return bag, nearest  # (a small map is never mirrored)
+        p = np.concatenate((q, flange))
+        d = self._means[:n] - p
+        d *= d
+        d2q = d[:, :7].sum(axis=1)  # the same arithmetic as _route_small
+        nearest = int(d2q.argmin())
+        if d2q[nearest] < self._delta2 and d[nearest, 7:].sum() < self._rho2:
+            bag = nearest  # the usual case: the nearest bag qualifies
+        else:
+            inside = (d2q < self._delta2) & (d[:, 7:].sum(axis=1) < self._rho2)
+            if not inside.any():
+                return -1, nearest
+            bag = int(np.where(inside, d2q, np.inf).argmin())
+        k = self._counts[bag] + 1
+        row = self._means[bag]
+        row += (p - row) / k  # as join: both means move toward the point
+        self._counts[bag] = k
         return bag, nearest
 
     def _route_small(self, q: np.ndarray, x: np.ndarray) -> tuple[int, int]:

@@ -52,13 +52,16 @@ class ExponentialSmoother:
                 self._s = x.copy()  # start at the first finite estimate
                 self._n = 1
             return x.copy()
-        if x.shape != self._s.shape:  # the kernel reads them unchecked
+        if x.shape != self._s.shape:  # (the kernel reads them unchecked)
             raise InvalidInputError(f"the smoothing averages {self._s.shape[0]} values, got "
                                     f"{x.shape}")
         alpha = self.alpha if steps <= 1 else 1.0 - (1.0 - self.alpha) ** steps
-        # compiled: if x is finite, s += max(1 / (n + 1), alpha) (x - s)
-        if kernels.ema_step(self._s, x, self._n, alpha):
+        if kernels.active:  # compiled (iem.kernels): the same arithmetic
+            if kernels.ema_step(self._s, x, self._n, alpha):
+                self._n += 1
+        elif np.isfinite(x).all():
             self._n += 1
+            self._s += max(1.0 / self._n, alpha) * (x - self._s)
         return self._s.copy()
 
     def run(self, X) -> np.ndarray:

@@ -1,22 +1,42 @@
-"""The compiled kernels (iem.kernels) against the NumPy they stand in for.
+"""The compiled kernels (iem.kernels, opt-in with IEM_KERNELS=numba) against the NumPy
+code they stand in for, which is the default.
 
-The router's kernel is held to route-then-join to the bit in tests/iem/test_algorithms.py
-(``test_route_join_is_route_then_join``); here the cases that test does not reach by
-chance, and the learner's kernel against ``predict_one``, ``scaled`` and
-``velocity_score``.
+Every test here runs with the kernels on (the ``compiled`` fixture); :func:`numpy_path`
+switches back to the NumPy code for a reference inside a test.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 
 import numpy as np
 import pytest
 
+from iem import kernels
 from iem.errors import InvalidInputError
 from iem.learner import WeakLearner, velocity_precision
 from iem.router import BagRouter
+
+pytest.importorskip("numba", reason="the compiled kernels need numba (the dev extra has it)")
+
+
+@pytest.fixture(autouse=True)
+def compiled():
+    before = kernels.active
+    kernels.set_active(True)
+    yield
+    kernels.set_active(before)
+
+
+@contextlib.contextmanager
+def numpy_path():
+    kernels.set_active(False)
+    try:
+        yield
+    finally:
+        kernels.set_active(True)
 
 
 def _learner(rng, precision: bool) -> WeakLearner:
@@ -43,11 +63,15 @@ def test_the_learners_kernel_is_its_numpy(precision):
         for scale in (0.1, 1.0, 30.0):  # inside and far outside the training inputs
             x = learner.center + rng.normal(size=21) * learner.scale * scale
             phi, score, vscore = learner.estimate(x, velocity=True)
+            with numpy_path():
+                ref_phi, ref_score, ref_vscore = learner.estimate(x, velocity=True)
+            np.testing.assert_allclose(phi, ref_phi, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(phi, learner.predict_many(x[None])[0], rtol=1e-12,
                                        atol=1e-12)
             assert phi.tobytes() == learner.predict_one(x).tobytes()
-            assert score == float(np.abs(_scaled(learner, x)).max())  # exact: no sums
-            assert vscore == pytest.approx(learner.velocity_score(x), rel=1e-12, abs=1e-15)
+            assert score == ref_score == float(np.abs(_scaled(learner, x)).max())  # no sums
+            assert vscore == pytest.approx(ref_vscore, rel=1e-12, abs=1e-15)
+            assert ref_vscore == learner.velocity_score(x) if precision else ref_vscore == 0.0
             assert learner.estimate(x, velocity=False)[2] == 0.0
     assert (phi >= learner.lo).all()  # the ReLU floors at lo
 
@@ -134,6 +158,17 @@ def test_the_sgd_kernel_is_the_numpy_steps(inactive):
         z = x @ a0.T + b0
         assert (z[:, :4] <= 0).mean() > 0.9
     assert math.isnan(learner.learn(X, Y, 0))  # no step: nothing changes, no loss
+    # and WeakLearner.learn's own NumPy steps, with its input noise drawn alike
+    noisy = [_learner(np.random.default_rng(5), precision=False) for _ in range(2)]
+    for one in noisy:
+        one.input_noise = np.full(21, 0.05)
+        one._refresh()
+    loss = noisy[0].learn(X, Y, 5)
+    with numpy_path():
+        ref_loss = noisy[1].learn(X, Y, 5)
+    assert noisy[0].a.tobytes() == noisy[1].a.tobytes()
+    assert noisy[0].b.tobytes() == noisy[1].b.tobytes()
+    assert loss == pytest.approx(ref_loss, rel=1e-12)
 
 
 def test_the_mass_bin_table_adds_as_numpy():
@@ -250,3 +285,44 @@ def test_route_join_of_a_nan_point_decides_as_numpy():
     assert router.counts.tolist() == [1, 1, 1]
     q[2] = math.inf  # every distance infinite: the first bag, as argmin
     assert router.route_join(q, np.zeros(3)) == split.route(q, np.zeros(3)) == (-1, 0)
+
+
+@pytest.mark.parametrize("n_bags", [12, 60])
+def test_route_join_kernel_decides_as_numpy_on_bag_boundaries(n_bags):
+    """The algorithms test's boundary points (tests/iem/test_algorithms.py), the kernel's
+    route_join against the NumPy one: the same bags, means and counts, to the bit."""
+    from tests.iem.test_algorithms import _boundary_points, _crowded_router
+
+    fused = _crowded_router(n_bags)
+    ref = copy.deepcopy(fused)
+    rng = np.random.default_rng(4)
+    points = list(_boundary_points(ref, 10, rng))
+    points += [(ref.q_means[i % len(ref)] + rng.normal(0, 0.2, 7), np.zeros(3))
+               for i in range(200)]
+    outcomes = set()
+    for q, f in points:
+        got = fused.route_join(q, f)
+        with numpy_path():
+            want = ref.route_join(q, f)
+        assert got == want
+        outcomes.add(got[0] >= 0)
+    assert outcomes == {True, False}
+    assert fused.q_means.tobytes() == ref.q_means.tobytes()
+    assert fused.flange_means.tobytes() == ref.flange_means.tobytes()
+    assert fused.counts.tolist() == ref.counts.tolist()
+
+
+def test_the_choice_is_an_environment_variable_with_a_clear_error():
+    import os
+    import subprocess
+    import sys
+
+    code = "from iem import kernels; print(kernels.active)"
+    for value, want in (("", "False"), ("numpy", "False"), ("NumBa", "True")):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env={**os.environ, "IEM_KERNELS": value}, timeout=60)
+        assert out.returncode == 0 and out.stdout.strip() == want, out.stderr
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, "IEM_KERNELS": "fortran"}, timeout=60)
+    assert out.returncode != 0
+    assert "IEM_KERNELS='fortran'" in out.stderr and "numpy, numba" in out.stderr
