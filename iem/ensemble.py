@@ -542,8 +542,7 @@ class IncrementalEnsemble:
         learner = self._learners[bag]  # one read: the learner published now
         learning = bag == self._open  # the open bag trains on this very point: not flagged
         ood = self._ood
-        phi, score, vscore = learner.estimate(
-            x, not learning and ood.velocity_threshold is not None)
+        phi, score, vscore = learner.estimate(x, ood.scores_velocity(learning))
         return PayloadEstimate(t=t, phi=phi, bag=bag, learning=learning,
                                extra=ood.flags(score, vscore, learning))
 

@@ -140,7 +140,18 @@ class WeakLearner:
     # -- prediction ----------------------------------------------------------------------
     def predict_one(self, X) -> np.ndarray:
         """phi (10) for one input ``X = [q, dq, tau]`` (21): :meth:`estimate`'s phi."""
-        return self.estimate(np.asarray(X, dtype=float), False)[0]
+        X = np.asarray(X, dtype=float)
+        if kernels.active:
+            return self.estimate(X, False)[0]
+        if X.shape != (N_IN,):
+            raise InvalidInputError(f"X must be [q, dq, tau] with {N_IN} values, got {X.shape}")
+        return self._phi((X - self.center) * self._inv_scale)  # (no score: nobody asked)
+
+    def _phi(self, x: np.ndarray) -> np.ndarray:
+        """phi of an input already scaled, ``x = (X - center) / scale`` (NumPy)."""
+        y = self.a @ x + self.b
+        np.maximum(y, 0.0, out=y)
+        return self.lo + y * self._span
 
     def estimate(self, X: np.ndarray, velocity: bool) -> tuple[np.ndarray, float, float]:
         """The cycle's one call: ``(phi, score, velocity_score)`` at input ``X`` (21 floats):
@@ -159,11 +170,8 @@ class WeakLearner:
                 phi)
             return phi, score, vscore
         x = (X - self.center) * self._inv_scale
-        y = self.a @ x + self.b
-        np.maximum(y, 0.0, out=y)
         score = max(float(x.max()), -float(x.min()))  # the largest |x|
-        return (self.lo + y * self._span, score,
-                self.velocity_score(X) if velocity else 0.0)
+        return self._phi(x), score, self.velocity_score(X) if velocity else 0.0
 
     def predict_many(self, X) -> np.ndarray:
         """phi ``(N, 10)`` for inputs ``(N, 21)``."""

@@ -77,15 +77,20 @@ class OodHold:
         self._trusted: np.ndarray | None = None  # the last estimate not flagged
         self._flagged_since: float | None = None  # estimate time of the run's first flag
 
+    def scores_velocity(self, learning: bool) -> bool:
+        """Whether an estimate's velocity score is asked for (a closed bag's, with a
+        ``velocity_threshold``): the learner computes it only then."""
+        return not learning and self.velocity_threshold is not None
+
     def flags(self, score: float, vscore: float, learning: bool) -> dict:
         """The ``extra`` of an estimate whose input scores ``score`` (the largest ``|z|``) and
-        ``vscore`` (:meth:`~iem.learner.WeakLearner.velocity_score`); ``learning``: the open
-        bag's (never flagged)."""
+        ``vscore`` (:meth:`~iem.learner.WeakLearner.velocity_score`, read only if
+        :meth:`scores_velocity`); ``learning``: the open bag's (never flagged)."""
         extra = {"ood_score": score}
         ood = False
         if not learning:
             ood = score > self.threshold
-            if self.velocity_threshold is not None:
+            if self.scores_velocity(learning):
                 extra["velocity_score"] = vscore
                 ood = ood or vscore > self.velocity_threshold
         extra["ood"] = ood
