@@ -173,6 +173,7 @@ RANGES = {
     ("gate", "ack_retry_s"): (0.1, 3600.0),
     ("gate", "decision_period_s"): (0.001, 10.0),
     ("gate", "max_mass_2sigma_kg"): (0.0001, 3.0),
+    ("gate", "max_com_2sigma_m"): (0.0001, 1.0),
     ("gate", "max_nis"): (1.0, 1e6),
     ("gate", "refusal_retry_s"): (0.1, 3600.0),
     ("gate", "refusal_retry_max_s"): (0.1, 3600.0),

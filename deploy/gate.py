@@ -20,7 +20,8 @@ controller. In order, an estimate is refused if:
    ``refusal_retry_s``, doubling the wait after each further refusal up to
    ``refusal_retry_max_s``, until the controller accepts;
 9. ``uncertain``: the model reports a standard deviation and the 2-sigma band on the mass,
-   ``2 * std[0]``, is wider than ``max_mass_2sigma_kg``;
+   ``2 * std[0]``, is wider than ``max_mass_2sigma_kg``, or the 2-sigma radius of the CoM
+   (its standard deviations through ``r = (m r) / m``) is wider than ``max_com_2sigma_m``;
 10. ``data_disagree``: the model reports ``extra["nis"]`` (its mean normalised innovation
     squared per degree of freedom over its recent equations, about 1 when the data agree
     with the model) and it exceeds ``max_nis``;
@@ -97,6 +98,8 @@ class GateConfig:
         decision_period_s: how often the gate decides.
         max_mass_2sigma_kg: no write while the model's 2-sigma band on the mass
             (``2 * std[0]``, kg) is wider than this.
+        max_com_2sigma_m: no write while the model's 2-sigma radius of the CoM (m) is wider
+            than this: by default issue 10's 5 mm, the error a written load may have.
         max_nis: no write while the model's ``extra["nis"]`` (mean normalised innovation
             squared per degree of freedom, dimensionless, about 1 when the data agree with
             the model) exceeds this.
@@ -117,6 +120,7 @@ class GateConfig:
     ack_retry_s: float = 5.0
     decision_period_s: float = 0.05
     max_mass_2sigma_kg: float = 0.02
+    max_com_2sigma_m: float = 0.005
     max_nis: float = 3.0
     refusal_retry_s: float = 1.0
     refusal_retry_max_s: float = 10.0

@@ -50,6 +50,18 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
     return payload, "", ""
 
 
+def com_2sigma(phi, std) -> float:
+    """The 2-sigma radius of the CoM, m, of an estimate ``phi`` (paper order) with standard
+    deviations ``std``: ``r = (m r) / m`` to first order, NaN where it is not defined."""
+    phi = np.asarray(phi, dtype=float).reshape(-1)
+    std = np.asarray(std, dtype=float).reshape(-1)
+    mass = phi[0]
+    if not mass > 0.0:
+        return math.nan
+    com = phi[1:4] / mass
+    return 2.0 * float(np.sqrt(np.sum(std[1:4] ** 2 + (com * std[0]) ** 2))) / mass
+
+
 def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     """``("out_of_distribution" | "unverified" | "uncertain" | "data_disagree", detail)`` if
     the model's own figures say its estimate (an :class:`iem.types.PayloadEstimate`) is not
@@ -60,7 +72,11 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     - ``unverified``: ``extra["unverified"]``: the estimate started from a payload file and
       the model has not yet tested it against enough live data;
     - ``uncertain``: ``2 * std[0]`` (the 2-sigma band on the mass, kg) is wider than
-      ``max_mass_2sigma_kg``, or not a number (no band known);
+      ``max_mass_2sigma_kg``, or the 2-sigma radius of the CoM is wider than
+      ``max_com_2sigma_m``, or either is not a number (no band known). The CoM's standard
+      deviations are those of ``r = (m r) / m`` to first order, ``sqrt(std[1:4]**2 +
+      (r * std[0])**2) / m`` (the estimate carries standard deviations, not their
+      correlations); the radius is their norm;
     - ``data_disagree``: ``extra["nis"]`` (the mean normalised innovation squared per degree
       of freedom over the model's recent equations, about 1 when the data agree with the
       model) exceeds ``max_nis``; a NaN ``nis`` (no verdict yet) does not hold a write back.
@@ -84,6 +100,10 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
         if not band <= config.max_mass_2sigma_kg:
             return ("uncertain", f"2-sigma band on the mass {band:.4g} kg > "
                                  f"{config.max_mass_2sigma_kg:g} kg")
+        radius = com_2sigma(estimate.phi, std)
+        if not radius <= config.max_com_2sigma_m:
+            return ("uncertain", f"2-sigma radius of the CoM {radius * 1e3:.3g} mm > "
+                                 f"{config.max_com_2sigma_m * 1e3:g} mm")
     nis = extra.get("nis")
     if nis is not None and math.isfinite(nis) and nis > config.max_nis:
         return ("data_disagree", f"normalised innovation squared {nis:.3g} per degree of "

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from deploy.gate import REASONS, Decision, GateConfig, SafetyGate
+from deploy.gate_checks import com_2sigma
 from sim.family import test_payloads
 from sim.payload import Payload
 
@@ -352,6 +353,42 @@ def test_a_wide_two_sigma_band_on_the_mass_holds_writes_back():
     assert any(d.send for d in feed_with(loose, estimate(std_mass=0.011), 0.0, 1.0))
     assert set(reasons(feed_with(SafetyGate(), estimate(std_mass=math.nan), 0.0, 1.0))) == {
         "uncertain"}
+
+
+def test_a_wide_two_sigma_radius_of_the_com_holds_writes_back():
+    """A load whose CoM the model itself cannot place within max_com_2sigma_m is not written
+    (the mass's band alone let through a load 5 mm off on a faulty stream)."""
+    from iem.types import PayloadEstimate
+
+    phi = phi_of()
+    mass = phi[0]
+
+    def est(std_mr: float) -> PayloadEstimate:  # std of each m·r_i, kg·m; mass std small
+        return PayloadEstimate(t=0.0, phi=phi, std=np.r_[0.001, np.full(3, std_mr),
+                                                         np.full(6, 1e-4)])
+
+    # radius 2 * sqrt(3 * std_mr² + |r|² std_m²) / m: about 6.9 mm for 0.0032 kg·m
+    gate = SafetyGate()
+    wide = feed_with(gate, est(0.0032), 0.0, 1.0)
+    assert set(reasons(wide)) == {"uncertain"}
+    assert "2-sigma radius of the CoM" in wide[0].detail and "> 5 mm" in wide[0].detail
+    narrow = feed_with(gate, est(0.001), 1.01, 1.2)  # about 2.2 mm: written
+    assert narrow[0].send
+    assert any(d.send for d in feed_with(SafetyGate(GateConfig(max_com_2sigma_m=0.01)),
+                                         est(0.0032), 0.0, 1.0))
+    assert 0.0064 < com_2sigma(phi, est(0.0032).std) < 0.0074 and mass > 0
+
+
+def test_the_com_two_sigma_radius_matches_sampling():
+    """First-order propagation through r = (m r) / m against 200,000 draws of phi."""
+    rng = np.random.default_rng(5)
+    phi = phi_of()
+    std = np.r_[0.02, 0.004, 0.003, 0.006, np.full(6, 1e-4)]
+    draws = phi + rng.standard_normal((200_000, 10)) * std
+    com = draws[:, 1:4] / draws[:, :1]
+    sampled = 2.0 * float(np.sqrt(np.sum(com.var(axis=0))))
+    assert com_2sigma(phi, std) == pytest.approx(sampled, rel=0.02)
+    assert math.isnan(com_2sigma(np.r_[0.0, phi[1:]], std))  # no mass: no CoM
 
 
 def test_data_disagreeing_with_the_model_holds_writes_back():
