@@ -68,6 +68,20 @@ def _joint_names(joints) -> tuple[str, ...] | None:
                             "'panda' or a list of 7 distinct joint names")
 
 
+def match_joints(names, joints: tuple[str, ...] | None = None
+                 ) -> tuple[tuple[int, ...], tuple[str, ...]] | None:
+    """Where the seven arm joints are among a JointState's ``names``: ``(index, joint_set)``
+    with ``names[index[i]] == joint_set[i]``, or None if ``names`` lacks one of them.
+    ``joints``: the seven names to look for (see :func:`_joint_names`); None (``"auto"``):
+    the first set of :data:`JOINT_SETS` (fr3, then panda) whose seven names all appear."""
+    wanted = [joints] if joints is not None else list(JOINT_SETS.values())
+    where = {n: i for i, n in enumerate(names)}
+    for joint_set in wanted:
+        if all(n in where for n in joint_set):
+            return tuple(where[n] for n in joint_set), tuple(joint_set)
+    return None
+
+
 def _stamp(t: float):
     from .ros2_types import Time
 
@@ -197,15 +211,10 @@ class Ros2Link:
             return self._index[names]
         except KeyError:
             pass
-        wanted = [self._names] if self._names is not None else list(JOINT_SETS.values())
-        where = {n: i for i, n in enumerate(names)}
-        index = None
-        for joint_set in wanted:
-            if all(n in where for n in joint_set):
-                index = tuple(where[n] for n in joint_set)
-                if not self._flange_frame:
-                    self._flange_frame = joint_set[0].rsplit("_joint", 1)[0] + "_link8"
-                break
+        found = match_joints(names, self._names)
+        index = None if found is None else found[0]
+        if found is not None and not self._flange_frame:
+            self._flange_frame = found[1][0].rsplit("_joint", 1)[0] + "_link8"
         if index is None:
             log.warning("%s: a JointState without the joints %s (it names %s): dropped, "
                         "counted as malformed; set [ros2] joints", self.name,
