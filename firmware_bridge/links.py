@@ -229,6 +229,10 @@ LINKS: dict[str, LinkKind] = {
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
                        sink=False),
+    "recording": LinkKind("firmware_bridge.recordings", "open_recording_link",
+                          "a recorded rosbag2 bag (directory, .db3, .mcap; JointState topic "
+                          "/franka/joint_states) or joint-state CSV (t,q1..q7,dq1..dq7,"
+                          "tau1..tau7); channel: the path", sink=False, fixed_rate_hz=1000.0),
 }
 """The one table of link kinds: the configuration, the service, the simulated controller and
 the recorder all take their kinds from it."""

@@ -24,7 +24,8 @@ def test_unknown_kinds_name_the_valid_ones():
         open_bus("pcan", "x")
     with pytest.raises(BridgeConfigError, match="slcan needs a channel"):
         open_bus("slcan", "")
-    assert set(LINKS) == {"virtual", "socketcan", "slcan", "serial", "franka", "ros2", "replay"}
+    assert set(LINKS) == {"virtual", "socketcan", "slcan", "serial", "franka", "ros2", "replay",
+                          "recording"}
 
 
 def test_socketcan_failure_is_a_link_error_with_a_hint():
@@ -111,4 +112,4 @@ def test_one_opener_signature_and_unknown_options_name_the_valid_ones(channel):
                                             "serial", "serial-pty"}
     with pytest.raises(BridgeConfigError, match="is not a CAN bus"):
         open_bus("serial", "loop://")
-    assert link_kind("replay").sink is False
+    assert link_kind("replay").sink is False and link_kind("recording").sink is False

@@ -1,0 +1,438 @@
+"""Joint-state recordings of any supported format, read as arrays or as a joint-state source.
+
+Three formats (:data:`FORMATS`), told apart by :func:`detect_format` (a caller may name one):
+
+- ``can``: a CAN log of this project's wire protocol (``.blf .log .asc .trc``, as ``iem
+  record`` writes them), decoded by :class:`firmware_bridge.replay.ReplaySource` exactly as
+  the live link decodes the bus (the link kind ``replay``). python-can's own CSV CAN log is
+  recognised and refused: it keeps no CAN FD flag, so ``iem record`` does not write it.
+- ``rosbag2``: ``ros2 bag record /franka/joint_states``: a bag directory holding
+  ``metadata.yaml``, or one of its ``.db3`` (sqlite3) or ``.mcap`` files, read with
+  ``rosbags`` (no ROS install). The topic (default ``/franka/joint_states``) must carry
+  ``sensor_msgs/msg/JointState``; joints are mapped by name as the ``ros2`` link maps them
+  (:func:`firmware_bridge.ros2_link.match_joints`: ``fr3_joint1..7`` or ``panda_joint1..7``,
+  in any order, other joints such as the fingers ignored); ``position``, ``velocity`` and
+  ``effort`` (franka_ros2: tau_J, link side) give q, dq and tau. ``t`` is the message's
+  ``header.stamp`` (s, to the nearest double of its nanoseconds); only if every message's
+  stamp is zero (a publisher that does not stamp) is it the bag's receive time.
+- ``csv``: a text file whose header names the columns ``t`` (s), ``q1..q7`` (rad),
+  ``dq1..dq7`` (rad/s) and ``tau1..tau7`` (N·m, link side: libfranka's ``tau_J``), in any
+  order; other columns are ignored. A libfranka ``RobotState`` logged that way.
+
+:func:`read_recording` gives an :class:`iem.recording.Recording` (``t (N,)``, ``q, dq, tau
+(N, 7)``); :class:`RecordingSource` is a :class:`~firmware_bridge.links.JointStateSource` over
+one (the link kind ``recording``, rosbag2 and CSV), delivering the recorded time stamps as they
+are: nothing is resampled or filled, the estimator's gap rule (:mod:`iem.gaps`) decides what a
+gap is. :func:`open_recording` opens any of the three formats as a source.
+
+A rosbag2 or CSV recording is read whole and checked before anything is delivered: a missing
+joint or column, a time stamp that does not increase strictly, a non-finite value (a single
+NaN refuses the whole file: a recording quietly shortened or patched would identify another
+payload without saying so), an empty file, a topic not in the bag or one of another message
+type is a :class:`~firmware_bridge.errors.LogFileError` naming the message or line, the joint
+or column, and what is valid. It holds 22 float64 per joint state (176 bytes: 10 MB a minute
+at 1 kHz).
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from iem.recording import Recording
+from iem.types import N_JOINTS, JointState
+
+from .errors import EndOfStream, LogFileError
+from .links import LinkCounters, open_link
+from .reassembly import CYCLE_MOD
+from .record import FORMATS as CAN_SUFFIXES
+from .ros2_link import DEFAULT_TOPIC, JOINT_SETS, match_joints
+
+FORMATS = ("can", "rosbag2", "csv")
+"""The recording formats, as ``--format`` names them."""
+BAG_SUFFIXES = (".db3", ".mcap")
+"""Files of a rosbag2 bag that are read on their own (sqlite3, MCAP)."""
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+CSV_COLUMNS = ("t", *(f"{s}{i}" for s in ("q", "dq", "tau") for i in range(1, N_JOINTS + 1)))
+"""The columns a joint-state CSV must have (any order; others are ignored)."""
+CAN_CSV_HEADER = ("timestamp", "arbitration_id")
+"""How python-can's CSV CAN log starts its header."""
+RATE_HZ = 1000.0
+"""Joint states per second the estimator is set up for on a recording: Franka's controller
+rate (libfranka's RobotState and franka_ros2's ``/franka/joint_states``)."""
+VALID = ("a CAN log (.blf, .log, .asc, .trc), a rosbag2 bag (its directory, a .db3 or a .mcap "
+         "file) or a joint-state CSV (header t,q1..q7,dq1..dq7,tau1..tau7)")
+
+log = logging.getLogger("iem.bridge")
+
+
+# -- which format ------------------------------------------------------------------------------
+def _header(path: FsPath) -> list[str] | None:
+    """The first line of a text file as CSV field names, or None if it is not text."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError:
+        return None
+    try:
+        line = head.split(b"\n", 1)[0].rstrip(b"\r").decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return None
+    return [name.strip() for name in line.split(",")]
+
+
+def detect_format(path) -> str:
+    """The format of the recording at ``path``: ``"can"``, ``"rosbag2"`` or ``"csv"``.
+
+    A directory holding ``metadata.yaml`` or a ``.db3``/``.mcap`` file is a rosbag2; a CAN log
+    suffix is a CAN log; a text file whose header has the joint-state columns is a CSV, whatever
+    its suffix; a ``.csv`` file with another header is a CSV too (reading it names the missing
+    columns). LogFileError for python-can's CSV CAN log, a directory that is no bag, a missing
+    path without a known suffix, and anything else, naming the valid formats.
+    """
+    path = FsPath(path)
+    suffix = path.suffix.lower()
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return "rosbag2"
+        raise LogFileError(f"{path}: a directory without metadata.yaml is not a rosbag2 bag; "
+                           f"valid recordings are {VALID}")
+    if suffix in BAG_SUFFIXES:
+        return "rosbag2"
+    if suffix in CAN_SUFFIXES:
+        return "can"
+    if path.is_file():
+        header = _header(path)
+        if header is not None and set(CSV_COLUMNS) <= set(header):
+            return "csv"
+        if header is not None and tuple(header[:2]) == CAN_CSV_HEADER:
+            raise LogFileError(f"{path}: a python-can CSV CAN log; it keeps no CAN FD flag, so "
+                               "iem reads CAN logs as .blf, .log, .asc or .trc (iem record "
+                               "writes them)")
+    elif not path.exists() and suffix != ".csv":
+        what = f"unknown log format {suffix!r}" if suffix else "no such file or directory"
+        raise LogFileError(f"{path}: {what}; valid recordings are {VALID}")
+    if suffix == ".csv":
+        return "csv"
+    raise LogFileError(f"{path}: unknown log format {suffix or '(no suffix)'!r}; valid "
+                       f"recordings are {VALID}")
+
+
+def recording_format(path, format: str | None = None) -> str:
+    """``format`` if it is one of :data:`FORMATS` (LogFileError naming them if not); None:
+    :func:`detect_format`."""
+    if format is None:
+        return detect_format(path)
+    if format not in FORMATS:
+        raise LogFileError(f"unknown recording format {format!r}; valid are "
+                           f"{', '.join(FORMATS)}")
+    return format
+
+
+# -- readers -----------------------------------------------------------------------------------
+def _recording(path, t, q, dq, tau, what: str) -> Recording:
+    """The arrays as a read-only Recording, after the checks every format shares; ``what(k)``
+    names joint state ``k`` in the file (a line, a message)."""
+    n = t.shape[0]
+    if n < 2:
+        raise LogFileError(f"{path}: {n} joint state(s); a recording needs at least 2")
+    steps = np.diff(t)
+    if np.any(steps <= 0.0):
+        k = int(np.flatnonzero(steps <= 0.0)[0]) + 1
+        how = "repeats" if steps[k - 1] == 0.0 else "goes back from"
+        raise LogFileError(f"{path}: {what(k)}: t = {t[k]!r} s {how} {what(k - 1)}'s "
+                           f"{t[k - 1]!r} s; the time stamps of a recording must increase "
+                           "strictly (one joint state per controller cycle, in order)")
+    median = float(np.median(steps))
+    if not 0.5 / RATE_HZ <= median <= 2.0 / RATE_HZ:
+        log.warning("%s: the median time step is %.3g ms; the estimator is set up for %g joint "
+                    "states per second and restarts its filters after gaps over 20 ms", path,
+                    median * 1e3, RATE_HZ, extra={"event": "recording_rate"})
+    for a in (t, q, dq, tau):
+        a.flags.writeable = False  # the source hands out rows as JointState's own arrays
+    return Recording(t=t, q=q, dq=dq, tau=tau)
+
+
+def _nonfinite(path, arrays: dict[str, np.ndarray], what, column) -> None:
+    for name, a in arrays.items():
+        bad = ~np.isfinite(a)
+        if bad.any():
+            k = int(np.flatnonzero(bad.reshape(a.shape[0], -1).any(axis=1))[0])
+            j = int(np.flatnonzero(bad[k])[0]) if a.ndim == 2 else -1
+            value = a[k, j] if a.ndim == 2 else a[k]
+            raise LogFileError(f"{path}: {what(k)}, {column(name, j)}: {value!r} is not a "
+                               "finite number; every value of a recording must be (a single "
+                               "non-finite value refuses the whole file)")
+
+
+def read_csv(path) -> Recording:
+    """A joint-state CSV (see the module docstring) as arrays; LogFileError naming the line and
+    column of anything wrong."""
+    path = FsPath(path)
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as f:
+            rows = list(csv.reader(f))
+    except FileNotFoundError:
+        raise LogFileError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise LogFileError(f"{path}: cannot read as a joint-state CSV: {exc}") from exc
+    if not rows:
+        raise LogFileError(f"{path}: empty; a joint-state CSV starts with the header "
+                           f"{','.join(CSV_COLUMNS)} (any order)")
+    header = [name.strip() for name in rows[0]]
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise LogFileError(f"{path}: a joint-state CSV needs the columns t (s), q1..q7 (rad), "
+                           "dq1..dq7 (rad/s) and tau1..tau7 (N·m), in any order, other "
+                           f"columns ignored; missing: {', '.join(missing)}")
+    twice = sorted({c for c in CSV_COLUMNS if header.count(c) > 1})
+    if twice:
+        raise LogFileError(f"{path}: the column(s) {', '.join(twice)} appear more than once in "
+                           "the header; each may appear once")
+    columns = [header.index(c) for c in CSV_COLUMNS]
+    lines = [(i + 1, row) for i, row in enumerate(rows) if i and any(x.strip() for x in row)]
+    for line, row in lines:
+        if len(row) != len(header):
+            raise LogFileError(f"{path}: line {line} has {len(row)} fields, the header "
+                               f"{len(header)}")
+    try:
+        values = np.array([[row[c] for c in columns] for _, row in lines], dtype=float)
+    except ValueError:
+        for line, row in lines:
+            for name, c in zip(CSV_COLUMNS, columns, strict=True):
+                try:
+                    float(row[c])
+                except ValueError:
+                    raise LogFileError(f"{path}: line {line}, column {name}: {row[c]!r} is not "
+                                       "a number") from None
+        raise
+    values = values.reshape(-1, len(CSV_COLUMNS))
+
+    def what(k: int) -> str:
+        return f"line {lines[k][0]}"
+
+    def column(name: str, j: int) -> str:
+        return f"column {CSV_COLUMNS[j]}"
+
+    _nonfinite(path, {"all": values}, what, column)
+    n = N_JOINTS
+    t = np.ascontiguousarray(values[:, 0])
+    q, dq, tau = (np.ascontiguousarray(values[:, 1 + i * n:1 + (i + 1) * n]) for i in range(3))
+    return _recording(path, t, q, dq, tau, what)
+
+
+def _open_bag(path: FsPath):
+    from rosbags.rosbag2 import Reader
+
+    if not path.exists():
+        raise LogFileError(f"{path}: no such rosbag2 bag (a directory holding metadata.yaml, a "
+                           ".db3 or a .mcap file)")
+    if not (path.is_dir() or path.suffix.lower() in BAG_SUFFIXES):
+        raise LogFileError(f"{path}: a rosbag2 bag is a directory holding metadata.yaml, a .db3 "
+                           "or a .mcap file")
+    reader = Reader(path)
+    reader.open()
+    return reader
+
+
+def read_rosbag2(path, topic: str = DEFAULT_TOPIC) -> Recording:
+    """The ``sensor_msgs/msg/JointState`` messages of ``topic`` in a rosbag2 bag (see the
+    module docstring) as arrays; LogFileError naming the message and joint of anything wrong,
+    or the bag's topics if ``topic`` is not one of them."""
+    from rosbags.typesys import Stores, get_typestore
+
+    path = FsPath(path)
+    try:
+        reader = _open_bag(path)
+    except LogFileError:
+        raise
+    except Exception as exc:  # rosbags, sqlite3 and MCAP parsers raise their own errors
+        raise LogFileError(f"{path}: cannot read as a rosbag2 bag: {exc}") from exc
+    try:
+        connections = [c for c in reader.connections if c.topic == topic]
+        if not connections:
+            topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
+            raise LogFileError(f"{path}: no topic {topic} in the bag; its topics are "
+                               f"{topics or 'none'} (--topic names the JointState topic)")
+        types = sorted({c.msgtype for c in connections})
+        if types != [JOINT_STATE_TYPE]:
+            others = [f"{c.topic}" for c in reader.connections if c.msgtype == JOINT_STATE_TYPE]
+            raise LogFileError(f"{path}: topic {topic} carries {', '.join(types)}; a recording "
+                               f"needs {JOINT_STATE_TYPE} (topics of that type in the bag: "
+                               f"{', '.join(others) or 'none'})")
+        deserialize = get_typestore(Stores.LATEST).deserialize_cdr
+        where = f"{topic} message"
+        stamps, received, q, dq, tau = [], [], [], [], []
+        index: dict[tuple[str, ...], np.ndarray] = {}
+        joint_set: tuple[str, ...] = JOINT_SETS["fr3"]  # the first message's, for messages
+        try:
+            for k, (_, receive_ns, raw) in enumerate(reader.messages(connections=connections)):
+                msg = deserialize(raw, JOINT_STATE_TYPE)
+                names = tuple(msg.name)
+                if names not in index:
+                    index[names], matched = _joint_index(path, names, f"{where} {k}")
+                    joint_set = matched if k == 0 else joint_set
+                at = index[names]
+                fields = []
+                for field in ("position", "velocity", "effort"):
+                    a = np.asarray(getattr(msg, field), dtype=float)
+                    if a.shape != (len(names),):
+                        raise LogFileError(
+                            f"{path}: {where} {k}: {field} has {a.shape[0]} values for "
+                            f"{len(names)} joint names; a recording needs position, velocity "
+                            "and effort (tau_J) of every joint")
+                    fields.append(a[at])
+                q.append(fields[0])
+                dq.append(fields[1])
+                tau.append(fields[2])
+                stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+                received.append(int(receive_ns))
+        except LogFileError:
+            raise
+        except Exception as exc:
+            raise LogFileError(f"{path}: cannot read {where} {len(stamps)}: {exc}") from exc
+    finally:
+        reader.close()
+    if not stamps:
+        raise LogFileError(f"{path}: no messages on {topic}; a recording needs the joint "
+                           "states of a motion")
+    if not any(stamps):
+        stamps = received  # a publisher that does not stamp: the bag's receive time
+    t = np.array([s / 1_000_000_000 for s in stamps])  # Python ints: the nearest double
+    arrays = {"position": np.array(q), "velocity": np.array(dq), "effort": np.array(tau)}
+
+    def what(k: int) -> str:
+        return f"{where} {k}"
+
+    _nonfinite(path, arrays, what, lambda field, j: f"{field} of {joint_set[j]}")
+    return _recording(path, t, *arrays.values(), what)
+
+
+def _joint_index(path, names: tuple[str, ...], what: str
+                 ) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Where the arm's joints are among ``names`` (the ros2 link's rule), and their names."""
+    found = match_joints(names)
+    if found is not None:
+        return np.array(found[0]), found[1]
+    closest = max(JOINT_SETS.values(), key=lambda s: sum(n in names for n in s))
+    missing = [n for n in closest if n not in names]
+    raise LogFileError(f"{path}: {what} names the joints {', '.join(names) or 'none'}; a "
+                       "recording needs the seven arm joints fr3_joint1..7 or panda_joint1..7 "
+                       f"(missing: {', '.join(missing)})")
+
+
+def _read_can(path, profile: str) -> Recording:
+    from .replay import ReplaySource
+
+    with ReplaySource(path, profile, pace="fast") as source:
+        states = list(source)
+    if not states:
+        raise LogFileError(f"{path}: no complete joint-state cycle of the {profile} profile in "
+                           f"it ({source.counters.summary()})")
+    return Recording.from_states(states)
+
+
+def read_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPIC,
+                   profile: str = "fd") -> Recording:
+    """The joint states of a recording of any format as arrays (``format`` None: detected;
+    ``topic``: rosbag2's JointState topic; ``profile``: a CAN log's wire profile)."""
+    fmt = recording_format(path, format)
+    if fmt == "can":
+        return _read_can(path, profile)
+    return read_rosbag2(path, topic) if fmt == "rosbag2" else read_csv(path)
+
+
+# -- the source --------------------------------------------------------------------------------
+class RecordingSource:
+    """A :class:`~firmware_bridge.links.JointStateSource` over a :class:`Recording`.
+
+    ``read`` returns the recorded joint states in order, with their time stamps as recorded
+    and ``cycle`` the joint state's index in the recording; :class:`EndOfStream` at the end;
+    the ``timeout`` of ``read`` is not used. ``counters``: ``received`` and ``delivered``
+    count joint states; ``lost`` counts the cycles at :data:`RATE_HZ` that the time stamps
+    skip (as the ``ros2`` link counts them), ``silences`` the gaps longer than
+    ``silence_timeout`` (what a live link would have reported there). Nothing is dropped:
+    the file was checked whole. ``truncated`` and ``bad_lines`` are those of a CAN log's
+    source, always False and 0 here.
+    """
+
+    rate_hz = RATE_HZ
+    last_frame_time = 0.0  # a recording has no receive time on this PC
+    truncated = False
+    bad_lines = 0
+
+    def __init__(self, recording: Recording, name: str = "recording",
+                 silence_timeout: float = 0.1) -> None:
+        self.recording = recording
+        self.name = name
+        self.silence_timeout = float(silence_timeout)
+        self.counters = LinkCounters()
+        self._k = 0
+
+    def read(self, timeout: float | None = None) -> JointState:
+        r, k, c = self.recording, self._k, self.counters
+        if k >= len(r):
+            raise EndOfStream(f"{self.name}: end of the recording after {k} joint states")
+        t = float(r.t[k])
+        if k:
+            dt = t - float(r.t[k - 1])
+            c.lost += max(round(dt * RATE_HZ) - 1, 0)
+            if dt > self.silence_timeout:
+                c.silences += 1
+        self._k = k + 1
+        c.received += 1
+        c.delivered += 1
+        return JointState(t=t, q=r.q[k], dq=r.dq[k], tau_J=r.tau[k], cycle=k % CYCLE_MOD)
+
+    def __iter__(self):
+        while True:
+            try:
+                yield self.read()
+            except EndOfStream:
+                return
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> RecordingSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_recording_link(kind: str, channel: str, *, profile: str = "fd",
+                        silence_timeout: float = 0.1, format: str | None = None,
+                        topic: str = DEFAULT_TOPIC) -> RecordingSource:
+    """Opener for :func:`firmware_bridge.links.open_link` (kind ``recording``): ``channel`` is
+    a rosbag2 bag or a joint-state CSV (``format`` None: detected), read whole and checked
+    now; ``topic``: the bag's JointState topic; ``profile`` is a CAN notion and not used."""
+    fmt = recording_format(channel, format)
+    if fmt == "can":
+        raise LogFileError(f"{channel}: a CAN log; open it as the link kind 'replay'")
+    recording = read_recording(channel, fmt, topic=topic)
+    what = f"{fmt} recording {channel}" + (f" ({topic})" if fmt == "rosbag2" else "")
+    return RecordingSource(recording, what, silence_timeout)
+
+
+def recording_link(path, format: str | None = None, topic: str = DEFAULT_TOPIC
+                   ) -> tuple[str, str, dict]:
+    """``(format, link kind, opener options)`` that open the recording at ``path`` with
+    :func:`firmware_bridge.links.open_link`: ``replay`` (as fast as it decodes) for a CAN log,
+    ``recording`` for the others (``format`` None: detected)."""
+    fmt = recording_format(path, format)
+    if fmt == "can":
+        return fmt, "replay", {"pace": "fast"}
+    return fmt, "recording", {"format": fmt, "topic": topic}
+
+
+def open_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPIC,
+                   profile: str = "fd"):
+    """A joint-state source over the recording at ``path`` of any format (``format`` None:
+    detected): a :class:`~firmware_bridge.replay.ReplaySource` for a CAN log (``profile``: its
+    wire profile), a :class:`RecordingSource` for a rosbag2 bag (``topic``) or a CSV."""
+    _, kind, options = recording_link(path, format, topic)
+    return open_link(kind, str(path), profile=profile, **options)
