@@ -7,7 +7,8 @@ A model file is one msgpack map::
 
 The state is packed on its own so that its CRC can be checked before anything in it is
 trusted. A model trained for a calibrated arm (``iem train --arm``) also carries
-``"arm": {"crc32": <the arm file's state CRC>, "source": <its file name>}``, covered by the
+``"arm": {"crc32": <the arm file's state CRC>, "source": <its file name>}`` (and
+``"end_effector"``, the label of :mod:`sim.end_effector`, when it is not the hand), covered by the
 file's CRC (``crc32(arm map, crc32(state))``); it is the model's ``trained_arm`` attribute
 (None for the nominal arm), and :func:`check_arm` refuses to run the model with another arm.
 A model trained on another payload family than the paper's (``iem train --family generic``)
@@ -138,7 +139,10 @@ def _arm_record(model) -> dict | None:
             and isinstance(arm.get("source"), str)):
         raise ModelFileError(f"model's trained_arm {arm!r} is not "
                              "{'crc32': int, 'source': str}")
-    return {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
+    out = {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
+    if arm.get("end_effector"):
+        out["end_effector"] = str(arm["end_effector"])
+    return out
 
 
 def dumps(model, schema: str = SCHEMA) -> bytes:
@@ -181,8 +185,12 @@ def check_arm(model, arm_record: dict | None, where: str = "model") -> None:
         return
 
     def say(r):
-        return ("the nominal arm (no arm file)" if r is None
-                else f"arm file {r['source']} (CRC32 {r['crc32'] & 0xFFFFFFFF:#010x})")
+        if r is None:
+            return "the nominal arm with the end effector 'franka_hand' (no arm file)"
+        ee = f"the end effector {r.get('end_effector') or 'franka_hand'!r}"
+        if r["source"] == "nominal":
+            return f"the nominal arm with {ee} (no arm file)"
+        return f"arm file {r['source']} (CRC32 {r['crc32'] & 0xFFFFFFFF:#010x}, {ee})"
 
     raise ModelFileError(f"{where} was trained for {say(have)} but is run with {say(arm_record)}; "
                          f"use the arm it was trained with, or make a model for this arm with "
@@ -253,7 +261,9 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
         raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
                              f"{label}: {type(exc).__name__}: {exc}") from exc
     if arm is not None:
-        model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
+        model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"]),
+                             **({"end_effector": str(arm["end_effector"])}
+                                if arm.get("end_effector") else {})}
     if schema == SCHEMA:  # a model file without the record was trained on the paper's
         model.trained_family = family if family is not None else DEFAULT_FAMILY
     return model

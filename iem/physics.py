@@ -82,6 +82,7 @@ from .least_squares import DEFAULT_PRIOR_STD
 from .live_projection import SpreadProjection
 from .posterior import EquationWindow, Posterior, combine, prior_inflation
 from .regression import PayloadRegression
+from .torque_noise import TorqueNoise
 from .sensor import DEFAULT_SENSOR
 from .types import PayloadEstimate
 
@@ -120,6 +121,12 @@ class PhysicsInformedEnsemble:
         holdoff_s: equations skipped after a change, s (-1: the filter's settling time).
         eps: smallest eigenvalue of the projected pseudo-inertia (:mod:`iem.consistency`).
         refresh_every: equations between refreshes of the posterior and its projection.
+        torque_noise: what the arm model leaves in the equations
+            (:class:`iem.torque_noise.TorqueNoise` as a dict, from the arm file of ``iem
+            calibrate``), or None: the sensor noise alone (a simulated, perfect arm). Its
+            ``std`` enters ``R`` (the weights, the NIS, the change detector), its ``weight``
+            how much one equation counts, and its ``offset_std`` one torque offset per joint
+            carried as a marginalised state (:class:`iem.posterior.EquationWindow`).
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
             budget (:attr:`spread`, a live link: the service sets
@@ -147,7 +154,8 @@ class PhysicsInformedEnsemble:
                  rate_hz: float = 1000.0,
                  update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
                  threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS,
-                 refresh_every: int = 5, project_budget: int = 0) -> None:
+                 refresh_every: int = 5, project_budget: int = 0,
+                 torque_noise: dict | None = None) -> None:
         self.ensemble = dict(ensemble or {})
         self.dynamics = dynamics
         self.sigma_tau = float(sigma_tau)
@@ -162,6 +170,15 @@ class PhysicsInformedEnsemble:
         self.eps = float(eps)
         self.refresh_every = int(refresh_every)
         self.project_budget = int(project_budget)
+        self.torque_noise = None if torque_noise is None else dict(torque_noise)
+        noise = None if torque_noise is None else TorqueNoise.from_dict(torque_noise)
+        if noise is not None and (not math.isclose(noise.cutoff_hz, self.cutoff_hz)
+                                  or not math.isclose(noise.rate_hz,
+                                                      self.rate_hz / self.update_every)):
+            raise InvalidInputError(
+                f"the torque noise was measured at {noise.cutoff_hz:g} Hz cut-off and "
+                f"{noise.rate_hz:g} Hz equations, this model forms them at {self.cutoff_hz:g} "
+                f"Hz and {self.rate_hz / self.update_every:g} Hz; calibrate again for it")
         if not self.prior_scale > 0.0:
             raise InvalidInputError(f"prior_scale must be > 0, got {prior_scale}")
         if self.refresh_every < 1:
@@ -175,8 +192,13 @@ class PhysicsInformedEnsemble:
         self._ens.report_errors = True  # the prior's calibration: every learnt point
         self._reg = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq, self.cutoff_hz,
                                       self.rate_hz, every=1, settle=-1, payload_inertia=True,
-                                      decimate=self.update_every)
+                                      decimate=self.update_every,
+                                      model_error_std=None if noise is None else noise.std)
         self._weight = self._reg.correlation_weight
+        # the arm model's error is correlated over its own time (noise.weight equations per
+        # independent one, not the filter's): the window counts it so, the NIS one by one
+        self._info_var = None if noise is None else self._reg.model_var * np.maximum(
+            np.asarray(noise.weight) / self._weight - 1.0, 0.0)
         self._holdoff_n = (self._reg.settle * self.update_every if self.holdoff_s < 0
                            else round(self.holdoff_s * self.rate_hz))
         self._innovation = InnovationTest(self.drift, self.threshold)
@@ -184,7 +206,7 @@ class PhysicsInformedEnsemble:
         self._floor = np.square(PRIOR_FLOOR)
         self.ensemble_prior = EnsemblePrior(self._ens)
         """The ensemble as the prior: its bags' calibration and the summary since a change."""
-        self._window = EquationWindow()
+        self._window = EquationWindow(None if noise is None else np.square(noise.offset_std))
         self._observed_x = np.full(21, math.nan)  # the last sample observed (a copy) and
         self._observed_bag = -2  # its bag (-2: none), so that predict_one at it routes once
         self.reset()
@@ -197,7 +219,7 @@ class PhysicsInformedEnsemble:
                 "update_every": self.update_every, "prior_scale": self.prior_scale,
                 "drift": self.drift, "threshold": self.threshold, "holdoff_s": self.holdoff_s,
                 "eps": self.eps, "refresh_every": self.refresh_every,
-                "project_budget": self.project_budget}
+                "project_budget": self.project_budget, "torque_noise": self.torque_noise}
 
     def prepare(self) -> None:
         """Load now what the first equations and refreshes would load (the robot model,
@@ -302,9 +324,8 @@ class PhysicsInformedEnsemble:
         return self._ens
 
     def nbytes(self) -> int:
-        state = (self._window.info, self._window.eta, self._reg._acc)
         return (self._ens.nbytes() + self.ensemble_prior.nbytes() + self._innovation.nbytes()
-                + sum(a.nbytes for a in state)
+                + self._window.nbytes() + self._reg._acc.nbytes
                 + Posterior.nbytes())
 
     def fit(self, Q, F, samples_at) -> PhysicsInformedEnsemble:
@@ -389,6 +410,8 @@ class PhysicsInformedEnsemble:
             self.changes += 1
             self._holdoff = self._holdoff_n
         else:
+            if self._info_var is not None:
+                R = R + np.diag(self._info_var)
             self._window.add(Y, r, R, weight=self._weight)
             self._since_refresh += 1
             if self._window.m <= self.refresh_every or \

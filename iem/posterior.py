@@ -74,26 +74,70 @@ def prior_inflation(mu_p, c_p, info, eta) -> float:
 
 
 class EquationWindow:
-    """The equations since the last payload change, in information form."""
+    """The equations since the last payload change, in information form.
 
-    def __init__(self) -> None:
-        self.info = np.zeros((10, 10))
-        self.eta = np.zeros(10)
+    Args:
+        offset_var: prior variance (7, (N·m)²) of a constant torque offset per joint that
+            every equation of the window shares (:attr:`iem.torque_noise.TorqueNoise.
+            offset_std` squared), or None: no offsets. The offsets are states ``o`` of the
+            equations ``r = Y phi + o + e``, marginalised: the window keeps the sums
+            ``sum Y^T W``, ``sum W`` and ``sum W r`` beside ``info`` and ``eta`` (``W =
+            (c R)^-1``), and :attr:`info` and :attr:`eta` are those of ``phi`` alone,
+            ``info_phi - S (sum W + P_o)^-1 S^T`` and likewise for ``eta`` (``S = sum Y^T
+            W``, ``P_o`` the offsets' prior precision): what the data say about the payload
+            once any constant offset within its prior is allowed for.
+    """
+
+    def __init__(self, offset_var=None) -> None:
+        self.offset_prec = (None if offset_var is None else
+                            1.0 / np.asarray(offset_var, dtype=float).reshape(7))
+        self._info = np.zeros((10, 10))
+        self._eta = np.zeros(10)
+        self._cross = np.zeros((10, 7))
+        self._w = np.zeros((7, 7))
+        self._eta_o = np.zeros(7)
+        self._marginal: tuple[np.ndarray, np.ndarray] | None = None
         self.m = 0
         """Equations in the window."""
 
     def clear(self) -> None:
-        self.info[:] = 0.0
-        self.eta[:] = 0.0
+        for a in (self._info, self._eta, self._cross, self._w, self._eta_o):
+            a[:] = 0.0
+        self._marginal = None
         self.m = 0
 
     def add(self, Y: np.ndarray, r: np.ndarray, R: np.ndarray, weight: float = 1.0) -> None:
         """Add ``r = Y phi + e``, ``e ~ N(0, R)``, counted as ``1 / weight`` independent
         equations (its covariance taken as ``weight * R``)."""
-        YtRi = Y.T @ sym_inv(R * weight)
-        self.info += YtRi @ Y
-        self.eta += YtRi @ r
+        W = sym_inv(R * weight)
+        YtRi = Y.T @ W
+        self._info += YtRi @ Y
+        self._eta += YtRi @ r
+        if self.offset_prec is not None:
+            self._cross += YtRi
+            self._w += W
+            self._eta_o += W @ r
+            self._marginal = None
         self.m += 1
+
+    def _marginalised(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._marginal is None:
+            A = self._w + np.diag(self.offset_prec)
+            G = sym_inv(0.5 * (A + A.T))
+            SG = self._cross @ G
+            info = self._info - SG @ self._cross.T
+            self._marginal = (0.5 * (info + info.T), self._eta - SG @ self._eta_o)
+        return self._marginal
+
+    @property
+    def info(self) -> np.ndarray:
+        """``sum Y^T (c R)^-1 Y``, with the offsets marginalised if there are any."""
+        return self._info if self.offset_prec is None else self._marginalised()[0]
+
+    @property
+    def eta(self) -> np.ndarray:
+        """``sum Y^T (c R)^-1 r``, with the offsets marginalised if there are any."""
+        return self._eta if self.offset_prec is None else self._marginalised()[1]
 
     @property
     def empty(self) -> bool:
@@ -102,7 +146,8 @@ class EquationWindow:
     def data_std(self) -> np.ndarray:
         """Standard deviation per parameter from the equations alone (inf along directions
         they do not see)."""
-        d, U = np.linalg.eigh(0.5 * (self.info + self.info.T))
+        info = self.info
+        d, U = np.linalg.eigh(0.5 * (info + info.T))
         if not d.size or d.max() <= 0.0:
             return np.full(10, math.inf)
         seen = d > 1e-12 * d.max()
@@ -110,13 +155,28 @@ class EquationWindow:
         var[np.any(np.abs(U[:, ~seen]) > 1e-6, axis=1)] = math.inf
         return np.sqrt(var)
 
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self._info, self._eta, self._cross, self._w,
+                                      self._eta_o))
+
     def to_state(self) -> dict:
-        return {"info": self.info.tolist(), "eta": self.eta.tolist(), "m": self.m}
+        state = {"info": self._info.tolist(), "eta": self._eta.tolist(), "m": self.m}
+        if self.offset_prec is not None:
+            state["offsets"] = [self._cross.tolist(), self._w.tolist(), self._eta_o.tolist()]
+        return state
 
     def set_state(self, state: dict) -> None:
-        self.info = np.array(state["info"], dtype=float).reshape(10, 10)
-        self.eta = np.array(state["eta"], dtype=float).reshape(10)
+        self._info = np.array(state["info"], dtype=float).reshape(10, 10)
+        self._eta = np.array(state["eta"], dtype=float).reshape(10)
         self.m = int(state["m"])
+        self._marginal = None
+        offsets = state.get("offsets")
+        if self.offset_prec is not None and offsets is not None:
+            self._cross = np.array(offsets[0], dtype=float).reshape(10, 7)
+            self._w = np.array(offsets[1], dtype=float).reshape(7, 7)
+            self._eta_o = np.array(offsets[2], dtype=float).reshape(7)
+        elif self.offset_prec is not None and self.m:  # a window of equations without
+            self.clear()  # offset sums cannot be marginalised: start it again
 
 
 @dataclass

@@ -122,6 +122,10 @@ class PayloadRegression:
             a low-pass itself (first null at the block rate), so a cut-off far below the
             block rate loses nothing, and each sample costs one addition; the block means
             of white noise are white, with ``1 / decimate`` of its variance.
+        model_error_std: the RMS per joint (7, N·m) of what the arm model leaves in the
+            equations (:attr:`iem.torque_noise.TorqueNoise.std`, measured in this domain),
+            or None: the sensor noise alone. Its excess over the filtered torque noise is
+            added to ``R``'s diagonal (:attr:`model_var`).
     """
 
     def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
@@ -129,7 +133,7 @@ class PayloadRegression:
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
                  rate_hz: float = 1000.0,
                  every: int = 1, settle: int = 0, payload_inertia: bool = False,
-                 decimate: int = 1) -> None:
+                 decimate: int = 1, model_error_std=None) -> None:
         if int(every) < 1 or int(decimate) < 1:
             raise InvalidInputError(f"every and decimate must be >= 1 sample, got {every}, "
                                     f"{decimate}")
@@ -156,6 +160,10 @@ class PayloadRegression:
         """Filter samples over which the filtered noise stays correlated (``rate / 2 fc``)."""
         self.correlation_weight = correlation_weight(cutoff_hz, self.filter_rate_hz,
                                                      self.every)
+        self.model_var = (np.zeros(7) if model_error_std is None else np.maximum(
+            np.square(np.asarray(model_error_std, dtype=float).reshape(7)) - self.r_tau, 0.0))
+        """Variance per joint that the arm model's error adds to ``R``'s diagonal, (N·m)²."""
+        self._r_diag = self.r_tau + self.model_var
         """How many of the equations, one every ``every`` filter samples, carry the
         information of one independent equation about a constant: the sum of the filtered
         noise's autocorrelation at multiples of that spacing (:func:`correlation_weight`)."""
@@ -182,9 +190,11 @@ class PayloadRegression:
         return self.count > self.settle
 
     def model(self):
-        """The dynamics callable (loaded on first use)."""
+        """The dynamics callable (loaded on first use; ``dynamics`` may be the callable
+        itself instead of its spec)."""
         if self._f is None:
-            self._f = load_dynamics(self.dynamics)
+            self._f = (load_dynamics(self.dynamics) if isinstance(self.dynamics, str)
+                       else self.dynamics)
         return self._f
 
     def payload_mass_matrix(self, q, dq, ddq, Y, phi) -> np.ndarray:
@@ -270,7 +280,7 @@ class PayloadRegression:
         if self.payload_inertia and phi is not None:
             M = M + self.payload_mass_matrix(q, dq, ddq, Y, np.asarray(phi, dtype=float))
         R = self.var_ddq * (M @ M.T)
-        R[np.diag_indices(7)] += self.r_tau
+        R[np.diag_indices(7)] += self._r_diag
         return Y, tau - tau_robot, R
 
     # -- persistence ---------------------------------------------------------------------

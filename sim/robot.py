@@ -71,10 +71,27 @@ def _nominal_model() -> pin.Model:
     return pin.buildReducedModel(full, locked, pin.neutral(full))
 
 
-def nominal_link_params() -> np.ndarray:
-    """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7."""
+def nominal_link_params(end_effector=None) -> np.ndarray:
+    """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7, body 7
+    carrying ``end_effector`` (a :class:`sim.end_effector.EndEffector` or its spec; None:
+    the URDF's Franka Hand)."""
     model = _nominal_model()
-    return np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
+    out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
+    if end_effector is not None:
+        from .end_effector import EndEffector
+        from .end_effector import end_effector as resolve
+
+        ee = end_effector if isinstance(end_effector, EndEffector) else resolve(end_effector)
+        if ee.spec != "franka_hand":
+            out[6] = ee.body7()
+    return out
+
+
+@cache
+def flange_placement() -> pin.SE3:
+    """The flange frame (``panda_link8``) in the joint-7 frame."""
+    model = _nominal_model()
+    return model.frames[model.getFrameId(FLANGE_FRAME)].placement.copy()
 
 
 class PandaModel:

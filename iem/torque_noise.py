@@ -1,0 +1,178 @@
+"""What an arm model leaves unexplained, in the equations IEM+phys forms: the arm's own noise.
+
+IEM+phys's equations ``r = Y phi + e`` (:mod:`iem.regression`) have, on a simulated arm,
+the sensor's white noise through the filter as their error. On a real arm the error is mostly
+what the arm model gets wrong (link parameters, friction, sensor offsets): larger, correlated
+over time, and slowly drifting. On a real Panda after calibration it is 0.05-0.25 N·m per
+joint at IEM+phys's 4 Hz / 100 Hz, with autocorrelations of 0.3-0.9 at 100 ms, where the
+sensor model alone says 0.01-0.02 N·m, white. :class:`TorqueNoise` describes it per joint:
+
+- ``std``: the RMS of the equation residual (N·m): the size of one equation's error;
+- ``weight``: how many consecutive equations carry the information of one independent
+  equation about a constant payload (the sum of the residual's autocorrelation at the
+  equations' spacing, :func:`measure`), at least the filter's own
+  (:func:`iem.regression.correlation_weight`);
+- ``offset_std``: the size of the part that does not average out over a window of
+  equations (N·m): the slow drift of the residual's mean. IEM+phys carries one torque
+  offset per joint as a state with this prior standard deviation (marginalised in its
+  window of equations, :class:`iem.posterior.EquationWindow`), so a mean that moves with
+  the arm's temperature is not read as payload.
+
+``iem calibrate`` measures it on traffic its fit did not see (:func:`measure`) and stores it
+in the arm file; IEM+phys uses it for its weights, its NIS, its change detector and its
+standard deviations. An arm without a measured noise (the nominal, uncalibrated arm) uses
+:data:`NOMINAL_ARM_NOISE`, a conservative default. numpy only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidInputError
+from .gaps import GapRule
+
+N_JOINTS = 7
+
+MAX_LAG_S = 2.0
+"""The longest lag of the autocorrelation summed into ``weight``, s: the drift beyond it is
+the offset's part."""
+OFFSET_WINDOW_S = 2.0
+"""The offset's part: the RMS of the residual's mean over windows this long, s."""
+MIN_OFFSET_STD = 0.01
+"""Smallest offset standard deviation, N·m: a torque sensor's offset is never known better."""
+
+
+def _vec(name: str, value) -> tuple[float, ...]:
+    a = np.asarray(value, dtype=float).reshape(-1)
+    if a.shape != (N_JOINTS,) or not np.all(np.isfinite(a)) or np.any(a < 0.0):
+        raise InvalidInputError(f"torque noise {name} must be {N_JOINTS} finite numbers >= 0, "
+                                f"got {value!r}")
+    return tuple(float(v) for v in a)
+
+
+@dataclass(frozen=True)
+class TorqueNoise:
+    """The error of IEM+phys's equations on one arm, per joint (see the module docstring).
+
+    Attributes:
+        std: RMS of the equation residual, N·m (7).
+        weight: equations per independent one (7, >= 1).
+        offset_std: prior standard deviation of the slowly drifting offset, N·m (7).
+        cutoff_hz: the regression's low-pass cut-off it was measured at, Hz.
+        rate_hz: the equations' rate it was measured at (the block rate), Hz.
+        source: where it comes from ("measured on ...", or "default").
+    """
+
+    std: tuple[float, ...]
+    weight: tuple[float, ...]
+    offset_std: tuple[float, ...]
+    cutoff_hz: float = 4.0
+    rate_hz: float = 100.0
+    source: str = "default"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "std", _vec("std", self.std))
+        object.__setattr__(self, "weight", _vec("weight", self.weight))
+        object.__setattr__(self, "offset_std", _vec("offset_std", self.offset_std))
+        if min(self.weight) < 1.0:
+            raise InvalidInputError(f"torque noise weight must be >= 1, got {self.weight}")
+
+    def to_dict(self) -> dict:
+        return {"std": list(self.std), "weight": list(self.weight),
+                "offset_std": list(self.offset_std), "cutoff_hz": self.cutoff_hz,
+                "rate_hz": self.rate_hz, "source": self.source}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TorqueNoise:
+        try:
+            return cls(d["std"], d["weight"], d["offset_std"], float(d["cutoff_hz"]),
+                       float(d["rate_hz"]), str(d.get("source", "")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidInputError(f"torque noise {d!r} is not valid: {exc}") from exc
+
+
+NOMINAL_ARM_NOISE = TorqueNoise(
+    std=(1.0, 1.0, 0.6, 0.6, 0.3, 0.3, 0.2),
+    weight=(50.0,) * N_JOINTS,
+    offset_std=(0.5, 0.5, 0.3, 0.3, 0.2, 0.2, 0.1),
+    source="default: the nominal, uncalibrated arm")
+"""The noise of an arm model that was not calibrated: a real Panda departs from its nominal
+model by 0.5-2 N·m RMS per joint (published identifications), mostly friction and link
+errors that change slowly with the motion (taken as correlated over 0.5 s at 100 Hz), and
+its torque sensors carry offsets of tenths of a N·m. With it the physics only moves the
+estimate where the motion tells far more than that, and the estimate stays near the
+ensemble's prior with wide standard deviations: calibrate the arm (``iem calibrate``)."""
+
+
+def measure(residual: np.ndarray, rate_hz: float, filter_weight: float,
+            cutoff_hz: float = 4.0, source: str = "measured") -> TorqueNoise:
+    """The :class:`TorqueNoise` of the equation residuals ``residual`` (``(N, 7)``, N·m, one
+    row per equation at ``rate_hz``, consecutive, a bare arm: ``r`` of the equations).
+
+    ``std`` is the RMS about zero (a bias is error too); ``weight`` the sum over lags of
+    ``|lag| <= MAX_LAG_S`` of the autocorrelation of the residual minus its
+    :data:`OFFSET_WINDOW_S` moving mean (the offset's part is carried apart), with a triangular
+    taper, at least ``filter_weight``; ``offset_std`` the RMS of that moving mean, at least
+    :data:`MIN_OFFSET_STD`.
+    """
+    e = np.asarray(residual, dtype=float)
+    if e.ndim != 2 or e.shape[1] != N_JOINTS or e.shape[0] < 10:
+        raise InvalidInputError(f"measuring the torque noise needs at least 10 equations of "
+                                f"{N_JOINTS} joints, got {e.shape}")
+    std = np.sqrt(np.mean(e * e, axis=0))
+    n = e.shape[0]
+    w = max(1, min(n, round(OFFSET_WINDOW_S * rate_hz)))
+    kernel = np.ones(w) / w
+    slow = np.array([np.convolve(e[:, j], kernel, mode="same") for j in range(N_JOINTS)]).T
+    # the edges of 'same' average fewer samples: scale them up to a mean
+    counts = np.convolve(np.ones(n), np.ones(w), mode="same") / w
+    slow /= counts[:, None]
+    offset = np.maximum(np.sqrt(np.mean(slow * slow, axis=0)), MIN_OFFSET_STD)
+    fast = e - slow
+    lags = min(n - 1, round(MAX_LAG_S * rate_hz))
+    weight = np.empty(N_JOINTS)
+    for j in range(N_JOINTS):
+        x = fast[:, j]
+        var = float(x @ x) / n
+        if var <= 0.0:
+            weight[j] = filter_weight
+            continue
+        acf = np.array([float(x[:n - k] @ x[k:]) / n / var for k in range(1, lags + 1)])
+        taper = 1.0 - np.arange(1, lags + 1) / (lags + 1)
+        weight[j] = max(filter_weight, 1.0 + 2.0 * float(np.sum(acf * taper)))
+    return TorqueNoise(std, weight, offset, float(cutoff_hz), float(rate_hz), source)
+
+
+def equation_residuals(regression, t, q, dq, tau, rate_hz: float) -> np.ndarray:
+    """The residuals ``r`` of the equations ``regression`` (a fresh
+    :class:`iem.regression.PayloadRegression`) forms from a recording ``t (N,)``, ``q, dq,
+    tau (N, 7)`` fed sample by sample through the gap rule at ``rate_hz`` as the online loop
+    does: ``(M, 7)``, N·m, in order; a restart of its filter (a long gap) starts a new
+    stretch, and only the longest stretch is returned (the correlation needs consecutive
+    equations)."""
+    from .gaps import RESTART, SKIP
+
+    rule = GapRule(rate_hz)
+    x = np.hstack((np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float)))
+    stretches: list[list[np.ndarray]] = [[]]
+    for k, tk in enumerate(np.asarray(t, dtype=float)):
+        steps = rule(float(tk))
+        if steps == SKIP:
+            continue
+        if steps == RESTART and stretches[-1]:
+            stretches.append([])
+        eq = regression(x[k], None, steps)
+        if eq is not None:
+            stretches[-1].append(eq[1])
+    best = max(stretches, key=len)
+    if not best:
+        return np.zeros((0, N_JOINTS))
+    return np.array(best)
+
+
+def rms(values) -> float:
+    a = np.asarray(values, dtype=float)
+    return math.sqrt(float(np.mean(a * a)))
