@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import time
 from pathlib import Path as FsPath
 
 import numpy as np
@@ -45,7 +46,7 @@ import numpy as np
 from iem.recording import Recording
 from iem.types import N_JOINTS, JointState
 
-from .errors import EndOfStream, LogFileError
+from .errors import BridgeConfigError, EndOfStream, LogFileError
 from .links import LinkCounters, open_link
 from .reassembly import CYCLE_MOD
 from .record import FORMATS as CAN_SUFFIXES
@@ -143,8 +144,8 @@ def _recording(path, t, q, dq, tau, what: str) -> Recording:
     if np.any(steps <= 0.0):
         k = int(np.flatnonzero(steps <= 0.0)[0]) + 1
         how = "repeats" if steps[k - 1] == 0.0 else "goes back from"
-        raise LogFileError(f"{path}: {what(k)}: t = {t[k]!r} s {how} {what(k - 1)}'s "
-                           f"{t[k - 1]!r} s; the time stamps of a recording must increase "
+        raise LogFileError(f"{path}: {what(k)}: t = {float(t[k])!r} s {how} {what(k - 1)}'s "
+                           f"{float(t[k - 1])!r} s; the time stamps of a recording must increase "
                            "strictly (one joint state per controller cycle, in order)")
     median = float(np.median(steps))
     if not 0.5 / RATE_HZ <= median <= 2.0 / RATE_HZ:
@@ -162,7 +163,7 @@ def _nonfinite(path, arrays: dict[str, np.ndarray], what, column) -> None:
         if bad.any():
             k = int(np.flatnonzero(bad.reshape(a.shape[0], -1).any(axis=1))[0])
             j = int(np.flatnonzero(bad[k])[0]) if a.ndim == 2 else -1
-            value = a[k, j] if a.ndim == 2 else a[k]
+            value = float(a[k, j] if a.ndim == 2 else a[k])
             raise LogFileError(f"{path}: {what(k)}, {column(name, j)}: {value!r} is not a "
                                "finite number; every value of a recording must be (a single "
                                "non-finite value refuses the whole file)")
@@ -351,8 +352,12 @@ class RecordingSource:
 
     ``read`` returns the recorded joint states in order, with their time stamps as recorded
     and ``cycle`` the joint state's index in the recording; :class:`EndOfStream` at the end;
-    the ``timeout`` of ``read`` is not used. ``counters``: ``received`` and ``delivered``
-    count joint states; ``lost`` counts the cycles at :data:`RATE_HZ` that the time stamps
+    the ``timeout`` of ``read`` is not used. ``pace="fast"`` returns them as fast as they are
+    asked for (``iem replay``); ``pace="recorded"`` waits until each is due at the recorded
+    pace (gaps longer than ``skip`` s shortened to it), as python-can's ``MessageSync`` paces
+    a CAN log for ``iem run``, whose reader thread drops the oldest states once the estimator
+    is 0.5 s behind (:mod:`deploy.reader`). ``counters``: ``received`` and ``delivered`` count
+    joint states; ``lost`` counts the cycles at :data:`RATE_HZ` that the time stamps
     skip (as the ``ros2`` link counts them), ``silences`` the gaps longer than
     ``silence_timeout`` (what a live link would have reported there). Nothing is dropped:
     the file was checked whole. ``truncated`` and ``bad_lines`` are those of a CAN log's
@@ -365,12 +370,19 @@ class RecordingSource:
     bad_lines = 0
 
     def __init__(self, recording: Recording, name: str = "recording",
-                 silence_timeout: float = 0.1) -> None:
+                 silence_timeout: float = 0.1, pace: str = "fast", skip: float = 60.0) -> None:
+        from .replay import PACES
+
+        if pace not in PACES:
+            raise BridgeConfigError(f"unknown replay pace {pace!r}; valid are {', '.join(PACES)}")
         self.recording = recording
         self.name = name
         self.silence_timeout = float(silence_timeout)
         self.counters = LinkCounters()
         self._k = 0
+        self._paced, self._skip = pace == "recorded", float(skip)
+        self._start: float | None = None  # perf_counter of the first joint state (paced)
+        self._skipped = 0.0  # recorded seconds of gaps skipped (paced)
 
     def read(self, timeout: float | None = None) -> JointState:
         r, k, c = self.recording, self._k, self.counters
@@ -382,6 +394,13 @@ class RecordingSource:
             c.lost += max(round(dt * RATE_HZ) - 1, 0)
             if dt > self.silence_timeout:
                 c.silences += 1
+            if self._paced:
+                self._skipped += max(dt - self._skip, 0.0)
+                wait = self._start + (t - float(r.t[0]) - self._skipped) - time.perf_counter()
+                if wait > 1e-4:
+                    time.sleep(wait)
+        elif self._paced:
+            self._start = time.perf_counter()
         self._k = k + 1
         c.received += 1
         c.delivered += 1
@@ -406,16 +425,19 @@ class RecordingSource:
 
 def open_recording_link(kind: str, channel: str, *, profile: str = "fd",
                         silence_timeout: float = 0.1, format: str | None = None,
-                        topic: str = DEFAULT_TOPIC) -> RecordingSource:
+                        topic: str = DEFAULT_TOPIC, pace: str = "recorded",
+                        skip: float = 60.0) -> RecordingSource:
     """Opener for :func:`firmware_bridge.links.open_link` (kind ``recording``): ``channel`` is
     a rosbag2 bag or a joint-state CSV (``format`` None: detected), read whole and checked
-    now; ``topic``: the bag's JointState topic; ``profile`` is a CAN notion and not used."""
+    now; ``topic``: the bag's JointState topic; ``pace``, ``skip``: see
+    :class:`RecordingSource` (recorded pace by default, as the ``replay`` kind's);
+    ``profile`` is a CAN notion and not used."""
     fmt = recording_format(channel, format)
     if fmt == "can":
         raise LogFileError(f"{channel}: a CAN log; open it as the link kind 'replay'")
     recording = read_recording(channel, fmt, topic=topic)
     what = f"{fmt} recording {channel}" + (f" ({topic})" if fmt == "rosbag2" else "")
-    return RecordingSource(recording, what, silence_timeout)
+    return RecordingSource(recording, what, silence_timeout, pace, skip)
 
 
 def recording_link(path, format: str | None = None, topic: str = DEFAULT_TOPIC
@@ -426,7 +448,7 @@ def recording_link(path, format: str | None = None, topic: str = DEFAULT_TOPIC
     fmt = recording_format(path, format)
     if fmt == "can":
         return fmt, "replay", {"pace": "fast"}
-    return fmt, "recording", {"format": fmt, "topic": topic}
+    return fmt, "recording", {"format": fmt, "topic": topic, "pace": "fast"}
 
 
 def open_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPIC,

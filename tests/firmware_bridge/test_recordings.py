@@ -170,8 +170,26 @@ def test_the_source_delivers_the_recording_as_recorded(tmp_path):
     c = source.counters
     assert (c.received, c.delivered, c.lost, c.silences) == (50, 50, 4 + 200, 1)
     assert not c.dropped() and source.truncated is False and source.bad_lines == 0
-    link = open_link("recording", str(path))  # the link kind, as a cell.toml names it
-    assert isinstance(link, RecordingSource) and len(list(link)) == 50
+
+
+def test_the_link_kind_paces_the_recording_as_recorded(tmp_path):
+    """``open_link("recording", ...)`` as ``iem run`` opens it: each joint state when it is
+    due, a gap longer than ``skip`` shortened to it; ``iem replay``'s ``pace="fast"`` does not
+    wait."""
+    import time
+
+    t, q, dq, tau, _ = arrays(n=100)
+    t = t - t[0]
+    t[50:] += 1.0  # 99 ms of joint states around a 1 s gap
+    path = write_csv(tmp_path / "rec.csv", t, q, dq, tau)
+    start = time.perf_counter()
+    link = open_link("recording", str(path), skip=0.05)
+    assert isinstance(link, RecordingSource) and len(list(link)) == 100
+    paced = time.perf_counter() - start
+    assert 0.099 + 0.049 <= paced < 1.0
+    start = time.perf_counter()
+    assert len(list(open_recording(path))) == 100
+    assert time.perf_counter() - start < paced
 
 
 def test_detection_and_its_override(tmp_path):
