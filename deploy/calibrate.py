@@ -1,7 +1,11 @@
 """``iem calibrate``: the arm's departure from its nominal model, from bare-arm traffic.
 
-``iem calibrate LOG... --out ARM`` reads recorded CAN logs (``.blf .log .asc .trc``, decoded
-by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus);
+``iem calibrate REC... --out ARM`` reads recordings: CAN logs (``.blf .log .asc .trc``, decoded
+by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus),
+rosbag2 bags of ``sensor_msgs/msg/JointState`` (directory, ``.db3``, ``.mcap``; ``--topic``,
+default ``/franka/joint_states``) or joint-state CSVs (``t,q1..q7,dq1..dq7,tau1..tau7``), each
+of the format ``--format`` names or else of the one detected
+(:mod:`firmware_bridge.recordings`);
 ``iem calibrate --interface I --channel C --duration S --out ARM`` reads a live link
 (:func:`firmware_bridge.links.open_link`) for ``S`` seconds instead. The arm must carry no
 payload and should run the calibration motion (:func:`sim.paths.calibration_path`, 30 s;
@@ -19,6 +23,7 @@ import time
 
 import numpy as np
 
+from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 
 
@@ -82,15 +87,19 @@ _records = itertools.count()
 
 
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
-                      profile: str = "fd", link=None):
-    """The arm calibrated from the ``logs`` and/or a live link (see the module docstring):
-    ``interface``/``channel`` opened here, or ``link`` already open (closed here)."""
+                      profile: str = "fd", link=None, format: str | None = None,
+                      topic: str = DEFAULT_TOPIC):
+    """The arm calibrated from the recordings ``logs`` (of ``format``, None: detected per
+    file; ``topic``: a rosbag2 bag's JointState topic; ``profile``: a CAN log's wire profile)
+    and/or a live link (see the module docstring): ``interface``/``channel`` opened here, or
+    ``link`` already open (closed here)."""
     from firmware_bridge.links import open_link
+    from firmware_bridge.recordings import open_recording
     from sim.calibration import calibrate_segments, segments
 
     parts, names = [], []
     for log_file in logs:
-        replay = open_link("replay", str(log_file), profile=profile, pace="fast")
+        replay = open_recording(log_file, format, topic=topic, profile=profile)
         try:
             data = read_states(replay)
         finally:
@@ -113,7 +122,7 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
         parts += segments(*data)
         names.append(f"{interface}:{channel} for {duration:g} s")
     if not names:
-        raise InvalidInputError("give at least one LOG, or --interface/--channel/--duration")
+        raise InvalidInputError("give at least one REC, or --interface/--channel/--duration")
     return calibrate_segments(parts, source=", ".join(names))
 
 
@@ -136,13 +145,19 @@ def print_report(arm, out, log=print) -> None:
 
 
 def configure(parser) -> None:
-    parser.add_argument("logs", nargs="*", metavar="LOG",
-                        help="CAN logs of the bare arm (.blf .log .asc .trc)")
+    parser.add_argument("logs", nargs="*", metavar="REC",
+                        help="recordings of the bare arm: CAN logs (.blf .log .asc .trc), "
+                        "rosbag2 bags (directory, .db3, .mcap) or joint-state CSVs "
+                        "(t,q1..q7,dq1..dq7,tau1..tau7)")
     parser.add_argument("--out", metavar="ARM", help="arm file to write")
     parser.add_argument("--write-motion", metavar="CSV",
                         help="write the calibration motion as a path CSV (t, q1..q7) and stop")
+    parser.add_argument("--format", choices=FORMATS, help="the recordings' format (default: "
+                        "detected from each file)")
+    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
+                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
     parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
-                        help="wire profile (default fd)")
+                        help="wire profile of CAN logs and of a live CAN link (default fd)")
     parser.add_argument("--interface", help="live link kind instead of (or besides) logs")
     parser.add_argument("--channel", help="live link channel")
     parser.add_argument("--duration", type=float, metavar="S",
@@ -163,7 +178,8 @@ def run(args) -> int:
         raise InvalidInputError("--out ARM is required: the arm file to write")
     t0 = time.perf_counter()
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
-                            duration=args.duration, profile=args.profile)
+                            duration=args.duration, profile=args.profile, format=args.format,
+                            topic=args.topic)
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

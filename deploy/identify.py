@@ -1,18 +1,23 @@
 """``iem identify``: commissioning identification of a payload from recorded traffic.
 
-``iem identify --loaded LOG --bare LOG [--arm ARM] --out P.toml [--json S.json]``
+``iem identify --loaded REC --bare REC [--arm ARM] --out P.toml [--json S.json]``
 
-Both logs (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes them) are decoded
-by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus, as
-fast as the machine goes; the numerics are :func:`iem.identify.identify` (see there for the
-method and the refusals). The result is written as the project's payload TOML
+Each recording is a CAN log (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes
+them), decoded by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes
+the bus, as fast as the machine goes, or a rosbag2 bag of ``sensor_msgs/msg/JointState``
+(directory, ``.db3``, ``.mcap``; ``--topic``, default ``/franka/joint_states``) or a
+joint-state CSV (``t,q1..q7,dq1..dq7,tau1..tau7``), read by :mod:`firmware_bridge.recordings`;
+``--format can|rosbag2|csv`` names the format of both, else each one's is detected. The
+numerics are :func:`iem.identify.identify` (see there for the method and the refusals). The
+result is written as the project's payload TOML
 (:func:`sim.payload.save_payload`: mass, CoM in the flange frame, inertia about the CoM) and,
 with ``--json``, a summary holding ``payload {mass, com, inertia}`` and ``std {mass, com,
 inertia}`` in the same units, plus the ten parameters, their standard deviations, which of
 them the data determine, and the run's figures.
 
-Errors (a missing or unreadable log, logs of different motions, too little excitation, a load
-in the bare log) end with ``iem: error: ...`` and exit status 2; nothing is written then.
+Errors (a missing or unreadable recording, recordings of different motions, too little
+excitation, a load in the bare one) end with ``iem: error: ...`` and exit status 2; nothing is
+written then.
 """
 
 from __future__ import annotations
@@ -22,15 +27,23 @@ import sys
 import time
 from pathlib import Path as FsPath
 
+from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 
 
-def read_log(path, profile: str = "fd"):
-    """The joint states of a CAN log as a :class:`iem.identify.Recording`."""
+def read_log(path, profile: str = "fd", format: str | None = None,
+             topic: str = DEFAULT_TOPIC):
+    """The joint states of a recording (``format`` None: detected; ``profile``: a CAN log's
+    wire profile; ``topic``: a rosbag2 bag's JointState topic) as a
+    :class:`iem.identify.Recording`."""
     from firmware_bridge.errors import LogFileError
+    from firmware_bridge.recordings import read_recording, recording_format
     from firmware_bridge.replay import ReplaySource
     from iem.identify import Recording
 
+    fmt = recording_format(path, format)
+    if fmt != "can":  # read whole and checked (at least 2 joint states)
+        return read_recording(path, fmt, topic=topic)
     with ReplaySource(path, profile, pace="fast") as source:
         states = list(source)
         counters = source.counters
@@ -43,17 +56,23 @@ def read_log(path, profile: str = "fd"):
 
 
 def configure(parser) -> None:
-    parser.add_argument("--loaded", required=True, metavar="LOG",
-                        help="CAN log of the motion with the payload mounted")
-    parser.add_argument("--bare", metavar="LOG",
-                        help="CAN log of the same motion without the payload")
+    parser.add_argument("--loaded", required=True, metavar="REC",
+                        help="recording of the motion with the payload mounted: a CAN log "
+                        "(.blf .log .asc .trc), a rosbag2 bag (directory, .db3, .mcap) or a "
+                        "joint-state CSV (t,q1..q7,dq1..dq7,tau1..tau7)")
+    parser.add_argument("--bare", metavar="REC",
+                        help="recording of the same motion without the payload (any format)")
     parser.add_argument("--arm", metavar="ARM",
                         help="arm file from 'iem calibrate' instead of --bare (any motion)")
     parser.add_argument("--out", required=True, metavar="P.toml",
                         help="payload file to write (mass, CoM, inertia about the CoM)")
     parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
+    parser.add_argument("--format", choices=FORMATS, help="the recordings' format (default: "
+                        "detected from each file)")
+    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
+                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
     parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
-                        help="wire profile the logs were recorded with (default fd)")
+                        help="wire profile CAN logs were recorded with (default fd)")
     parser.add_argument("--name", help="payload name in the file (default: the file's stem)")
 
 
@@ -92,8 +111,9 @@ def run(args) -> int:
     if args.bare is not None and args.arm is not None:
         raise InvalidInputError("iem identify takes one of --bare and --arm, not both")
     start = time.perf_counter()
-    loaded = read_log(args.loaded, args.profile)
-    bare = read_log(args.bare, args.profile) if args.bare is not None else None
+    loaded = read_log(args.loaded, args.profile, args.format, args.topic)
+    bare = (read_log(args.bare, args.profile, args.format, args.topic)
+            if args.bare is not None else None)
     decoded = time.perf_counter()
     result = identify(loaded, bare=bare, arm=args.arm)
     done = time.perf_counter()

@@ -1,10 +1,14 @@
 """``iem replay``: the plug-in over recorded traffic, as fast as the machine goes.
 
-A CAN log (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes them) is decoded
-by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes the bus, and
-fed to the same :class:`deploy.service.Service` that ``iem run`` uses, with writes off:
-nothing is sent, but the safety gate still decides on every estimate, so the report says what
-the plug-in would have written. The gate runs on the recorded controller clock (the joint
+The recording is a CAN log (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes
+them; ``--profile`` its wire profile), decoded by :class:`firmware_bridge.replay.ReplaySource`
+exactly as the live link decodes the bus, or a rosbag2 bag of ``sensor_msgs/msg/JointState``
+(``ros2 bag record /franka/joint_states``: its directory, a ``.db3`` or a ``.mcap``;
+``--topic``) or a joint-state CSV (``t,q1..q7,dq1..dq7,tau1..tau7``), read by
+:mod:`firmware_bridge.recordings` (``--format can|rosbag2|csv``, default: detected). Its joint
+states are fed to the same :class:`deploy.service.Service` that ``iem run`` uses, with writes
+off: nothing is sent, but the safety gate still decides on every estimate, so the report says
+what the plug-in would have written. The gate runs on the recorded controller clock (the joint
 states' ``t``), not on the wall clock, so its decisions do not depend on how fast the replay
 runs; a replay has no silences (a gap in the recording is just a gap).
 
@@ -16,11 +20,12 @@ deterministic, so replaying the same file twice gives identical estimates (``--o
 Outputs: ``--out`` a CSV with one row per estimate (``t,cycle,bag``, the raw ``m..Izz`` and
 the smoothed ``m_s..Izz_s``, the paper's parameter order, kg, kg·m, kg·m²); ``--truth`` the
 MAE of the smoothed estimates against a payload file, by group; ``--json`` the summary.
-A missing, unknown or unreadable log, or one without a single complete cycle of the given
-profile, is a :class:`firmware_bridge.errors.LogFileError` (``iem``: exit status 2). A damaged
-log loses only what is damaged: a truncated one replays what it holds and says so on stderr
-and in the summary (``"truncated": true``); a bad line of a ``.log``, ``.asc`` or ``.trc`` is
-skipped and counted (``frames.malformed``).
+A missing, unknown or unreadable recording, a CAN log without a single complete cycle of the
+given profile, or a bag or CSV with a missing joint or column, a non-finite value or time
+stamps that do not increase, is a :class:`firmware_bridge.errors.LogFileError` (``iem``: exit
+status 2). A damaged CAN log loses only what is damaged: a truncated one replays what it holds
+and says so on stderr and in the summary (``"truncated": true``); a bad line of a ``.log``,
+``.asc`` or ``.trc`` is skipped and counted (``frames.malformed``).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 from iem.types import PARAMS
 
@@ -85,12 +91,14 @@ def _write(path, text: str) -> None:
 
 
 def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_to=None,
-           status: bool = False, log=print, arm_file=None) -> tuple[dict, Estimates]:
+           status: bool = False, log=print, arm_file=None, format: str | None = None,
+           topic: str = DEFAULT_TOPIC) -> tuple[dict, Estimates]:
     """Run the plug-in over ``log_file`` as fast as possible, writes off.
 
     Args:
-        log_file: a ``.blf``, ``.log``, ``.asc`` or ``.trc`` CAN log.
-        profile: the wire profile it was recorded with (``fd`` or ``classic``).
+        log_file: the recording: a ``.blf``, ``.log``, ``.asc`` or ``.trc`` CAN log, a
+            rosbag2 bag (directory, ``.db3``, ``.mcap``) or a joint-state CSV.
+        profile: the wire profile a CAN log was recorded with (``fd`` or ``classic``).
         model: the estimator to start from (copied, never changed); None: a fresh
             ``IEM`` trained on the built-in excitation path with seed 0.
         truth: a :class:`sim.payload.Payload` to compute the MAE against, or None.
@@ -99,12 +107,16 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         log: where progress lines go.
         arm_file: the arm file of the arm that was recorded (``iem calibrate``); the model
             must have been trained for it. None: the nominal arm.
+        format: ``can``, ``rosbag2`` or ``csv``; None: detected from the file
+            (:func:`firmware_bridge.recordings.detect_format`).
+        topic: a rosbag2 bag's JointState topic.
 
     Returns:
         ``(summary, estimates)``: the summary dict (the keys of the demo's summary where
         they apply) and the per-cycle :class:`Estimates`.
     """
     from firmware_bridge.links import open_link
+    from firmware_bridge.recordings import recording_link
     from iem.metrics import mae_groups
     from iem.persistence import DEFAULT_FAMILY, save_model
     from sim.family import DEPLOY_FAMILY
@@ -115,7 +127,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     from .status import StatusLine
     from .training import train_initial_model
 
-    link = open_link("replay", str(log_file), profile=profile, pace="fast")
+    fmt, kind, options = recording_link(log_file, format, topic)
+    link = open_link(kind, str(log_file), profile=profile, **options)
     try:
         if model is None:
             model = train_initial_model(DEFAULT_KIND, DEPLOY_FAMILY, "builtin", 0, log=log,
@@ -123,7 +136,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         else:
             model = copy.deepcopy(model)
         config = config_from_dict({
-            "link": {"kind": "replay", "channel": str(log_file), "profile": profile},
+            "link": {"kind": kind, "channel": str(log_file), "profile": profile},
             # the model path is only written by --save-model; no periodic checkpoints
             "model": {"path": str(save_model_to or "replay-model.msgpack"),
                       "train_if_missing": False, "checkpoint_period_s": 86400.0,
@@ -169,7 +182,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         summary.pop(key, None)
     summary.update({
         "log_file": str(log_file),
-        "profile": profile,
+        "format": fmt,
+        "profile": profile if fmt == "can" else None,
         "truncated": truncated,
         "recorded_s": estimates.t[-1] - estimates.t[0],
         "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
@@ -186,7 +200,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
 
 
 def print_summary(s: dict, log=print) -> None:
-    log(f"replay of {s['log_file']} ({s['profile']} profile, {s['model']})"
+    what = f"{s['profile']} profile" if s.get("profile") else f"{s['format']} recording"
+    log(f"replay of {s['log_file']} ({what}, {s['model']})"
         + (", TRUNCATED: replayed what it holds" if s.get("truncated") else "") + ":")
     log(f"  {s['estimates']} estimates over {s['recorded_s']:.3f} s of recorded time, "
         f"{s['bags']} bags; {s['wall_s']:.2f} s wall"
@@ -205,9 +220,15 @@ def print_summary(s: dict, log=print) -> None:
 
 
 def configure(parser) -> None:
-    parser.add_argument("file", metavar="FILE", help="CAN log: .blf, .log, .asc or .trc")
+    parser.add_argument("file", metavar="REC", help="the recording: a CAN log (.blf, .log, "
+                        ".asc, .trc), a rosbag2 bag (directory, .db3, .mcap) or a joint-state "
+                        "CSV (t,q1..q7,dq1..dq7,tau1..tau7)")
+    parser.add_argument("--format", choices=FORMATS, help="the recording's format (default: "
+                        "detected from the file)")
+    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
+                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
     parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
-                        help="wire profile the log was recorded with (default fd)")
+                        help="wire profile a CAN log was recorded with (default fd)")
     parser.add_argument("--model", metavar="FILE", help="model file to start from (read "
                         "only; default: a fresh IEM trained on the built-in excitation path, "
                         "seed 0)")
@@ -238,7 +259,7 @@ def run(args) -> int:
     summary, estimates = replay(args.file, profile=args.profile, model=model, truth=truth,
                                 save_model_to=args.save_model,
                                 status=not args.no_status and sys.stderr.isatty(), log=log,
-                                arm_file=args.arm)
+                                arm_file=args.arm, format=args.format, topic=args.topic)
     if args.out:
         estimates.write_csv(args.out)
     if args.json:
