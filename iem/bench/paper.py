@@ -18,9 +18,13 @@ Scenarios (every model's output smoothed the same causal way, :mod:`iem.smoothin
   recursive update from the prior).
 - ``new_path`` (Table 4, Fig. 6): each model runs the new task path learning as it goes
   (IEM forms new bags, old_IEM updates in place, BEM never changes, LS restarts).
-- ``forgetting`` (Fig. 5): the excitation-path MAE before and after the new task path, and
-  ``weights_identical``: whether every excitation bag's learner is bit-identical after it
-  (:mod:`iem.bench.honesty`; the old in-place IEM's are not).
+- ``forgetting`` (Fig. 5): the excitation-path MAE before and after the new task path
+  (``before``/``after`` smoothed, ``before_raw``/``after_raw``), and ``weights_identical``:
+  whether every excitation bag's learner is bit-identical after it (:mod:`iem.bench.honesty`;
+  the old in-place IEM's are not). For the old IEM also its ``update`` (:mod:`iem.old_iem`),
+  ``paper``: the paper's figures (``before`` its Table 2, ``after`` section 5.3's, ``ratio``),
+  and ``variants``: the same scenario for a copy with the ``running_centre`` update (the
+  variant kept for comparison), from the old IEM as it was before the new task path.
 - ``revisit``: then the excitation path's first 6 s played backwards, learning on (the new
   task path never enters an excitation bag; this does), and the excitation path scored again.
 - ``holdout``: IEM and IEM+phys afresh on the new task path with payloads drawn at random
@@ -92,7 +96,7 @@ from iem.ensemble import IncrementalEnsemble
 from iem.least_squares import RecursiveLeastSquares
 from iem.metrics import convergence_s, groups_of, mae
 from iem.metrics import coverage as coverage_of
-from iem.old_iem import InPlaceEnsemble
+from iem.old_iem import RUNNING_CENTRE, InPlaceEnsemble
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
@@ -100,6 +104,7 @@ from iem.sensor import SensorModel
 from iem.types import GROUPS, PARAMS, JointState
 
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged
+from .report import paper_forgetting
 
 MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS", "IEM+phys")
 CHANGE_TO = "test-4w"
@@ -409,16 +414,22 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
             continue  # forgetting concerns models that carry what they learnt
         r = bench.run(model, bench.exc_rollout, learn=False)
         runs["forgetting_after"][name] = r
-        scen["forgetting"][name] = {
+        after = bench.scores(r, bench.phi)
+        f = scen["forgetting"][name] = {
             "before": scen["excitation"][name]["mae_groups"],
-            "after": bench.scores(r, bench.phi)["mae_groups"]}
-        scen["forgetting"][name]["weights_identical"] = unchanged(trained[name], model)
+            "after": after["mae_groups"],
+            "before_raw": scen["excitation"][name]["mae_groups_raw"],
+            "after_raw": after["mae_groups_raw"]}
+        f["weights_identical"] = unchanged(trained[name], model)
         if getattr(model, "detects_changes", False):
-            scen["forgetting"][name]["changes_after"] = int(r.changes.sum())
-        log(f"forgetting {name:8s} after/before "
-            + _fmt({g: scen['forgetting'][name]['after'][g]
-                    / max(scen['forgetting'][name]['before'][g], 1e-300)
-                    for g in ("mass", "com", "inertia")}, digits=2))
+            f["changes_after"] = int(r.changes.sum())
+        if isinstance(model, InPlaceEnsemble):
+            f["update"] = model.update
+            f["paper"] = paper_forgetting("old_IEM")
+            if model.update != RUNNING_CENTRE and name in frozen:
+                f["variants"] = {RUNNING_CENTRE: forgetting_variant(
+                    bench, frozen[name], RUNNING_CENTRE, f["before"], f["before_raw"])}
+        _log_forgetting(log, name, f)
     revisit = bench.rollout(revisit_path(bench.excitation), bench.payload, seed + 3)
     for name, model in models.items():  # learning inside the excitation bags, then scored
         if not hasattr(model, "fit"):
@@ -511,6 +522,36 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     log(f"wrote {out_dir / 'results.json'} and {out_dir / 'report.md'} "
         f"in {results['setup']['wall_s']:.0f} s")
     return results
+
+
+def forgetting_variant(bench: Bench, trained: InPlaceEnsemble, update: str, before: dict,
+                       before_raw: dict) -> dict:
+    """The forgetting scenario for a copy of the old IEM ``trained`` (as it was before the
+    new task path) with another in-place ``update``: the new task path, learning, then the
+    excitation path. ``before``: the excitation-path MAE of ``trained`` (the same learners)."""
+    variant = copy.deepcopy(trained)
+    variant.update = update
+    new = bench.scores(bench.run(variant, bench.new_rollout, learn=True), bench.phi)
+    after = bench.scores(bench.run(variant, bench.exc_rollout, learn=False), bench.phi)
+    return {"before": before, "after": after["mae_groups"], "before_raw": before_raw,
+            "after_raw": after["mae_groups_raw"], "new_path": new["mae_groups"],
+            "new_path_raw": new["mae_groups_raw"]}
+
+
+def _log_forgetting(log, name: str, f: dict) -> None:
+    groups = ("mass", "com", "inertia")
+
+    def ratio(v):
+        return {g: v["after"][g] / max(v["before"][g], 1e-300) for g in groups}
+
+    paper = f.get("paper")
+    log(f"forgetting {name:8s} after {_fmt(f['after'])}, after/before "
+        + _fmt(ratio(f), digits=2)
+        + (f"; paper after {_fmt(paper['after'])}, after/before "
+           + _fmt(paper["ratio"], digits=2) if paper else ""))
+    for kind, v in f.get("variants", {}).items():
+        log(f"forgetting {name} ({kind}) after {_fmt(v['after'])}, after/before "
+            + _fmt(ratio(v), digits=2))
 
 
 def _fmt(groups: dict, digits: int = 4) -> str:

@@ -131,17 +131,72 @@ def _data_std(results) -> list[str]:
     return lines
 
 
+def paper_forgetting(name: str) -> dict | None:
+    """The paper's forgetting figures for a model (groups, kg, kg·m, kg·m²): ``before``, its
+    Table 2 excitation-path MAE (Fig. 5 tests the same path before the update), ``after``,
+    section 5.3's, and their ratio; None for a model the paper gives no after figure."""
+    after = PAPER_FORGETTING_AFTER.get(name)
+    if after is None:
+        return None
+    before = _groups(PAPER_TABLE2[name])
+    return {"before": before, "after": dict(after),
+            "ratio": {g: after[g] / before[g] for g in GROUPS}}
+
+
 def _forgetting(results) -> list[str]:
     f = results["scenarios"]["forgetting"]
-    lines = ["| model | group | before | after | after/before | paper after |",
-             "|---|---|---|---|---|---|"]
-    for name, v in f.items():
+    lines = ["| model | group | before (smoothed) | after | after/before | raw before | "
+             "raw after | paper before (Table 2) | paper after (5.3) | paper after/before |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def rows(label, v, paper):
         for g in GROUPS:
             ratio = v["after"][g] / v["before"][g] if v["before"][g] > 0 else float("nan")
-            paper = PAPER_FORGETTING_AFTER.get(name, {}).get(g)
-            paper_txt = _g(paper) if paper else ("unchanged" if name == "IEM" else "")
-            lines.append(f"| {name} | {g} | {_g(v['before'][g])} | {_g(v['after'][g])} | "
-                         f"{ratio:.3g} | {paper_txt} |")
+            raw = ((_g(v["before_raw"][g]), _g(v["after_raw"][g])) if "after_raw" in v
+                   else ("", ""))
+            if paper:
+                ptxt = (f"{_g(paper['before'][g])} | {_g(paper['after'][g])} | "
+                        f"{paper['ratio'][g]:.3g}")
+            else:
+                ptxt = " | " + ("unchanged" if label == "IEM" else "") + " | "
+            lines.append(f"| {label} | {g} | {_g(v['before'][g])} | {_g(v['after'][g])} | "
+                         f"{ratio:.3g} | {raw[0]} | {raw[1]} | {ptxt} |")
+
+    for name, v in f.items():
+        rows(name, v, v.get("paper"))
+        for kind, w in v.get("variants", {}).items():
+            rows(f"{name} ({kind})", w, v.get("paper"))
+    old = f.get("old_IEM")
+    if old and old.get("paper"):
+        lines += ["", *_old_iem_note(old)]
+    return lines
+
+
+def _old_iem_note(old) -> list[str]:
+    """How our old IEM's forgetting compares with the paper's, and where the gap comes from:
+    ours/paper after = (ours/paper before) x (our after/before over the paper's)."""
+    p = old["paper"]
+
+    def trio(d):
+        return " / ".join(f"{d[g]:.2g}" for g in GROUPS)
+
+    def times(v):
+        return {g: v["after"][g] / p["after"][g] for g in GROUPS}
+
+    before = {g: old["before"][g] / p["before"][g] for g in GROUPS}
+    ratio = {g: old["after"][g] / old["before"][g] for g in GROUPS}
+    lines = [f"Old IEM (update `{old.get('update')}`, `iem/old_iem.py`) after the update: "
+             f"{trio(times(old))} times the paper's figures (mass / com / inertia; raw "
+             f"{trio({g: old['after_raw'][g] / p['after'][g] for g in GROUPS})}). That factor "
+             f"is the product of where it starts, {trio(before)} times the paper's Table 2 "
+             f"before the update (its learners are the IEM's, Table 2 above), and how much it "
+             f"forgets, after/before {trio(ratio)} against the paper's {trio(p['ratio'])}."]
+    w = old.get("variants", {}).get("running_centre")
+    if w:
+        lines += ["", "`running_centre` (the variant kept for comparison, not the paper's): "
+                  "the learner's input centre also follows the new path's inputs (a running "
+                  "mean), so the old path's inputs are mis-scaled afterwards: "
+                  f"{trio(times(w))} times the paper's figures after the update."]
     return lines
 
 

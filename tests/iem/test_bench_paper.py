@@ -50,6 +50,25 @@ def test_the_paper_story_holds_even_in_the_quick_run(results):
     assert forget["old_IEM"]["after"]["mass"] >= 2 * forget["old_IEM"]["before"]["mass"]
 
 
+def test_forgetting_beside_the_papers_old_iem(results):
+    """The old IEM's forgetting with the paper's figures (Table 2 before, 5.3 after), raw
+    beside smoothed, and the running-centre variant kept for comparison, which forgets more."""
+    out, r = results
+    old = r["scenarios"]["forgetting"]["old_IEM"]
+    assert old["update"] == "frozen"
+    assert old["paper"]["after"] == {"mass": 0.037, "com": 0.025, "inertia": 0.0022}
+    assert old["paper"]["before"]["mass"] == 0.00655
+    for key in ("before_raw", "after_raw"):
+        assert set(old[key]) == GROUPS
+    variant = old["variants"]["running_centre"]
+    assert variant["before"] == old["before"]  # the same learners before the update
+    assert set(variant["new_path"]) == GROUPS
+    assert variant["after"]["mass"] > old["after"]["mass"]
+    text = (out / "report.md").read_text()
+    assert "paper after (5.3)" in text and "old_IEM (running_centre)" in text
+    assert "times the paper's figures" in text
+
+
 def test_checks_that_can_fail(results):
     """Forgetting by the weights (the old IEM's change, the IEM's stay bit-identical, even
     after learning inside the excitation bags on the revisit), raw beside smoothed for every
