@@ -39,6 +39,7 @@ from __future__ import annotations
 import csv
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path as FsPath
 
 import numpy as np
@@ -134,7 +135,7 @@ def recording_format(path, format: str | None = None) -> str:
 
 
 # -- readers -----------------------------------------------------------------------------------
-def _recording(path, t, q, dq, tau, what: str) -> Recording:
+def _recording(path, t, q, dq, tau, what: Callable[[int], str]) -> Recording:
     """The arrays as a read-only Recording, after the checks every format shares; ``what(k)``
     names joint state ``k`` in the file (a line, a message)."""
     n = t.shape[0]
