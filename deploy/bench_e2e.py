@@ -75,7 +75,8 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) ->
     from .status import StatusLine
     from .training import train_initial_model
 
-    model = train_initial_model(kind, seed=seed, log=lambda *a: None)
+    model = train_initial_model(kind, seed=seed, log=lambda *a: None,
+                                noise="sensor")  # the simulated arm is its model
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
            "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30)]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,

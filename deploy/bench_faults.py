@@ -261,7 +261,8 @@ def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str
     kind = kind or best_model_kind()
     payload_file = str(REPO / "sim" / "payloads" / "test-3w.toml")
     truth = test_payloads()["test-3w"]
-    model = train_initial_model(kind, seed=0, log=lambda *a: None)
+    model = train_initial_model(kind, seed=0, log=lambda *a: None,
+                                noise="sensor")  # the simulated arm is its model
     clean = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, None, fault_seed, log)
     faulty = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, FAULTS, fault_seed,
                   log)

@@ -10,10 +10,13 @@ of the format ``--format`` names or else of the one detected
 (:func:`firmware_bridge.links.open_link`) for ``S`` seconds instead. The arm must carry no
 payload and should run the calibration motion (:func:`sim.paths.calibration_path`, 30 s;
 ``iem calibrate --write-motion FILE.csv`` writes it as a path CSV for the robot's own
-program). The numerics are :mod:`sim.calibration`; this prints the
-per-joint residual RMS before and after, the condition number of the excitation and any
-warning, and writes the arm file (msgpack, versioned, CRC-checked; :mod:`sim.arm`), which
-``iem train/run/replay/demo --arm`` and the benchmarks use.
+program); ``--end-effector`` says what it carries as part of itself (:mod:`sim.end_effector`;
+the prior is centred on that nominal arm). The numerics are :mod:`sim.calibration` and
+:mod:`sim.calibration_noise` (the noise the fit leaves in IEM+phys's equations, measured on
+traffic it did not see); this prints the per-joint residual RMS before and after, the
+condition number of the excitation, that noise and any warning, and writes the arm file
+(msgpack, versioned, CRC-checked; :mod:`sim.arm`), which ``iem train/run/replay/demo --arm``
+and the benchmarks use.
 """
 
 from __future__ import annotations
@@ -88,14 +91,17 @@ _records = itertools.count()
 
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
                       profile: str = "fd", link=None, format: str | None = None,
-                      topic: str = DEFAULT_TOPIC):
+                      topic: str = DEFAULT_TOPIC, end_effector=None):
     """The arm calibrated from the recordings ``logs`` (of ``format``, None: detected per
     file; ``topic``: a rosbag2 bag's JointState topic; ``profile``: a CAN log's wire profile)
     and/or a live link (see the module docstring): ``interface``/``channel`` opened here, or
-    ``link`` already open (closed here)."""
+    ``link`` already open (closed here); ``end_effector``: what the arm carries
+    (:mod:`sim.end_effector`; None: the Franka Hand). The arm carries the noise it leaves,
+    measured on traffic its fit did not see (:mod:`sim.calibration_noise`)."""
     from firmware_bridge.links import open_link
     from firmware_bridge.recordings import open_recording
-    from sim.calibration import calibrate_segments, segments
+    from sim.calibration import segments
+    from sim.calibration_noise import calibrate_with_noise
 
     parts, names = [], []
     for log_file in logs:
@@ -123,7 +129,7 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
         names.append(f"{interface}:{channel} for {duration:g} s")
     if not names:
         raise InvalidInputError("give at least one REC, or --interface/--channel/--duration")
-    return calibrate_segments(parts, source=", ".join(names))
+    return calibrate_with_noise(parts, source=", ".join(names), end_effector=end_effector)
 
 
 def print_report(arm, out, log=print) -> None:
@@ -136,6 +142,17 @@ def print_report(arm, out, log=print) -> None:
         log(f"  joint {j + 1}: {b:.4f} -> {a:.4f}")
     log("friction phi1 (N·m) " + " ".join(f"{v:.3f}" for v in arm.friction[:, 0]))
     log("offsets (N·m)       " + " ".join(f"{v:+.3f}" for v in arm.offset))
+    log(f"end effector: {arm.end_effector}")
+    if arm.noise is not None:
+        n = arm.noise
+        log(f"what the calibrated arm leaves in IEM+phys's equations ({n['cutoff_hz']:g} Hz "
+            f"low-pass, {n['rate_hz']:g} Hz; {n['source']}):")
+        log("  RMS per joint (N·m)         " + " ".join(f"{v:.3f}" for v in n["std"]))
+        log("  correlation (equations/one) " + " ".join(f"{v:.1f}" for v in n["weight"]))
+        log("  drifting offset (N·m)       " + " ".join(f"{v:.3f}" for v in n["offset_std"]))
+        b = n["bias_std"]
+        log(f"  reads as a payload of: mass {b[0]:.4f} kg, m·r {max(b[1:4]):.4f} kg·m, "
+            f"inertia {max(b[4:]):.4f} kg·m² (RMS; a floor under the estimate's std)")
     if r["consistency_moved_bodies"]:
         log(f"bodies moved toward nominal to stay physically consistent: "
             f"{r['consistency_moved_bodies']}")
@@ -162,6 +179,9 @@ def configure(parser) -> None:
     parser.add_argument("--channel", help="live link channel")
     parser.add_argument("--duration", type=float, metavar="S",
                         help="seconds of live traffic to record")
+    parser.add_argument("--end-effector", metavar="EE", default=None,
+                        help="what the arm carries as part of itself: franka_hand (default), "
+                             "none, or a payload-style .toml of the tool (as in Franka Desk)")
 
 
 def run(args) -> int:
@@ -179,7 +199,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
                             duration=args.duration, profile=args.profile, format=args.format,
-                            topic=args.topic)
+                            topic=args.topic, end_effector=args.end_effector)
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

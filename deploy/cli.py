@@ -45,6 +45,8 @@ BENCHES: Table = {
     "faults": ("deploy.bench_faults",
                "the plug-in on a lossy, late, corrupt stream with a silence, against a clean run"),
     "longrun": ("iem.bench.longrun", "IEM and IEM+phys over a long random motion, per 30 s"),
+    "real": ("deploy.bench_real", "the plug-in on a real Panda's recording: calibrated on one "
+             "part, payloads identified on the rest"),
 }
 
 COMMANDS: Table = {

@@ -58,6 +58,20 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
+class ArmConfig:
+    """The arm the plug-in runs on (``[arm]``).
+
+    ``end_effector``: what body 7 carries as part of the arm (:mod:`sim.end_effector`):
+    "franka_hand", "none" or the path of a payload-style TOML of the tool; the arm file and
+    the model must be made for it. ``noise``: IEM+phys's equation error when it trains a
+    model (:data:`deploy.training.NOISE_SOURCES`): "arm", the arm file's measured noise (a
+    conservative default without an arm file), or "sensor" (a simulated, exact arm)."""
+
+    end_effector: str = "franka_hand"
+    noise: str = "arm"
+
+
+@dataclass(frozen=True)
 class EstimateConfig:
     """The online estimate (``[estimate]``)."""
 
@@ -132,6 +146,7 @@ class CellConfig:
 
     link: LinkConfig = field(default_factory=LinkConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
+    arm: ArmConfig = field(default_factory=ArmConfig)
     estimate: EstimateConfig = field(default_factory=EstimateConfig)
     gate: GateConfig = field(default_factory=GateConfig)
     log: LogConfig = field(default_factory=LogConfig)
@@ -145,13 +160,15 @@ class CellConfig:
         return self.ros2.link_options() if self.link.kind == "ros2" else {}
 
 
-SECTIONS = {"link": LinkConfig, "model": ModelConfig, "estimate": EstimateConfig,
+SECTIONS = {"link": LinkConfig, "model": ModelConfig, "arm": ArmConfig,
+            "estimate": EstimateConfig,
             "gate": GateConfig, "log": LogConfig, "ros2": Ros2Config, "host": HostConfig}
 
 # keys with a restricted set of values, and numeric ranges (lo, hi, lo inclusive)
 CHOICES = {("link", "kind"): LINK_KINDS, ("link", "profile"): PROFILES,
            ("model", "kind"): MODEL_KINDS, ("log", "format"): LOG_FORMATS,
            ("log", "level"): LOG_LEVELS, ("log", "status_line"): STATUS_MODES,
+           ("arm", "noise"): ("arm", "sensor"),
            ("ros2", "joints"): ("auto", "fr3", "panda")}
 RANGES = {
     ("link", "silence_timeout_s"): (0.005, 60.0),
@@ -284,6 +301,11 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
                           "a log file (.blf, .log, .asc or .trc)")
+    ee = built["arm"].end_effector
+    if ee not in ("franka_hand", "none") and not ee.endswith(".toml"):
+        raise ConfigError(f"{where}: [arm] end_effector = {ee!r} is not valid; valid are "
+                          "'franka_hand', 'none' or the path of a payload-style .toml file of "
+                          "the tool on the flange")
     return CellConfig(**built, source=where)
 
 
@@ -313,6 +335,9 @@ def load_config(path) -> CellConfig:
                                "path": str(path.parent / model_path),
                                "arm": str(path.parent / arm_path) if cfg.model.arm else ""})
         cfg = replace(cfg, model=model)
+    ee = cfg.arm.end_effector
+    if ee not in ("franka_hand", "none") and not FsPath(ee).is_absolute():
+        cfg = replace(cfg, arm=replace(cfg.arm, end_effector=str(path.parent / ee)))
     initial = cfg.estimate.initial_payload
     if initial and not FsPath(initial).is_absolute():
         cfg = replace(cfg, estimate=replace(cfg.estimate,

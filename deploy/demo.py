@@ -66,6 +66,9 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
         "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
         "model": {"path": str(model_file), "kind": kind, "seed": seed,
                   "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
+        # the demo's plant without an arm file is the nominal model itself: the sensor's
+        # noise is all its equations carry; with one, the arm's measured noise
+        "arm": {"noise": "arm" if arm_file else "sensor"},
         "log": {"status_line": "on" if status else "off"},
         "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
     }, where="demo")

@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,6 +77,8 @@ def _mass_and_com(rows: np.ndarray) -> np.ndarray:
     return out
 
 
+SENT_LOADS_KEPT = 10_000
+"""``send`` decisions :attr:`SafetyGate.sent_loads` keeps (a write a second: almost 3 h)."""
 _QUIET = ("unstable", "uncertain", "no_change", "rate_limited")
 """Reasons that are a normal part of converging: logged at DEBUG, the others at INFO."""
 
@@ -134,6 +136,9 @@ class Decision:
     reason: str
     payload: Payload | None = None
     detail: str = ""
+    from_prior: tuple = ()
+    """Of a ``send``: the groups the model's data do not determine (``extra["undetermined"]``),
+    written as its prior has them."""
 
     @property
     def send(self) -> bool:
@@ -173,6 +178,8 @@ class SafetyGate:
         self.sent = 0
         self.refusals = 0
         self.send_errors = 0
+        self.sent_loads: deque[tuple[float, Payload, tuple]] = deque(maxlen=SENT_LOADS_KEPT)
+        """The latest ``send`` decisions: ``(t, load, groups from the prior)``."""
 
     # -- inputs from the service ---------------------------------------------------------
     def controller_silent(self, silent: bool) -> None:
@@ -265,6 +272,7 @@ class SafetyGate:
                            "detail": decision.detail})
             self._last_reason = decision.reason
         if decision.send:
+            self.sent_loads.append((t, decision.payload, decision.from_prior))
             self._before_send = (self._last_sent, self._last_sent_t)
             self._last_sent = decision.payload
             self._last_sent_t = t
@@ -305,9 +313,13 @@ class SafetyGate:
             return Decision(t, "no_change", payload)
         if t - self._last_sent_t < 1.0 / c.max_rate_hz:
             return Decision(t, "rate_limited", payload)
+        prior = tuple(getattr(estimate, "extra", {}).get("undetermined", ()))
+        note = f"; {' and '.join(prior)} from the prior (the motion does not determine " \
+               f"{'it' if len(prior) == 1 else 'them'})" if prior else ""
         return Decision(t, "send", payload,
                         f"mass {payload.mass:.4f} kg, CoM "
-                        f"[{payload.com[0]:.4f}, {payload.com[1]:.4f}, {payload.com[2]:.4f}] m")
+                        f"[{payload.com[0]:.4f}, {payload.com[1]:.4f}, {payload.com[2]:.4f}] m"
+                        + note, from_prior=prior)
 
     # -- helpers -------------------------------------------------------------------------
     def _retry_wait(self) -> float:

@@ -17,9 +17,14 @@ excitation path with seed 0. Either way the replay learns in memory only: the fi
 written unless ``--save-model FILE`` asks for it. Decoding, training and learning are
 deterministic, so replaying the same file twice gives identical estimates (``--out``).
 
-Outputs: ``--out`` a CSV with one row per estimate (``t,cycle,bag``, the raw ``m..Izz`` and
-the smoothed ``m_s..Izz_s``, the paper's parameter order, kg, kg·m, kg·m²); ``--truth`` the
-MAE of the smoothed estimates against a payload file, by group; ``--json`` the summary.
+Outputs: ``--out`` a CSV with one row per estimate (``t,cycle,bag``, the raw ``m..Izz``, the
+smoothed ``m_s..Izz_s`` and the raw estimate's standard deviations ``m_std..Izz_std``, the
+paper's parameter order, kg, kg·m, kg·m²; ``nan`` where the model gives none); ``--truth``
+the MAE of the smoothed estimates against a payload file by group (``mae_groups``) and the
+share of the raw estimates within two standard deviations of it (``coverage_2sigma``);
+``--json`` the summary, whose ``writes.would_send_loads`` lists each load the gate would have
+written (``t``, ``mass``, ``com``, ``inertia`` about the CoM, ``from_prior``) and whose
+``arm_mismatch`` says when the mass stayed clearly below zero (:mod:`deploy.arm_watch`).
 A missing, unknown or unreadable recording, a CAN log without a single complete cycle of the
 given profile, or a bag or CSV with a missing joint or column, a non-finite value or time
 stamps that do not increase, is a :class:`firmware_bridge.errors.LogFileError` (``iem``: exit
@@ -41,10 +46,14 @@ from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 from iem.types import PARAMS
 
-CSV_HEADER = ("t", "cycle", "bag", *PARAMS, *(f"{p}_s" for p in PARAMS))
-"""Columns of ``--out``: controller time (s), cycle, bag, raw then smoothed phi."""
+CSV_HEADER = ("t", "cycle", "bag", *PARAMS, *(f"{p}_s" for p in PARAMS),
+              *(f"{p}_std" for p in PARAMS))
+"""Columns of ``--out``: controller time (s), cycle, bag, raw then smoothed phi, then the raw
+estimate's standard deviations (``nan`` where the model gives none)."""
 
 DEFAULT_KIND = "IEM"
+_NO_STD = np.full(len(PARAMS), np.nan)
+_NO_STD.flags.writeable = False
 
 
 class Estimates:
@@ -56,6 +65,7 @@ class Estimates:
         self.bag: list[int] = []
         self.raw: list[np.ndarray] = []
         self.smoothed: list[np.ndarray] = []
+        self.std: list[np.ndarray] = []
 
     def __call__(self, record) -> None:
         self.t.append(float(record.state.t))
@@ -63,6 +73,8 @@ class Estimates:
         self.bag.append(int(record.raw.bag))
         self.raw.append(np.array(record.raw.phi, dtype=float))
         self.smoothed.append(np.array(record.smoothed, dtype=float))
+        std = record.raw.std
+        self.std.append(_NO_STD if std is None else np.array(std, dtype=float))
 
     def __len__(self) -> int:
         return len(self.t)
@@ -70,13 +82,26 @@ class Estimates:
     def smoothed_array(self) -> np.ndarray:
         return np.array(self.smoothed).reshape(-1, len(PARAMS))
 
+    def coverage_2sigma(self, phi) -> dict[str, float | None]:
+        """Per group of :data:`iem.types.GROUPS`: the share of the raw estimates' parameters
+        within two of their standard deviations of ``phi`` (None: the model gives none)."""
+        from iem.types import GROUPS
+
+        raw = np.array(self.raw).reshape(-1, len(PARAMS))
+        std = np.array(self.std).reshape(-1, len(PARAMS))
+        has = np.isfinite(std).all(axis=1) & np.isfinite(raw).all(axis=1)
+        if not has.any():
+            return {g: None for g in GROUPS}
+        inside = np.abs(raw[has] - np.asarray(phi)) <= 2.0 * std[has]
+        return {g: float(inside[:, list(idx)].mean()) for g, idx in GROUPS.items()}
+
     def csv_text(self) -> str:
         """The CSV (exact: every float as its shortest round-trip repr)."""
         lines = [",".join(CSV_HEADER)]
-        for t, cycle, bag, raw, sm in zip(self.t, self.cycle, self.bag, self.raw,
-                                          self.smoothed, strict=True):
-            lines.append(",".join([repr(t), str(cycle), str(bag),
-                                   *map(repr, raw.tolist()), *map(repr, sm.tolist())]))
+        for t, cycle, bag, raw, sm, sd in zip(self.t, self.cycle, self.bag, self.raw,
+                                              self.smoothed, self.std, strict=True):
+            lines.append(",".join([repr(t), str(cycle), str(bag), *map(repr, raw.tolist()),
+                                   *map(repr, sm.tolist()), *map(repr, sd.tolist())]))
         return "\n".join(lines) + "\n"
 
     def write_csv(self, path) -> None:
@@ -92,7 +117,7 @@ def _write(path, text: str) -> None:
 
 def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_to=None,
            status: bool = False, log=print, arm_file=None, format: str | None = None,
-           topic: str = DEFAULT_TOPIC) -> tuple[dict, Estimates]:
+           topic: str = DEFAULT_TOPIC, end_effector=None) -> tuple[dict, Estimates]:
     """Run the plug-in over ``log_file`` as fast as possible, writes off.
 
     Args:
@@ -110,6 +135,9 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         format: ``can``, ``rosbag2`` or ``csv``; None: detected from the file
             (:func:`firmware_bridge.recordings.detect_format`).
         topic: a rosbag2 bag's JointState topic.
+        end_effector: what the recorded arm carried as part of itself
+            (:mod:`sim.end_effector`; None: the Franka Hand); the arm file and the model
+            must be made for it.
 
     Returns:
         ``(summary, estimates)``: the summary dict (the keys of the demo's summary where
@@ -132,7 +160,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     try:
         if model is None:
             model = train_initial_model(DEFAULT_KIND, DEPLOY_FAMILY, "builtin", 0, log=log,
-                                        arm_file=arm_file)
+                                        arm_file=arm_file, end_effector=end_effector)
         else:
             model = copy.deepcopy(model)
         config = config_from_dict({
@@ -143,6 +171,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
                       "arm": str(arm_file or ""),
                       # the model's own family: new bags learn from the simulators it knew
                       "family": getattr(model, "trained_family", None) or DEFAULT_FAMILY},
+            "arm": {"end_effector": str(end_effector or "franka_hand")},
             "log": {"status_line": "on" if status else "off"},
         }, where="iem replay")
         # the gate decides on the recorded clock, so a fast replay decides as the cell did
@@ -187,7 +216,9 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         "truncated": truncated,
         "recorded_s": estimates.t[-1] - estimates.t[0],
         "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
-                   "rejected": decisions["rejected"]},
+                   "rejected": decisions["rejected"],
+                   "would_send_loads": [_load_record(t, load, prior)
+                                        for t, load, prior in service.gate.sent_loads]},
         "estimates_per_s": summary["estimates"] / summary["wall_s"]
         if summary["wall_s"] > 0 else None,
     })
@@ -195,8 +226,17 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         sm = estimates.smoothed_array()
         summary["payload"] = truth.name
         summary["mae_groups"] = mae_groups(sm, truth.to_phi())
+        summary["coverage_2sigma"] = estimates.coverage_2sigma(truth.to_phi())
         summary["final_estimate"] = {"phi": sm[-1].tolist(), "truth": truth.to_phi().tolist()}
     return summary, estimates
+
+
+def _load_record(t: float, load, from_prior) -> dict:
+    """A load the gate would have written, as the JSON summary lists it: controller time
+    (s), mass (kg), CoM in the flange frame (m), inertia about the CoM (kg·m², ``[Ixx, Ixy,
+    Ixz, Iyy, Iyz, Izz]``), and the groups its model took from the prior."""
+    return {"t": float(t), "mass": float(load.mass), "com": [float(v) for v in load.com],
+            "inertia": [float(v) for v in load.inertia], "from_prior": list(from_prior)}
 
 
 def print_summary(s: dict, log=print) -> None:
@@ -210,10 +250,21 @@ def print_summary(s: dict, log=print) -> None:
     if g:
         log(f"  MAE against {s['payload']}: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
             f"inertia {g['inertia']:.5f} kg·m²")
+    cov = s.get("coverage_2sigma")
+    if cov and any(v is not None for v in cov.values()):
+        log("  2-sigma coverage: " + ", ".join(f"{k} {v:.2f}" for k, v in cov.items()
+                                               if v is not None))
     w = s["writes"]
     gate = ", ".join(f"{k} {v}" for k, v in sorted(s["gate"].items())) or "none"
     log(f"  writes: none sent (replay); the gate would have sent {w['would_send']}, rejected "
         f"{w['rejected']}; decisions: {gate}")
+    for load in w.get("would_send_loads", [])[:5]:
+        log(f"    t {load['t']:.3f} s: mass {load['mass']:.4f} kg, CoM "
+            f"[{', '.join(f'{v:.4f}' for v in load['com'])}] m"
+            + (f" ({', '.join(load['from_prior'])} from the prior)"
+               if load["from_prior"] else ""))
+    if s.get("arm_mismatch"):
+        log(f"  WARNING: {s['arm_mismatch']['message']}")
     f = s["frames"]
     drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
     log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}")
@@ -238,6 +289,9 @@ def configure(parser) -> None:
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
     parser.add_argument("--arm", metavar="ARM", help="arm file of the recorded arm (from "
                         "'iem calibrate'; the model must have been trained for it)")
+    parser.add_argument("--end-effector", metavar="EE", default=None,
+                        help="what the recorded arm carried as part of itself: franka_hand "
+                             "(default), none, or a payload-style .toml of the tool")
     parser.add_argument("--save-model", metavar="FILE",
                         help="save the model learnt during the replay here")
     parser.add_argument("--no-status", action="store_true", help="no live status line")
@@ -259,7 +313,8 @@ def run(args) -> int:
     summary, estimates = replay(args.file, profile=args.profile, model=model, truth=truth,
                                 save_model_to=args.save_model,
                                 status=not args.no_status and sys.stderr.isatty(), log=log,
-                                arm_file=args.arm, format=args.format, topic=args.topic)
+                                arm_file=args.arm, format=args.format, topic=args.topic,
+                                end_effector=args.end_effector)
     if args.out:
         estimates.write_csv(args.out)
     if args.json:

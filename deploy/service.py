@@ -40,6 +40,7 @@ from iem.online import OnlineIdentifier
 from iem.persistence import load_model, remove_stale_temporaries, save_model
 from iem.smoothing import ExponentialSmoother
 
+from .arm_watch import ArmWatch
 from .config import CellConfig
 from .gate import SafetyGate
 from .latency import LatencyWindow
@@ -121,7 +122,8 @@ def load_or_train_model(config: CellConfig):
 
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
                                 log=lambda msg: log.info(msg, extra={"event": "trained"}),
-                                rate_hz=rate, arm_file=mc.arm or None)
+                                rate_hz=rate, arm_file=mc.arm or None,
+                                end_effector=config.arm.end_effector, noise=config.arm.noise)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})
@@ -188,6 +190,8 @@ class Service:
         self.status = status if status is not None else StatusLine.from_config(config.log)
         self.write = write
         self.gate = SafetyGate(config.gate)
+        self.arm_watch = ArmWatch()
+        """Says once when the mass stays clearly below zero (a wrong arm model)."""
         self.on_cycle: list[Callable[[CycleRecord], None]] = []
         self._stop = threading.Event()
         self._saver: threading.Thread | None = None
@@ -222,7 +226,8 @@ class Service:
                 log.info("holding a CPU wake-up latency limit of %d µs on %s (in force: %d "
                          "µs)", self.cpu_latency.latency_us, self.cpu_latency.device,
                          self.cpu_latency.effective_us, extra={"event": "cpu_latency"})
-        arm, arm_record = load_arm_file(self.config.model.arm or None)
+        arm, arm_record = load_arm_file(self.config.model.arm or None,
+                                        self.config.arm.end_effector)
         if self.model is None:
             self.model = load_or_train_model(self.config)
         path = FsPath(self.config.model.path)
@@ -371,6 +376,7 @@ class Service:
                     last_ack = ack
                     self._acknowledged(ack, t_gate)
                 gate.observe(t_gate, smoothed, raw)
+                self.arm_watch.observe(state.t, smoothed, raw)
                 due = gate.due(t_gate)
                 if due and spreads and self.model.busy and deferred < GATE_DEFER:
                     deferred += 1  # the model did its heavy job this cycle: decide in the
@@ -535,6 +541,7 @@ class Service:
             "learnt": self.online.learned_points,
             "gate": gate["decisions"],
             "silences": self.silences,
+            "arm_mismatch": self.arm_watch.finding,
             "checkpoints": self.checkpoints,
             "wall_s": self.wall_s,
             "cpu_s": self.cpu_s,

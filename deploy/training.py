@@ -39,10 +39,18 @@ distribution instead), and at most 2,000 bags (the least-used slot is reused bey
 file of about 6 MB that loads in 0.3 s). The paper benchmark keeps the paper's rule."""
 
 
+NOISE_SOURCES = ("arm", "sensor")
+"""What IEM+phys takes as the error of its equations: ``arm``, the arm's own noise (measured
+by ``iem calibrate`` into the arm file; :data:`iem.torque_noise.NOMINAL_ARM_NOISE`, a
+conservative default, for an arm that was not calibrated), the right choice on a real arm;
+``sensor``, the sensor model's white noise alone: a simulated arm whose model is exact."""
+
+
 def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
-               **params):
+               end_effector=None, noise: str = "arm", **params):
     """A fresh model of ``kind`` for joint states at ``rate_hz``; ``params`` go to its IEM;
-    ``arm_file``: the arm file its physics uses (None: the nominal arm)."""
+    ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
+    ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`."""
     if kind not in TRAINABLE or kind not in MODELS:
         valid = [k for k in TRAINABLE if k in MODELS]
         raise InvalidInputError(f"model kind {kind!r} cannot be trained here; valid kinds are "
@@ -50,12 +58,22 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
     from sim.coverage import reversal_spec
 
     params = {**DEPLOY_ENSEMBLE, "reversal": reversal_spec(arm_file), **params}
+    if noise not in NOISE_SOURCES:
+        raise InvalidInputError(f"noise {noise!r} is not valid; valid are "
+                                f"{', '.join(NOISE_SOURCES)}")
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
+        arm, _ = load_arm_file(arm_file, end_effector)
         extra = {}
         if arm_file is not None:
             from sim.arm import arm_spec
 
             extra["dynamics"] = arm_spec(arm_file)
+        elif arm is not None:
+            from sim.arm import nominal_spec
+
+            extra["dynamics"] = nominal_spec(end_effector)
+        if noise == "arm":
+            extra["torque_noise"] = arm_torque_noise(arm, rate_hz)
         return new_model(kind, ensemble={"seed": seed, **params}, rate_hz=rate_hz, **extra)
     return new_model(kind, seed=seed, **params)
 
@@ -103,14 +121,38 @@ def check_model_arm(model, arm_record, where: str = "the model") -> None:
                                  f"with 'iem train --arm ARM --out MODEL'")
 
 
-def load_arm_file(arm_file):
-    """The arm of ``arm_file`` and its record for model files (``(None, None)``: nominal)."""
-    if arm_file is None:
-        return None, None
-    from sim.arm import arm_record, load_arm
+def load_arm_file(arm_file, end_effector=None):
+    """The arm of ``arm_file`` and its record for model files; without a file, the nominal
+    arm carrying ``end_effector`` (``(None, None)``: the nominal arm with the Franka Hand).
+    An ``end_effector`` other than the arm file's is refused, naming both."""
+    from sim.arm import ArmParams, arm_record, load_arm
+    from sim.end_effector import check_same
+    from sim.end_effector import end_effector as resolve
 
+    if arm_file is None:
+        ee = resolve(end_effector)
+        if ee.spec == "franka_hand":
+            return None, None
+        arm = ArmParams.nominal(ee)
+        return arm, arm_record(arm)
     arm = load_arm(arm_file)
+    if end_effector:
+        check_same(arm.end_effector, resolve(end_effector).label, f"the arm file {arm_file}",
+                   "the configuration")
     return arm, arm_record(arm, arm_file)
+
+
+def arm_torque_noise(arm, rate_hz: float = 1000.0, update_every: int = 10) -> dict:
+    """What IEM+phys takes as its equations' error on ``arm`` (None: the nominal arm): the
+    noise ``iem calibrate`` measured into the arm file, or the nominal arm's conservative
+    default (:data:`iem.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate."""
+    from dataclasses import replace
+
+    from iem.torque_noise import NOMINAL_ARM_NOISE
+
+    if arm is not None and arm.noise is not None:
+        return dict(arm.noise)
+    return replace(NOMINAL_ARM_NOISE, rate_hz=rate_hz / update_every).to_dict()
 
 
 def excitation(spec: str = "builtin"):
@@ -133,14 +175,16 @@ def tandem_for(family: str, arm=None):
 def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
                         excitation_spec="builtin",
                         seed: int = 0, log=print, rate_hz: float = 1000.0, arm_file=None,
-                        **params):
+                        end_effector=None, noise: str = "arm", **params):
     """A new model of ``kind`` trained on the excitation path with ``family``'s payloads,
     for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic), on
-    the arm of ``arm_file`` (None: the nominal arm)."""
+    the arm of ``arm_file`` (None: the nominal arm carrying ``end_effector``), with the
+    equations' error of ``noise`` (:data:`NOISE_SOURCES`)."""
     from sim.robot import PandaModel
 
-    arm, record = load_arm_file(arm_file)
-    model = make_model(kind, seed, rate_hz, arm_file=arm_file, **params)
+    arm, record = load_arm_file(arm_file, end_effector)
+    model = make_model(kind, seed, rate_hz, arm_file=arm_file, end_effector=end_effector,
+                       noise=noise, **params)
     model.trained_arm = record
     model.trained_family = family
     path = excitation(excitation_spec)
@@ -182,12 +226,27 @@ def configure(parser) -> None:
                         help="joint states per second the link delivers (fd 1000, classic 500)")
     parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
                         "the nominal arm)")
+    add_end_effector(parser)
+    parser.add_argument("--noise", choices=NOISE_SOURCES, default="arm",
+                        help="IEM+phys's equation error: 'arm' (default), the arm file's "
+                             "measured noise, or a conservative default for an uncalibrated "
+                             "arm; 'sensor', the sensor's white noise alone (a simulated arm "
+                             "whose model is exact)")
+
+
+def add_end_effector(parser) -> None:
+    """The ``--end-effector`` option of the commands that take ``--arm``."""
+    parser.add_argument("--end-effector", metavar="EE", default=None,
+                        help="what the arm carries as part of itself: franka_hand (default), "
+                             "none, or a payload-style .toml of the tool; must match the arm "
+                             "file's")
 
 
 def run(args) -> int:
     kind = args.kind or best_model_kind()
     model = train_initial_model(kind, args.family, args.excitation, args.seed,
-                                rate_hz=args.rate, arm_file=args.arm)
+                                rate_hz=args.rate, arm_file=args.arm,
+                                end_effector=args.end_effector, noise=args.noise)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

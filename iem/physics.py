@@ -60,6 +60,11 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   1.44 kg for 1.615 over that 0.3 s, and the smoothing had carried its first, lower,
   readings on for about 0.6 s more).
 
+**What the data do not determine**: an estimate names in ``extra["undetermined"]`` the
+parameter groups (``mass``, ``com``, ``inertia``) for which the window's equations alone say
+less than the prior (a short or slow motion hardly sees the inertia): those come from the
+prior, and the safety gate says so when it writes them.
+
 ``observe_one(x, flange)`` does everything but train the ensemble: the payload part of
 ``learn_one`` for a frozen model (the benchmark's runs on the ensemble's own training path).
 ``reset()`` forgets the payload (a new task), never the ensemble; ``resume()`` restarts only
@@ -82,9 +87,9 @@ from .least_squares import DEFAULT_PRIOR_STD
 from .live_projection import SpreadProjection
 from .posterior import EquationWindow, Posterior, combine, prior_inflation
 from .regression import PayloadRegression
-from .torque_noise import TorqueNoise
 from .sensor import DEFAULT_SENSOR
-from .types import PayloadEstimate
+from .torque_noise import TorqueNoise
+from .types import GROUPS, PayloadEstimate
 
 __all__ = ["DETECT_AFTER", "LIVE_PROJECT_BUDGET", "MODEL_ERROR_GAIN", "NIS_WINDOW",
            "PRIOR_FLOOR", "SPREAD_WAIT", "PhysicsInformedEnsemble", "prior_inflation"]
@@ -126,7 +131,8 @@ class PhysicsInformedEnsemble:
             calibrate``), or None: the sensor noise alone (a simulated, perfect arm). Its
             ``std`` enters ``R`` (the weights, the NIS, the change detector), its ``weight``
             how much one equation counts, and its ``offset_std`` one torque offset per joint
-            carried as a marginalised state (:class:`iem.posterior.EquationWindow`).
+            carried as a marginalised state (:class:`iem.posterior.EquationWindow`); its
+            ``bias_std`` is a floor under the estimates' standard deviations.
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
             budget (:attr:`spread`, a live link: the service sets
@@ -207,6 +213,8 @@ class PhysicsInformedEnsemble:
         self.ensemble_prior = EnsemblePrior(self._ens)
         """The ensemble as the prior: its bags' calibration and the summary since a change."""
         self._window = EquationWindow(None if noise is None else np.square(noise.offset_std))
+        self._bias_var = None if noise is None or not any(noise.bias_std) else np.square(
+            noise.bias_std)
         self._observed_x = np.full(21, math.nan)  # the last sample observed (a copy) and
         self._observed_bag = -2  # its bag (-2: none), so that predict_one at it routes once
         self.reset()
@@ -282,6 +290,7 @@ class PhysicsInformedEnsemble:
         self._initial: tuple[np.ndarray, np.ndarray] | None = None
         self._spread.clear()  # what a live link's estimates show
         self._data_shown = False  # an estimate with equations was given since the change
+        self._undetermined: tuple[str, ...] = tuple(GROUPS)  # groups from the prior alone
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -501,17 +510,31 @@ class PhysicsInformedEnsemble:
                     and self._initial is None):
                 return None  # nothing seen yet: predict_one uses the ensemble at its x
             try:
-                self._post = combine(*self._prior(), self._window, self.eps)
+                prior = self._prior()
+                self._post = combine(*prior, self._window, self.eps)
             except np.linalg.LinAlgError:
                 return None
+            self._undetermined = self._from_prior(prior[1])
             self._since_refresh = 0
             self._stale, self._stale_for = False, 0
             self._busy = True
         return self._post
 
+    def _from_prior(self, c_p: np.ndarray) -> tuple[str, ...]:
+        """The parameter groups the window's equations do not determine: where, for some
+        parameter of the group, they say less than the prior (their standard deviation
+        alone is wider than the prior's); the estimate there is the prior's."""
+        if self._window.empty:
+            return tuple(GROUPS)
+        data = self._window.data_std()
+        prior = np.sqrt(np.maximum(np.diag(c_p), 0.0))
+        return tuple(g for g, idx in GROUPS.items() if np.any(data[list(idx)] > prior[list(idx)]))
+
     def _estimate(self, post: Posterior, t: float, bag: int = -1,
                   learning: bool = False) -> PayloadEstimate:
         extra = {"change": True, "reset": True} if self._changed else {}
+        if self._undetermined:
+            extra["undetermined"] = self._undetermined
         if self._innovation.count:
             extra["nis"] = self._innovation.nis
         if self._initial is not None and self._window.m < DETECT_AFTER:
@@ -523,7 +546,10 @@ class PhysicsInformedEnsemble:
         if not self._data_shown:
             extra["reset"] = True
             self._data_shown = bool(shown.equations)
-        return PayloadEstimate(t=t, phi=phi, std=shown.std, bag=bag, learning=learning,
+        std = shown.std
+        if self._bias_var is not None:  # what the arm model's error reads as payload
+            std = np.sqrt(np.square(std) + self._bias_var)
+        return PayloadEstimate(t=t, phi=phi, std=std, bag=bag, learning=learning,
                                extra=extra)
 
     def _projected(self, post: Posterior) -> tuple[Posterior, np.ndarray]:

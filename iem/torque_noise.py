@@ -16,7 +16,9 @@ sensor model alone says 0.01-0.02 N·m, white. :class:`TorqueNoise` describes it
   equations (N·m): the slow drift of the residual's mean. IEM+phys carries one torque
   offset per joint as a state with this prior standard deviation (marginalised in its
   window of equations, :class:`iem.posterior.EquationWindow`), so a mean that moves with
-  the arm's temperature is not read as payload.
+  the arm's temperature is not read as payload;
+- ``bias_std``: what the arm model's error reads as payload on bare-arm traffic
+  (:func:`phantom_payloads`): a floor under the estimate's standard deviations.
 
 ``iem calibrate`` measures it on traffic its fit did not see (:func:`measure`) and stores it
 in the arm file; IEM+phys uses it for its weights, its NIS, its change detector and its
@@ -36,9 +38,9 @@ from .gaps import GapRule
 
 N_JOINTS = 7
 
-MAX_LAG_S = 2.0
-"""The longest lag of the autocorrelation summed into ``weight``, s: the drift beyond it is
-the offset's part."""
+MAX_LAG_S = 0.5
+"""The longest lag of the autocorrelation summed into ``weight``, s: what is correlated for
+longer is the slow drift, the offsets' part (:data:`OFFSET_WINDOW_S`)."""
 OFFSET_WINDOW_S = 2.0
 """The offset's part: the RMS of the residual's mean over windows this long, s."""
 MIN_OFFSET_STD = 0.01
@@ -64,6 +66,9 @@ class TorqueNoise:
         cutoff_hz: the regression's low-pass cut-off it was measured at, Hz.
         rate_hz: the equations' rate it was measured at (the block rate), Hz.
         source: where it comes from ("measured on ...", or "default").
+        bias_std: the payload the arm model's error reads as, per parameter of ``phi``
+            (10: kg, kg·m, kg·m²), over held-out stretches (:func:`bias_std`): a
+            floor under the estimate's standard deviations that no amount of motion lowers.
     """
 
     std: tuple[float, ...]
@@ -72,8 +77,14 @@ class TorqueNoise:
     cutoff_hz: float = 4.0
     rate_hz: float = 100.0
     source: str = "default"
+    bias_std: tuple[float, ...] = (0.0,) * 10
 
     def __post_init__(self) -> None:
+        b = np.asarray(self.bias_std, dtype=float).reshape(-1)
+        if b.shape != (10,) or not np.all(np.isfinite(b)) or np.any(b < 0.0):
+            raise InvalidInputError(f"torque noise bias_std must be 10 finite numbers >= 0, "
+                                    f"got {self.bias_std!r}")
+        object.__setattr__(self, "bias_std", tuple(float(v) for v in b))
         object.__setattr__(self, "std", _vec("std", self.std))
         object.__setattr__(self, "weight", _vec("weight", self.weight))
         object.__setattr__(self, "offset_std", _vec("offset_std", self.offset_std))
@@ -83,13 +94,15 @@ class TorqueNoise:
     def to_dict(self) -> dict:
         return {"std": list(self.std), "weight": list(self.weight),
                 "offset_std": list(self.offset_std), "cutoff_hz": self.cutoff_hz,
-                "rate_hz": self.rate_hz, "source": self.source}
+                "rate_hz": self.rate_hz, "source": self.source,
+                "bias_std": list(self.bias_std)}
 
     @classmethod
     def from_dict(cls, d: dict) -> TorqueNoise:
         try:
             return cls(d["std"], d["weight"], d["offset_std"], float(d["cutoff_hz"]),
-                       float(d["rate_hz"]), str(d.get("source", "")))
+                       float(d["rate_hz"]), str(d.get("source", "")),
+                       d.get("bias_std", (0.0,) * 10))
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"torque noise {d!r} is not valid: {exc}") from exc
 
@@ -98,11 +111,13 @@ NOMINAL_ARM_NOISE = TorqueNoise(
     std=(1.0, 1.0, 0.6, 0.6, 0.3, 0.3, 0.2),
     weight=(50.0,) * N_JOINTS,
     offset_std=(0.5, 0.5, 0.3, 0.3, 0.2, 0.2, 0.1),
-    source="default: the nominal, uncalibrated arm")
+    source="default: the nominal, uncalibrated arm",
+    bias_std=(0.1, 0.01, 0.01, 0.01, 0.005, 0.005, 0.005, 0.005, 0.005, 0.005))
 """The noise of an arm model that was not calibrated: a real Panda departs from its nominal
 model by 0.5-2 N·m RMS per joint (published identifications), mostly friction and link
 errors that change slowly with the motion (taken as correlated over 0.5 s at 100 Hz), and
-its torque sensors carry offsets of tenths of a N·m. With it the physics only moves the
+its torque sensors carry offsets of tenths of a N·m; a few percent of link-parameter error
+alone reads as about 0.1 kg of payload. With it the physics only moves the
 estimate where the motion tells far more than that, and the estimate stays near the
 ensemble's prior with wide standard deviations: calibrate the arm (``iem calibrate``)."""
 
@@ -113,10 +128,11 @@ def measure(residual: np.ndarray, rate_hz: float, filter_weight: float,
     row per equation at ``rate_hz``, consecutive, a bare arm: ``r`` of the equations).
 
     ``std`` is the RMS about zero (a bias is error too); ``weight`` the sum over lags of
-    ``|lag| <= MAX_LAG_S`` of the autocorrelation of the residual minus its
-    :data:`OFFSET_WINDOW_S` moving mean (the offset's part is carried apart), with a triangular
-    taper, at least ``filter_weight``; ``offset_std`` the RMS of that moving mean, at least
-    :data:`MIN_OFFSET_STD`.
+    ``|lag| <= MAX_LAG_S`` of the autocorrelation of the residual about its mean, with a
+    triangular taper, at least ``filter_weight`` (a sum over lags as long as a moving mean
+    that is taken out tends to zero, so the drift is not taken out here: it is short against
+    :data:`OFFSET_WINDOW_S`); ``offset_std`` the RMS of the residual's
+    :data:`OFFSET_WINDOW_S` moving mean, at least :data:`MIN_OFFSET_STD`.
     """
     e = np.asarray(residual, dtype=float)
     if e.ndim != 2 or e.shape[1] != N_JOINTS or e.shape[0] < 10:
@@ -131,7 +147,7 @@ def measure(residual: np.ndarray, rate_hz: float, filter_weight: float,
     counts = np.convolve(np.ones(n), np.ones(w), mode="same") / w
     slow /= counts[:, None]
     offset = np.maximum(np.sqrt(np.mean(slow * slow, axis=0)), MIN_OFFSET_STD)
-    fast = e - slow
+    fast = e - e.mean(axis=0)
     lags = min(n - 1, round(MAX_LAG_S * rate_hz))
     weight = np.empty(N_JOINTS)
     for j in range(N_JOINTS):
@@ -146,18 +162,17 @@ def measure(residual: np.ndarray, rate_hz: float, filter_weight: float,
     return TorqueNoise(std, weight, offset, float(cutoff_hz), float(rate_hz), source)
 
 
-def equation_residuals(regression, t, q, dq, tau, rate_hz: float) -> np.ndarray:
-    """The residuals ``r`` of the equations ``regression`` (a fresh
-    :class:`iem.regression.PayloadRegression`) forms from a recording ``t (N,)``, ``q, dq,
-    tau (N, 7)`` fed sample by sample through the gap rule at ``rate_hz`` as the online loop
-    does: ``(M, 7)``, N·m, in order; a restart of its filter (a long gap) starts a new
-    stretch, and only the longest stretch is returned (the correlation needs consecutive
-    equations)."""
+def equations(regression, t, q, dq, tau, rate_hz: float) -> list[tuple]:
+    """The equations ``(Y, r, R)`` ``regression`` (a fresh :class:`iem.regression.
+    PayloadRegression`) forms from a recording ``t (N,)``, ``q, dq, tau (N, 7)`` fed sample by
+    sample through the gap rule at ``rate_hz`` as the online loop does, in order; a restart
+    of its filter (a long gap) starts a new stretch: a list of stretches, each a list of
+    equations."""
     from .gaps import RESTART, SKIP
 
     rule = GapRule(rate_hz)
     x = np.hstack((np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float)))
-    stretches: list[list[np.ndarray]] = [[]]
+    stretches: list[list[tuple]] = [[]]
     for k, tk in enumerate(np.asarray(t, dtype=float)):
         steps = rule(float(tk))
         if steps == SKIP:
@@ -166,11 +181,59 @@ def equation_residuals(regression, t, q, dq, tau, rate_hz: float) -> np.ndarray:
             stretches.append([])
         eq = regression(x[k], None, steps)
         if eq is not None:
-            stretches[-1].append(eq[1])
-    best = max(stretches, key=len)
-    if not best:
-        return np.zeros((0, N_JOINTS))
-    return np.array(best)
+            stretches[-1].append(eq)
+    return [s for s in stretches if s]
+
+
+PHANTOM_PRIOR_STD = (3.0, 0.3, 0.3, 0.3, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01)
+"""Prior standard deviation of a phantom payload's parameters (kg, kg·m, kg·m²: the Panda's
+rated payload, as :data:`iem.least_squares.DEFAULT_PRIOR_STD`)."""
+
+
+def phantom_payloads(stretches: list[list[tuple]], noise: TorqueNoise, filter_weight: float,
+                     r_tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """The payloads ``phi`` (``(S, 10)``, and their variances) that bare-arm equations
+    (``stretches`` of ``(Y, r, R)``, S of them with at least 20 equations) read, weighted as
+    IEM+phys weights them with ``noise``, with its torque offsets, under the prior
+    :data:`PHANTOM_PRIOR_STD`: what the arm model's error reads as payload.
+
+    The autocorrelation of the residual sees its correlation in time, but an arm model's
+    error that follows the pose projects on the payload's regressor the same way all along a
+    motion: it does not average out. The spread of these phantoms beyond their own variances
+    is that part (:func:`bias_std`, :attr:`TorqueNoise.bias_std`)."""
+    offset_prec = 1.0 / np.square(np.asarray(noise.offset_std))
+    model_var = np.maximum(np.square(np.asarray(noise.std)) - r_tau, 0.0)
+    info_var = model_var * np.maximum(np.asarray(noise.weight) / filter_weight, 1.0)
+    prior_prec = 1.0 / np.square(PHANTOM_PRIOR_STD)
+    est, var = [], []
+    for stretch in stretches:
+        if len(stretch) < 20:
+            continue
+        A = np.zeros((17, 17))
+        b = np.zeros(17)
+        for Y, r, R in stretch:
+            Ya = np.hstack((Y, np.eye(N_JOINTS)))
+            Ri = R.copy()  # as IEM+phys's window counts it (iem.physics)
+            Ri[np.diag_indices(N_JOINTS)] += info_var
+            W = np.linalg.inv(filter_weight * Ri)
+            A += Ya.T @ W @ Ya
+            b += Ya.T @ W @ r
+        A[:10, :10] += np.diag(prior_prec)
+        A[10:, 10:] += np.diag(offset_prec)
+        cov = np.linalg.inv(0.5 * (A + A.T))
+        est.append((cov @ b)[:10])
+        var.append(np.diag(cov)[:10])
+    return np.array(est).reshape(-1, 10), np.array(var).reshape(-1, 10)
+
+
+def bias_std(phantoms: np.ndarray, variances: np.ndarray) -> np.ndarray:
+    """The part of the phantom payloads' spread that their own standard deviations do not
+    explain (``sqrt(max(0, mean(phi²) - mean(var)))`` per parameter): what the arm model's
+    error, not the noise of a short stretch, reads as payload."""
+    if not phantoms.shape[0]:
+        return np.zeros(10)
+    excess = np.mean(np.square(phantoms), axis=0) - np.mean(variances, axis=0)
+    return np.sqrt(np.maximum(excess, 0.0))
 
 
 def rms(values) -> float:

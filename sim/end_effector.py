@@ -111,7 +111,7 @@ def end_effector(spec: str | None) -> EndEffector:
 
     tool = load_payload(path)
     inertia = flange_placement().act(
-        pin.Inertia(tool.mass, np.asarray(tool.com), tool.inertia_matrix()))
+        pin.Inertia(tool.mass, np.asarray(tool.com), tool.inertia_matrix))
     params = inertia.toDynamicParameters()
     crc = zlib.crc32(np.round(tool.to_phi(), 12).tobytes())
     return EndEffector(str(path), f"{path.stem}:{crc:08x}", params)

@@ -216,7 +216,8 @@ def _pct(values: np.ndarray) -> dict:
 def train_models(seed: int, log, params: dict | None = None) -> dict:
     from deploy.training import train_initial_model
 
-    return {kind: train_initial_model(kind, seed=seed, log=log, **(params or {}))
+    return {kind: train_initial_model(kind, seed=seed, log=log, noise="sensor",
+                                      **(params or {}))
             for kind in MODELS}
 
 

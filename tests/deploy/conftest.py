@@ -22,7 +22,8 @@ def _trained_file(kind: str, tmp_path_factory) -> Path:
     from deploy.training import train_initial_model
     from iem.persistence import save_model
 
-    model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20)
+    model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20,
+                                noise="sensor")  # the simulated arm is its model
     path = tmp_path_factory.mktemp("model") / "trained.msgpack"
     save_model(model, path)
     return path

@@ -144,9 +144,11 @@ def test_cli_writes_csv_json_and_keeps_the_model_file(tmp_path, fd_log, replay_m
     assert csvs[0] == csvs[1]
     lines = csvs[0].decode().splitlines()
     assert lines[0] == ",".join(CSV_HEADER)
-    assert lines[0].startswith("t,cycle,bag,m,mrx,") and lines[0].endswith(",Iyz_s,Izz_s")
+    assert lines[0].startswith("t,cycle,bag,m,mrx,") and lines[0].endswith(",Iyz_std,Izz_std")
+    assert ",Izz_s,m_std," in lines[0]  # the standard deviations after today's columns
     assert len(lines) == 1 + published
-    assert all(len(line.split(",")) == 23 for line in lines)
+    assert all(len(line.split(",")) == 33 for line in lines)
+    assert all(v == "nan" for v in lines[1].split(",")[23:])  # the IEM gives no std
     s = json.loads(summary.read_text())
     for key in ("mae_groups", "bags", "estimates", "frames", "writes"):
         assert key in s
@@ -154,6 +156,10 @@ def test_cli_writes_csv_json_and_keeps_the_model_file(tmp_path, fd_log, replay_m
     assert set(s["mae_groups"]) == {"mass", "com", "inertia"}
     assert all(math.isfinite(v) for v in s["mae_groups"].values())
     assert s["writes"]["sent"] == 0 and s["writes"]["would_send"] == s["gate"].get("send", 0)
+    loads = s["writes"]["would_send_loads"]
+    assert len(loads) == s["writes"]["would_send"]
+    assert all(set(w) == {"t", "mass", "com", "inertia", "from_prior"} for w in loads)
+    assert s["coverage_2sigma"] == {"mass": None, "com": None, "inertia": None}
     out = capsys.readouterr().out
     assert "MAE against" in out and "the gate would have sent" in out
     assert hashlib.sha256(replay_model_file.read_bytes()).hexdigest() == before

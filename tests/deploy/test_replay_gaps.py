@@ -37,8 +37,8 @@ def _thin(src, dst, fraction: float, seed: int) -> int:
 def phys_model():
     from deploy.training import train_initial_model
 
-    return train_initial_model("IEM+phys", seed=0, log=lambda *a: None, fit_epochs=3,
-                               fit_stride=20)
+    return train_initial_model("IEM+phys", seed=0, log=lambda *a: None, noise="sensor",
+                               fit_epochs=3, fit_stride=20)
 
 
 def test_a_recording_with_lost_frames_estimates_as_well_as_the_whole(tmp_path, phys_model):

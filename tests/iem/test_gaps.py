@@ -186,8 +186,8 @@ def excitation_run():
     from sim.plant import PandaPlant
     from sim.robot import PandaModel
 
-    model = train_initial_model("IEM+phys", seed=0, log=lambda *a: None, fit_epochs=3,
-                                fit_stride=20)
+    model = train_initial_model("IEM+phys", seed=0, log=lambda *a: None, noise="sensor",
+                                fit_epochs=3, fit_stride=20)
     payload = test_payloads()["test-3w"]
     path = excitation_path()
     n = 8000
