@@ -16,7 +16,9 @@ an exit status that tells a service manager whether to try again:
   unplugged, a bus error), a model file or traffic log that cannot be read: systemd
   restarts the service.
 
-Anything else is a bug and keeps its traceback.
+A missing optional extra (MuJoCo for the simulator, matplotlib for the plots:
+:mod:`iem.extras`) is such an error too, naming the ``pip install`` to run, even where a module
+imported it without :func:`iem.extras.require`. Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -128,6 +130,14 @@ def main(argv: list[str] | None = None) -> int:
     except IemError as exc:
         print(f"iem: error: {exc}", file=sys.stderr)
         return exit_status(exc, argv[0] if argv else None)
+    except ImportError as exc:  # an extra's module imported without iem.extras.require
+        from iem.extras import missing_extra
+
+        error = missing_extra(exc, " ".join(["iem", *argv[:2 if argv[:1] == ["bench"] else 1]]))
+        if error is None:
+            raise
+        print(f"iem: error: {error}", file=sys.stderr)
+        return exit_status(error, argv[0] if argv else None)
     except KeyboardInterrupt:
         print("iem: interrupted", file=sys.stderr)
         return 130

@@ -45,8 +45,14 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
              cpu_dma_latency_us: int = -1) -> dict:
     """The demo (see the module docstring); ``arm_file``: the plug-in runs on this arm file
     (``iem calibrate``; its model is trained for it). The simulated controller's plant is
-    the nominal arm either way. ``cpu_dma_latency_us``: as ``[host]`` in ``cell.toml``."""
+    the nominal arm either way. ``cpu_dma_latency_us``: as ``[host]`` in ``cell.toml``.
+    Without the extras it needs (``sim``: MuJoCo; ``plots``: matplotlib) it stops at once
+    with :class:`iem.errors.MissingExtraError`, before a minute of simulation."""
+    from iem.extras import require
     from iem.metrics import mae_groups
+
+    require("mujoco", "iem demo (the simulated Panda)")
+    require("matplotlib", "iem demo (its figures)")
     from sim.family import default_test_payload
 
     from .config import config_from_dict
@@ -148,12 +154,11 @@ def _print_summary(s: dict, out, log) -> None:
 
 
 def _figures(out, t, est, bags, truth, phases, service, rows) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from iem.extras import require
     from iem.types import GROUPS
+
+    require("matplotlib", "iem demo (its figures)").use("Agg")
+    import matplotlib.pyplot as plt
 
     err = np.abs(est - truth)
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)

@@ -33,6 +33,7 @@ def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed:
     closed (final checkpoint), the bus closed and the switch interval restored.
     """
     from firmware_bridge.sim_controller import SimController, open_port
+    from iem.extras import require
 
     from .service import Service
     from .status import StatusLine
@@ -40,6 +41,7 @@ def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed:
     link = config.link
     if link.kind != "virtual":
         raise ValueError(f"a simulated cell runs on the virtual bus, not {link.kind!r}")
+    require("mujoco", "a simulated cell (its controller's plant)")  # before the bus opens
     previous = sys.getswitchinterval()
     sys.setswitchinterval(0.0005)
     port, _ = open_port("virtual", link.channel, link.profile, faults,

@@ -91,8 +91,11 @@ class SimController:
     def __init__(self, port, *, path=None, payload=None, once: bool = False, seed: int = 0,
                  sensor=None, realtime: bool = True, heartbeat_period: float = 0.1,
                  spin_us: float = 200.0, refuse_while_moving: bool = False) -> None:
+        from iem.extras import require
         from sim.family import default_test_payload
         from sim.paths import excitation_path
+
+        require("mujoco", "the simulated controller")
         from sim.plant import DT, PandaPlant
 
         self.port = port
@@ -318,8 +321,11 @@ def open_port(interface: str, channel: str, profile: str, faults=None,
 def run(args) -> int:
     import signal
 
+    from iem.extras import require
     from sim.paths import load_path_csv
     from sim.payload import load_payload
+
+    require("mujoco", "iem sim-controller (the simulated Panda)")  # before a port opens
 
     path = load_path_csv(args.path) if args.path else None
     payload = load_payload(args.payload) if args.payload else None

@@ -26,3 +26,9 @@ class PathError(InvalidInputError):
 
 class ModelFileError(IemError):
     """A saved model file is missing, truncated, corrupt or of an unknown schema version."""
+
+
+class MissingExtraError(IemError, ImportError):
+    """A part of the project that needs an optional extra (the simulator, the plots) was used
+    where that extra is not installed; the message names the ``pip install`` that adds it
+    (:func:`iem.extras.require`)."""

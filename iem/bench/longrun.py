@@ -224,7 +224,10 @@ def train_models(seed: int, log, params: dict | None = None) -> dict:
 def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
                 params: dict | None = None, sizes=ROUTE_SIZES) -> dict:
     """The long run; returns the results (see the module docstring)."""
+    from iem.extras import require
     from sim.family import default_test_payload, training_payloads
+
+    require("mujoco", "iem bench longrun (the simulated Panda)")
     from sim.plant import PandaPlant
     from sim.robot import PandaModel
     from sim.tandem import TandemSimulators

@@ -135,8 +135,11 @@ class Bench:
     """The shared set-up of the paper benchmark and of ``iem bench custom``."""
 
     def __init__(self, quick: bool = False, seed: int = 0, log=print) -> None:
+        from iem.extras import require
         from sim.family import default_test_payload, test_payloads, training_payloads
         from sim.paths import excitation_path, new_task_path
+
+        require("mujoco", "the benchmark's simulated Panda")
         from sim.plant import PandaPlant
         from sim.robot import PandaModel
         from sim.tandem import TandemSimulators
@@ -566,5 +569,8 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
+    from iem.extras import require
+
+    require("matplotlib", "iem bench paper (its figures)")  # before, not after, the runs
     run_paper(args.out, quick=args.quick, seed=args.seed)
     return 0

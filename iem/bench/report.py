@@ -313,9 +313,9 @@ def write_report(out_dir, results, runs, bench, models) -> None:
 
 
 def _figures(out_dir, results, runs, bench, models) -> list[tuple[str, str]]:
-    import matplotlib
+    from iem.extras import require
 
-    matplotlib.use("Agg")
+    require("matplotlib", "the benchmark report's figures").use("Agg")
     import matplotlib.pyplot as plt
 
     done = []
