@@ -361,7 +361,6 @@ def test_a_wide_two_sigma_radius_of_the_com_holds_writes_back():
     from iem.types import PayloadEstimate
 
     phi = phi_of()
-    mass = phi[0]
 
     def est(std_mr: float) -> PayloadEstimate:  # std of each m·r_i, kg·m; mass std small
         return PayloadEstimate(t=0.0, phi=phi, std=np.r_[0.001, np.full(3, std_mr),
@@ -376,7 +375,11 @@ def test_a_wide_two_sigma_radius_of_the_com_holds_writes_back():
     assert narrow[0].send
     assert any(d.send for d in feed_with(SafetyGate(GateConfig(max_com_2sigma_m=0.01)),
                                          est(0.0032), 0.0, 1.0))
-    assert 0.0064 < com_2sigma(phi, est(0.0032).std) < 0.0074 and mass > 0
+    # the radius is the docstring's formula, from the payload's own mass and CoM
+    r2 = float(np.dot(P.com, P.com))
+    expected = 2.0 * math.sqrt(3 * 0.0032**2 + r2 * 0.001**2) / P.mass
+    assert com_2sigma(phi, est(0.0032).std) == pytest.approx(expected, rel=1e-9)
+    assert 0.0064 < expected < 0.0074  # the 6.9 mm the limits above rest on
 
 
 def test_the_com_two_sigma_radius_matches_sampling():

@@ -5,19 +5,24 @@ import contextlib
 
 import can
 import msgpack
+import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from firmware_bridge.can_link import CanDecoder
 from firmware_bridge.errors import DecodeError
+from firmware_bridge.links import DROP_KINDS
 from firmware_bridge.protocol import PROFILES, LoadAssembler, profile
 from firmware_bridge.serial_link import (
     SerialDecoder,
     cobs_decode,
     decode_message,
+    encode_joint_state,
     frame,
     unframe,
 )
+
+from .conftest import synthetic_states
 
 ALL_IDS = sorted({f.frame_id for p in PROFILES for f in profile(p).frames()})
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
@@ -82,12 +87,54 @@ def test_frame_codecs_raise_only_decode_errors(name, data, draw):
             pass
 
 
+@st.composite
+def serial_lines(draw):
+    """The bytes of a serial line cut into random chunks: random garbage between frames of
+    joint states (consecutive cycles) and heartbeats. Each frame follows a delimiter, so the
+    garbage before it ends there. Returns the chunks, the states and the heartbeats framed."""
+    pieces, states, heartbeats = [], [], 0
+    cycle = draw(st.integers(0, 1000))
+    for _ in range(draw(st.integers(0, 12))):
+        kind = draw(st.sampled_from(["garbage", "garbage", "state", "heartbeat"]))
+        if kind == "garbage":
+            pieces.append(draw(st.binary(max_size=300)))
+        elif kind == "state":
+            state = synthetic_states(1, start=cycle + len(states))[0]
+            states.append(state)
+            pieces.append(b"\0" + frame(encode_joint_state(state)))
+        else:
+            heartbeats += 1
+            pieces.append(b"\0" + frame(msgpack.packb(["H", 0, 0, cycle + len(states), 0])))
+    line = b"".join(pieces)
+    cuts = sorted(draw(st.lists(st.integers(0, len(line)), max_size=8)))
+    chunks = [line[a:b] for a, b in zip([0, *cuts], [*cuts, len(line)], strict=True)]
+    return chunks, states, heartbeats
+
+
 @SETTINGS
-@given(st.lists(st.binary(max_size=300), max_size=10))
-def test_serial_decoder_counts_and_never_raises(chunks):
+@given(serial_lines())
+def test_serial_decoder_counts_and_never_raises(line):
+    chunks, sent, heartbeats = line
     dec = SerialDecoder()
-    for chunk in chunks:
-        dec.feed(chunk)
+    got = [state for chunk in chunks for state in dec.feed(chunk)]
+    c = dec.counters
+    data = b"".join(chunks)
+    # every frame closed by a delimiter is received once and counted once, under what it was
+    assert c.received == len([p for p in data.split(b"\0")[:-1] if p])
+    outcomes = (len(got) + c.heartbeats + c.acks + c.foreign
+                + sum(c.as_dict()[kind] for kind in DROP_KINDS if kind != "orphaned"))
+    assert outcomes == c.received
+    # the valid frames come through, exact and in order, whatever garbage lies between them
+    # and wherever the chunks were cut; garbage costs no cycle
+    assert [s.cycle for s in got] == [s.cycle for s in sent]
+    for a, b in zip(got, sent, strict=True):
+        assert a.t == b.t
+        for name in ("q", "dq", "tau_J"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert c.delivered == len(sent) and c.heartbeats == heartbeats and c.lost == 0
+    whole = SerialDecoder()  # the same bytes in one read: the same counts
+    whole.feed(data)
+    assert whole.counters.as_dict() == c.as_dict()
 
 
 msgpack_values = st.recursive(
