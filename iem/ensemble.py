@@ -79,7 +79,7 @@ from .augment import TrainingAugment
 from .base import Samples
 from .budget import BagBudget
 from .errors import InvalidInputError
-from .learner import N_IN, WeakLearner, output_range
+from .learner import N_IN, N_OUT, WeakLearner, output_range, saved_numbers
 from .ood_hold import OOD_HOLD_S, OOD_THRESHOLD, VELOCITY_THRESHOLD, OodHold
 from .reservoir import Reservoir
 from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
@@ -614,7 +614,12 @@ class IncrementalEnsemble:
         model._kept = None if kept is None else Reservoir.from_state(kept)
         if model._open >= 0:  # the jobs train their own copy; the published one stays
             model._training = model._learners[model._open].copy()
-        model._out = None if state["out"] is None else tuple(np.array(v) for v in state["out"])
+        out = state["out"]  # the output scaling (lo, hi) new bags' learners start from
+        if out is not None:
+            lo, hi = out
+            out = (saved_numbers(lo, (N_OUT,), "model state's out[0]"),
+                   saved_numbers(hi, (N_OUT,), "model state's out[1]"))
+        model._out = out
         return model
 
 

@@ -81,6 +81,17 @@ def set_rng_state(rng: np.random.Generator, state: dict) -> None:
                                "uinteger": state["uinteger"]}
 
 
+def saved_numbers(value, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """The numbers ``value`` of a saved state as a float array of ``shape``;
+    InvalidInputError if one of them is not a finite number (a None reads as NaN): a model
+    file that loads holds a model that estimates."""
+    out = np.array(value, dtype=float).reshape(shape)
+    if not np.all(np.isfinite(out)):
+        raise InvalidInputError(f"{what} holds {np.count_nonzero(~np.isfinite(out))} values "
+                                f"that are not finite numbers (None, NaN or inf)")
+    return out
+
+
 def output_range(phi: np.ndarray, margin: float = OUTPUT_MARGIN) -> tuple[np.ndarray, np.ndarray]:
     """``lo, hi`` of the output scaling from a training family's ``(K, 10)`` phi."""
     phi = np.asarray(phi, dtype=float)
@@ -323,13 +334,19 @@ class WeakLearner:
 
     @classmethod
     def from_state(cls, state: dict) -> WeakLearner:
-        learner = cls(state["lo"], state["hi"], state["center"], state["scale"],
-                      lr=state["lr"], input_noise=state["input_noise"], seed=state["seed"])
-        learner.a = np.array(state["a"], dtype=float).reshape(N_OUT, N_IN)
-        learner.b = np.array(state["b"], dtype=float).reshape(N_OUT)
+        noise = state["input_noise"]
+        learner = cls(saved_numbers(state["lo"], (N_OUT,), "learner state's lo"),
+                      saved_numbers(state["hi"], (N_OUT,), "learner state's hi"),
+                      saved_numbers(state["center"], (N_IN,), "learner state's center"),
+                      saved_numbers(state["scale"], (N_IN,), "learner state's scale"),
+                      lr=state["lr"], seed=state["seed"], input_noise=None if noise is None
+                      else saved_numbers(noise, (N_IN,), "learner state's input_noise"))
+        learner.a = saved_numbers(state["a"], (N_OUT, N_IN), "learner state's a")
+        learner.b = saved_numbers(state["b"], (N_OUT,), "learner state's b")
         set_rng_state(learner._rng, state["rng"])
         prec = state.get("dq_precision")  # absent from files made before it
-        learner.dq_precision = None if prec is None else np.array(prec, float).reshape(7, 7)
+        learner.dq_precision = None if prec is None else saved_numbers(
+            prec, (7, 7), "learner state's dq_precision")
         return learner
 
     def nbytes(self) -> int:

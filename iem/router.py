@@ -373,6 +373,9 @@ class BagRouter:
         router = cls(delta=state["delta"], rho=state["rho"],
                      capacity=max(16, len(state["counts"])))
         means = np.asarray(state["means"], dtype=float).reshape(-1, 10)
+        if not np.all(np.isfinite(means)):  # a None reads as NaN: a bag nothing routes to
+            raise InvalidInputError("router state: means holds values that are not finite "
+                                    "numbers (None, NaN or inf)")
         counts = np.asarray(state["counts"], dtype=np.int64).reshape(-1)
         if means.shape[0] != counts.shape[0]:
             raise InvalidInputError("router state: means and counts differ in length")

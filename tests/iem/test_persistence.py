@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import copy
 import errno
+import math
 import os
+import re
 import stat
 import zlib
 from pathlib import Path
@@ -12,7 +14,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from iem import persistence
@@ -388,10 +390,28 @@ _plain = st.recursive(_leaves, lambda inner: st.lists(inner, max_size=4)
                       | st.dictionaries(st.text(max_size=6), inner, max_size=4), max_leaves=20)
 
 
+STATE_ERROR = re.compile(r"the state is a \w+, expected a map|the state does not describe a "
+                         r"valid IEM model: \w+")
+"""What a file with an intact header and CRC but a bad state raises (after its path)."""
+
+
+def _load_or_error(path: Path, data: bytes):
+    """The model in ``data`` written to ``path``, or the ModelFileError it raised (which must
+    name the path)."""
+    path.write_bytes(data)
+    try:
+        return load_model(path)
+    except ModelFileError as exc:
+        assert str(path) in str(exc)
+        return exc
+
+
 @FUZZ
 @given(state=_plain)
-def test_random_states_with_valid_crc_only_raise_model_file_error(tmp_path, state):
-    _load_or_model_file_error(tmp_path / "fuzz", _with_state(state))
+def test_random_states_with_valid_crc_raise_the_state_error(tmp_path, state):
+    error = _load_or_error(tmp_path / "fuzz", _with_state(state))
+    assert isinstance(error, ModelFileError)  # random plain data never describe a model
+    assert STATE_ERROR.search(str(error)), str(error)
 
 
 def _paths(obj, prefix=()):
@@ -408,19 +428,74 @@ STATE = MODEL.to_state()
 STATE_PATHS = [p for p in _paths(STATE) if p]
 
 
+LEARNER_ARRAYS = ("lo", "hi", "center", "scale", "a", "b", "input_noise", "dq_precision")
+"""The numbers a weak learner keeps; the router keeps its bags' means, the model the output
+scaling ``out``: what a model learnt."""
+
+
+def _learnt(where: tuple) -> bool:
+    """``where`` lies in the numbers a model learnt."""
+    if where[0] == "learners":
+        return len(where) > 2 and where[2] in LEARNER_ARRAYS
+    return where[0] == "out" or where[:2] == ("router", "means")
+
+
+def _learnt_numbers(state: dict):
+    """Every leaf of the learnt numbers of a model's state."""
+    def leaves(v):
+        if isinstance(v, list):
+            for x in v:
+                yield from leaves(x)
+        elif v is not None:
+            yield v
+
+    yield from leaves(state["router"]["means"])
+    yield from leaves(state["out"])
+    for learner in state["learners"]:
+        for key in LEARNER_ARRAYS:
+            yield from leaves(learner.get(key))
+
+
+def _at(state, where: tuple):
+    for key in where:
+        state = state[key]
+    return state
+
+
+def _finite_number(value) -> bool:
+    return isinstance(value, int | float) and math.isfinite(value)
+
+
 @FUZZ
+@example(where=("learners", 0, "b", 3), value=None, delete=False)  # None where a number was
+@example(where=("router", "means", 1, 2), value=math.nan, delete=False)
+@example(where=("out", 1, 7), value={}, delete=False)
+@example(where=("out",), value=[], delete=False)
+@example(where=("learners", 1, "a", 0, 5), value=0.25, delete=False)  # another number
+@example(where=("params", "rho"), value=None, delete=True)  # a file made before a parameter
 @given(where=st.sampled_from(STATE_PATHS), value=_plain, delete=st.booleans())
-def test_mutated_states_with_valid_crc_only_raise_model_file_error(tmp_path, where, value,
-                                                                   delete):
+def test_mutated_states_load_as_written_or_raise_the_state_error(tmp_path, where, value, delete):
     state = copy.deepcopy(STATE)
-    parent = state
-    for key in where[:-1]:
-        parent = parent[key]
-    if delete and isinstance(parent, dict):
+    parent = _at(state, where[:-1])
+    delete = delete and isinstance(parent, dict)
+    if delete:
         del parent[where[-1]]
     else:
         parent[where[-1]] = value
-    _load_or_model_file_error(tmp_path / "fuzz", _with_state(state))
+    outcome = _load_or_error(tmp_path / "fuzz", _with_state(state))
+    if isinstance(outcome, ModelFileError):  # the header and CRC are intact: the state's fault
+        assert STATE_ERROR.search(str(outcome)), str(outcome)
+        return
+    # a file that loads holds a model that estimates, its learnt numbers all finite ...
+    loaded = outcome.to_state()
+    assert all(type(v) is float and math.isfinite(v) for v in _learnt_numbers(loaded))
+    assert outcome.predict_many(X_PATH[:5], F_PATH[:5]).shape == (5, 10)
+    # ... and what the file says: a parameter it lacks at its default, a number as written
+    if delete and where[0] == "params":
+        assert loaded["params"][where[1]] == IncrementalEnsemble().params()[where[1]]
+    elif not delete and _learnt(where) and _finite_number(value) \
+            and isinstance(_at(STATE, where), float):
+        assert _at(loaded, where) == float(value)
 
 
 # -- failed saves leave the old file alone -------------------------------------------------
