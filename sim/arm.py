@@ -4,16 +4,19 @@ A real Panda departs from its nominal model (example-robot-data's URDF) in three
 show in the measured link-side torque ``tau_J``:
 
 - its links' masses, CoMs and inertias differ by percents;
-- joint friction, in Gaz et al.'s form (IEEE RA-L 2019, identified on ``tau_J``)::
+- joint friction (:func:`friction_torque`): Coulomb friction in Gaz et al.'s sigmoid form
+  (IEEE RA-L 2019, identified on ``tau_J``)::
 
-      tau_f = phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))
+      phi1 / (1 + exp(-phi2 (dq + phi3))) - phi1 / (1 + exp(-phi2 phi3))
 
-  (:func:`gaz_friction`, zero at rest; :data:`GAZ_PHI` their values);
+  (:func:`gaz_friction`, zero at rest; :data:`GAZ_PHI` their values), plus viscous and
+  Stribeck friction, each with its own coefficients for either direction of motion; a
+  ``(7, 3)`` friction array is Gaz's model alone, a ``(7, 9)`` one the full model;
 - a constant offset per torque sensor.
 
 :class:`ArmParams` holds one such arm: the seven joint bodies' dynamic parameters (Pinocchio
 order ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``, in each joint's frame, inertia
-about the joint origin; joint 7 includes the hand), the friction ``phi1..3`` per joint and the
+about the joint origin; joint 7 includes the hand), the friction per joint and the
 offsets. The simulated arm's departure (:meth:`sim.plant.RealityGap.realise`) and the one
 identified from traffic (:mod:`sim.calibration`, ``iem calibrate``) are both an ArmParams, so
 the plant, the tandem simulators and the estimators' regression use one arm model:
@@ -77,6 +80,80 @@ def gaz_friction_jacobian(dq, phi) -> np.ndarray:
     return out
 
 
+FRICTION_COLUMNS = ("phi1", "phi2", "phi3", "fv_pos", "fv_neg", "fs_pos", "fs_neg",
+                    "vs_pos", "vs_neg")
+"""The columns of a full friction array ``(7, 9)``, per joint: Gaz's ``phi1`` (N·m), ``phi2``
+(s/rad), ``phi3`` (rad/s); the viscous coefficients for ``dq > 0`` and ``dq < 0``
+(N·m·s/rad); the Stribeck excess for ``dq > 0`` and ``dq < 0`` (N·m) and its velocities
+(rad/s, > 0). A ``(7, 3)`` array is Gaz's model alone (the first three)."""
+GAZ_COLUMNS = 3
+"""The columns of Gaz's model, the first of a full array."""
+STRIBECK_VS = 0.1
+"""Stribeck velocity of a friction array that has none (a Gaz array made full), rad/s."""
+
+
+def friction_torque(dq, friction) -> np.ndarray:
+    """Joint friction torque, N·m, at joint velocities ``dq`` (``(..., 7)``, rad/s): the one
+    friction model of the arm (:meth:`ArmParams.joint_torque`). With ``w = σ(phi2 dq)``
+    (``σ`` the logistic function: the direction switch, smooth through zero)::
+
+        tau_f = phi1 (σ(phi2 (dq + phi3)) - σ(phi2 phi3))              Coulomb (Gaz)
+              + dq (fv_pos w + fv_neg (1 - w))                            viscous
+              + (2w - 1) (fs_pos w exp(-(dq/vs_pos)²)
+                          + fs_neg (1 - w) exp(-(dq/vs_neg)²))            Stribeck
+
+    zero at ``dq = 0`` and continuous with all its derivatives. ``friction`` is ``(7, 9)``
+    (:data:`FRICTION_COLUMNS`) or ``(7, 3)``: Gaz's sigmoid alone, computed as
+    :func:`gaz_friction` does (the same torques to the bit)."""
+    friction = np.asarray(friction, dtype=float)
+    tau = gaz_friction(dq, friction)
+    if friction.shape[1] == GAZ_COLUMNS:
+        return tau
+    dq = np.asarray(dq, dtype=float)
+    p2, fvp, fvn, fsp, fsn, vsp, vsn = (friction[:, c] for c in (1, 3, 4, 5, 6, 7, 8))
+    w = _sigmoid(p2 * dq)
+    stribeck = (2.0 * w - 1.0) * (fsp * w * np.exp(-(dq / vsp) ** 2)
+                                  + fsn * (1.0 - w) * np.exp(-(dq / vsn) ** 2))
+    return tau + dq * (fvp * w + fvn * (1.0 - w)) + stribeck
+
+
+def friction_jacobian(dq, friction) -> np.ndarray:
+    """``d tau_f / d friction`` at ``dq`` ``(N, 7)``: ``(N, 7, K)`` for ``friction``
+    ``(7, K)``, ``K`` 3 or 9 (the columns of :func:`friction_torque`)."""
+    friction = np.asarray(friction, dtype=float)
+    gaz = gaz_friction_jacobian(dq, friction)
+    if friction.shape[1] == GAZ_COLUMNS:
+        return gaz
+    dq = np.asarray(dq, dtype=float)
+    p2, fvp, fvn, fsp, fsn, vsp, vsn = (friction[:, c] for c in (1, 3, 4, 5, 6, 7, 8))
+    w = _sigmoid(p2 * dq)
+    dw = w * (1.0 - w) * dq  # d w / d phi2
+    sw = 2.0 * w - 1.0
+    ep, en = np.exp(-(dq / vsp) ** 2), np.exp(-(dq / vsn) ** 2)
+    out = np.empty((*dq.shape, len(FRICTION_COLUMNS)))
+    out[..., :GAZ_COLUMNS] = gaz
+    out[..., 1] += dw * (dq * (fvp - fvn) + 2.0 * (fsp * w * ep + fsn * (1.0 - w) * en)
+                         + sw * (fsp * ep - fsn * en))
+    out[..., 3] = dq * w
+    out[..., 4] = dq * (1.0 - w)
+    out[..., 5] = sw * w * ep
+    out[..., 6] = sw * (1.0 - w) * en
+    out[..., 7] = out[..., 5] * fsp * 2.0 * dq ** 2 / vsp ** 3
+    out[..., 8] = out[..., 6] * fsn * 2.0 * dq ** 2 / vsn ** 3
+    return out
+
+
+def full_friction(friction) -> np.ndarray:
+    """``friction`` as a full ``(7, 9)`` array (a ``(7, 3)`` Gaz array: no viscous and no
+    Stribeck part; their velocities :data:`STRIBECK_VS`): the same torques."""
+    friction = np.asarray(friction, dtype=float)
+    if friction.shape[1] == len(FRICTION_COLUMNS):
+        return friction.copy()
+    out = np.zeros((friction.shape[0], len(FRICTION_COLUMNS)))
+    out[:, :GAZ_COLUMNS] = friction
+    out[:, 7:9] = STRIBECK_VS
+    return out
+
 def _array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
     try:
         a = np.array(value, dtype=float).reshape(shape)
@@ -88,6 +165,22 @@ def _array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
     return a
 
 
+def _friction_array(value) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"arm friction must be numbers: {exc}") from exc
+    if a.shape not in ((7, GAZ_COLUMNS), (7, len(FRICTION_COLUMNS))):
+        raise InvalidInputError(f"arm friction must be (7, 3) (Gaz's phi1..3) or (7, 9) "
+                                f"({', '.join(FRICTION_COLUMNS)}) per joint, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"arm friction must be finite, got {a}")
+    if a.shape[1] > GAZ_COLUMNS and np.any(a[:, 7:9] <= 0.0):
+        raise InvalidInputError(f"arm friction's Stribeck velocities vs_pos, vs_neg must be "
+                                f"> 0 rad/s, got {a[:, 7:9].tolist()}")
+    a.flags.writeable = False
+    return a
+
 @dataclass(frozen=True, eq=False)
 class ArmParams:
     """One arm: its joint bodies, joint friction and torque-sensor offsets.
@@ -96,16 +189,26 @@ class ArmParams:
         link_params: ``(7, 10)`` Pinocchio dynamic parameters of joint bodies 1..7 in their
             joint frames (kg, kg·m, kg·m² about the joint origin; body 7 holds link 7 and the
             hand).
-        friction: ``(7, 3)`` Gaz's ``phi1`` (N·m), ``phi2`` (s/rad), ``phi3`` (rad/s) per
-            joint; zero ``phi1``: no friction.
+        friction: per joint, ``(7, 3)`` Gaz's ``phi1`` (N·m), ``phi2`` (s/rad), ``phi3``
+            (rad/s), or ``(7, 9)`` those plus viscous and Stribeck friction per direction
+            (:data:`FRICTION_COLUMNS`, :func:`friction_torque`); all zero: no friction. Kept
+            as given, so an arm file keeps its state and CRC.
         offset: ``(7,)`` constant torque-sensor offsets, N·m.
         report: what made it (calibration figures: residual RMS, condition number, ...).
+        end_effector: the label of the end effector body 7 carries
+            (:mod:`sim.end_effector`: ``"franka_hand"``, ``"none"`` or a tool file's label).
+        noise: what this arm model leaves unexplained in IEM+phys's equations
+            (:class:`iem.torque_noise.TorqueNoise` as a dict, measured by ``iem calibrate``
+            on traffic it did not fit); None: not measured (the nominal arm's conservative
+            default applies).
     """
 
     link_params: np.ndarray
     friction: np.ndarray
     offset: np.ndarray
     report: dict = field(default_factory=dict)
+    end_effector: str = "franka_hand"
+    noise: dict | None = None
 
     name: ClassVar[str] = "arm"
     """The kind recorded in the arm file."""
@@ -113,33 +216,47 @@ class ArmParams:
     def __post_init__(self) -> None:
         object.__setattr__(self, "link_params", _array("link_params", self.link_params,
                                                        (7, 10)))
-        object.__setattr__(self, "friction", _array("friction", self.friction, (7, 3)))
+        object.__setattr__(self, "friction", _friction_array(self.friction))
         object.__setattr__(self, "offset", _array("offset", self.offset, (7,)))
         if np.any(self.link_params[:, 0] <= 0.0):
             raise InvalidInputError(f"arm link masses must be > 0 kg, got "
                                     f"{self.link_params[:, 0]}")
 
     @classmethod
-    def nominal(cls) -> ArmParams:
-        """The nominal Panda: the URDF's bodies, no friction, no offsets."""
+    def nominal(cls, end_effector=None) -> ArmParams:
+        """The nominal Panda: the URDF's bodies with ``end_effector`` on body 7 (a spec or
+        :class:`sim.end_effector.EndEffector`; None: the Franka Hand), no friction, no
+        offsets."""
+        from .end_effector import EndEffector
+        from .end_effector import end_effector as resolve
         from .robot import nominal_link_params
 
-        return cls(nominal_link_params(), np.zeros((7, 3)), np.zeros(7),
-                   {"source": "nominal"})
+        ee = end_effector if isinstance(end_effector, EndEffector) else resolve(end_effector)
+        return cls(nominal_link_params(ee), np.zeros((7, 3)), np.zeros(7),
+                   {"source": "nominal"}, end_effector=ee.label)
 
     def joint_torque(self, dq) -> np.ndarray:
         """Friction plus offset at ``dq`` (rad/s, ``(..., 7)``), N·m."""
-        return gaz_friction(dq, self.friction) + self.offset
+        return friction_torque(dq, self.friction) + self.offset
 
     # -- persistence -----------------------------------------------------------------------
     def to_state(self) -> dict:
-        return {"link_params": self.link_params.tolist(), "friction": self.friction.tolist(),
-                "offset": self.offset.tolist(), "report": self.report}
+        # the end effector and the noise only when set, so that an arm without them keeps
+        # the state (and the CRC that model files record) it had before they existed
+        state = {"link_params": self.link_params.tolist(), "friction": self.friction.tolist(),
+                 "offset": self.offset.tolist(), "report": self.report}
+        if self.end_effector != "franka_hand":
+            state["end_effector"] = self.end_effector
+        if self.noise is not None:
+            state["noise"] = self.noise
+        return state
 
     @classmethod
     def from_state(cls, state: dict) -> ArmParams:
         return cls(state["link_params"], state["friction"], state["offset"],
-                   dict(state.get("report") or {}))
+                   dict(state.get("report") or {}),
+                   end_effector=str(state.get("end_effector") or "franka_hand"),
+                   noise=state.get("noise"))
 
     @property
     def crc32(self) -> int:
@@ -167,10 +284,17 @@ def load_arm(path) -> ArmParams:
 
 
 def arm_record(arm: ArmParams | None, path=None) -> dict | None:
-    """What a model file records of the arm it was trained for (None: nominal)."""
+    """What a model file records of the arm it was trained for (None: the nominal arm with
+    the Franka Hand). A nominal arm with another end effector (no file) is recorded as
+    ``source`` "nominal"; the end effector is recorded when it is not the hand."""
     if arm is None:
         return None
-    return {"crc32": arm.crc32, "source": FsPath(path).name if path else "<memory>"}
+    record = {"crc32": arm.crc32,
+              "source": FsPath(path).name if path else ("nominal" if arm.report.get(
+                  "source") == "nominal" else "<memory>")}
+    if arm.end_effector != "franka_hand":
+        record["end_effector"] = arm.end_effector
+    return record
 
 
 def arm_spec(path) -> str:
@@ -194,6 +318,21 @@ class ArmDynamics:
 
     def payload_mass_matrix(self, q, phi) -> np.ndarray:
         return self.model.payload_mass_matrix(q, phi)
+
+
+def nominal_spec(end_effector) -> str:
+    """The dynamics spec of the nominal arm carrying ``end_effector`` (a name, or a tool file
+    whose path is made absolute)."""
+    spec = str(end_effector)
+    if spec not in ("franka_hand", "none"):
+        spec = str(FsPath(spec).resolve())
+    return f"sim.arm:nominal_dynamics@{spec}"
+
+
+def nominal_dynamics(end_effector: str | None = None) -> ArmDynamics:
+    """The robot-model factory of ``"sim.arm:nominal_dynamics@END_EFFECTOR"``: the nominal
+    arm with that end effector (:mod:`sim.end_effector`), no friction, no offsets."""
+    return ArmDynamics(ArmParams.nominal(end_effector))
 
 
 def arm_dynamics(path: str | None = None) -> ArmDynamics:

@@ -1,6 +1,8 @@
 """Calibrating the arm from bare-arm traffic: it recovers a simulated arm's known departure
-(friction, offsets, the excited base parameters), refuses unexciting traffic, warns of a
-payload, and ``iem calibrate`` writes an arm file from a CAN log."""
+(friction, offsets, the excited base parameters), never fits a joint worse than the nominal
+model (a viscous arm, a broken fit, the real recording), filters by the time stamps, refuses
+unexciting traffic, warns of a payload, and ``iem calibrate`` writes an arm file from a CAN
+log."""
 
 import numpy as np
 import pytest
@@ -8,13 +10,15 @@ import pytest
 from deploy.calibrate import record_rollout
 from deploy.cli import main
 from iem.errors import ModelFileError
-from sim.arm import ArmParams, load_arm, save_arm
+from sim.arm import ArmParams, friction_torque, load_arm, save_arm
 from sim.calibration import (
     CalibrationError,
     _regressors,
     base_basis,
     calibrate,
+    calibrate_segments,
     link_prior_std,
+    never_worse,
     prepare,
 )
 from sim.calibration import CalibrationSettings as Settings
@@ -22,8 +26,11 @@ from sim.family import default_test_payload
 from sim.paths import Q0, calibration_path, excitation_path, linear_path, rest_path
 from sim.plant import PandaPlant, RealityGap
 from sim.robot import PandaModel, nominal_link_params
+from tests.real_data import real_recording
 
-GAP = RealityGap(seed=3)
+GAP = RealityGap(seed=3).modelled_only()
+"""Links, friction (Coulomb, viscous, Stribeck, per direction) and offsets: all the arm
+model describes, so that what the calibration recovers can be checked against the truth."""
 
 
 @pytest.fixture(scope="module")
@@ -40,10 +47,26 @@ def arm(bare):
 
 def test_recovers_friction_and_offsets(bare, arm):
     truth = bare[0].arm
-    np.testing.assert_allclose(arm.offset, truth.offset, atol=0.01)  # N·m
-    np.testing.assert_allclose(arm.friction[:, 0], truth.friction[:, 0], rtol=0.02)
-    np.testing.assert_allclose(arm.friction[:, 1], truth.friction[:, 1], rtol=0.05)
-    np.testing.assert_allclose(arm.friction[:, 2], truth.friction[:, 2], atol=0.006)  # rad/s
+    np.testing.assert_allclose(arm.offset, truth.offset, atol=0.015)  # N·m
+    # the friction torque over the speeds the motion reaches (measured: within 0.027 N·m;
+    # the parameters trade off among themselves where the motion cannot tell them apart)
+    v = np.linspace(-1.0, 1.0, 401)[:, None] * np.ones(7)
+    err = friction_torque(v, arm.friction) - friction_torque(v, truth.friction)
+    assert np.abs(err).max() < 0.04, np.abs(err).max(axis=0)
+    assert arm.friction.shape == truth.friction.shape == (7, 9)
+
+
+def test_recovers_gaz_friction_of_a_gaz_arm():
+    """On an arm with Gaz's friction alone the full model finds Gaz's parameters (measured:
+    phi1 within 2 %, phi2 within 3 %) and no viscous or Stribeck friction to speak of."""
+    plant = PandaPlant(gap=RealityGap.gaz_only(seed=3), seed=101)
+    r = plant.follow(calibration_path(20.0))
+    arm, truth = calibrate(r.t, r.q, r.dq, r.tau), plant.arm
+    np.testing.assert_allclose(arm.friction[:, 0], truth.friction[:, 0], rtol=0.04)
+    np.testing.assert_allclose(arm.friction[:, 1], truth.friction[:, 1], rtol=0.06)
+    v = np.linspace(-1.5, 1.5, 301)[:, None] * np.ones(7)
+    assert np.abs(friction_torque(v, arm.friction) - friction_torque(v, truth.friction)).max() \
+        < 0.015  # N·m (measured 0.011)
 
 
 def test_recovers_the_excited_base_parameters(bare, arm):
@@ -61,10 +84,11 @@ def test_recovers_the_excited_base_parameters(bare, arm):
     assert excited.shape[1] >= 20  # of 43 (the others stay near their prior)
     err = excited.T @ basis.T @ ((arm.link_params.ravel() - truth.link_params.ravel()) / sd)
     gap = excited.T @ basis.T @ ((nominal - truth.link_params.ravel()) / sd)
-    # measured: error at most 0.28 prior standard deviations along any of them, where the
-    # arm departs by up to about 1 (the rest is the filtering's bias, not noise)
+    # measured: error at most 0.32 prior standard deviations along any of them, 0.67 in
+    # norm where the arm departs by 1.3 (the rest is the filtering's bias, not noise, and
+    # the viscous and Stribeck friction's share of it)
     assert np.abs(err).max() < 0.4
-    assert np.linalg.norm(err) < 0.5 * np.linalg.norm(gap)
+    assert np.linalg.norm(err) < 0.6 * np.linalg.norm(gap)
     # and the arm model predicts the true arm's torques on a motion it never saw
     path = excitation_path(20.0, seed=4)
     true_model, cal_model, nom_model = (PandaModel(arm=a) for a in (truth, arm, None))
@@ -83,7 +107,8 @@ def test_report_and_consistency(arm):
     assert r["base_parameters"] == 43
     assert 1 < r["condition_number"] < 2000
     assert np.all(np.array(r["rms_after"]) < 0.2 * np.array(r["rms_before"]))
-    assert r["warnings"] == []
+    assert r["warnings"] == [] and r["fallback_joints"] == []
+    assert r["iterations"] < Settings().iterations  # converged
     for p in arm.link_params:  # every body physically consistent
         from sim.calibration import _pseudo_min_eig
 
@@ -164,6 +189,107 @@ def test_calibrates_from_a_live_link():
         controller.stop()
         port.close()
     assert arm.report["duration_s"] > 10.0
-    np.testing.assert_allclose(arm.offset, 0.0, atol=0.01)
+    # 12 s: the offsets trade a little with the direction-dependent friction (measured
+    # 0.018 N·m at most)
+    np.testing.assert_allclose(arm.offset, 0.0, atol=0.025)
     after = np.array(arm.report["rms_after"])
     assert np.all(after < 0.03)
+
+
+def test_never_worse_than_nominal_on_a_viscous_arm():
+    """The issue's arm: viscous friction up to 1 N·m·s/rad per direction beside the Coulomb
+    part, links and offsets off, 20 s of the calibration motion. Gaz's sigmoid alone, fitted
+    by plain Gauss-Newton, left joint 5 worse than the nominal model (0.91 -> 1.03 N·m RMS)
+    on this seed; the full friction model, fitted by Levenberg-Marquardt inside bounds,
+    brings every joint to the noise's floor (measured 0.007-0.020 N·m)."""
+    gap = RealityGap(seed=7, stribeck=0.0, viscous=1.0).modelled_only()
+    r = PandaPlant(gap=gap, seed=107).follow(calibration_path(20.0))
+    arm = calibrate(r.t, r.q, r.dq, r.tau)
+    before, after = np.array(arm.report["rms_before"]), np.array(arm.report["rms_after"])
+    assert before[4] > 0.8  # the joint the old fit made worse
+    assert np.all(after <= before)
+    assert np.all(after < 0.03), after
+    assert arm.report["fallback_joints"] == []
+
+
+def test_the_guard_undoes_a_fit_that_is_worse_than_nominal(bare, arm):
+    """Handed a fit that is worse than the nominal model on some joints, the last guard
+    refits those joints' friction and offsets alone and, where the bodies are to blame,
+    keeps the nominal bodies: no joint ends worse, and the warnings name the joints."""
+    _, r = bare
+    _t, q, dq, ddq, tau = prepare(r.t, r.q, r.dq, r.tau)
+    W = _regressors(PandaModel().model, q, dq, ddq)
+    theta0 = nominal_link_params()
+    nominal = np.sqrt(np.mean((tau - W @ theta0.ravel()) ** 2, axis=0))
+
+    def rms(params, phi, off):
+        res = tau - W @ params.ravel() - friction_torque(dq, phi) - off
+        return np.sqrt(np.mean(res ** 2, axis=0))
+
+    # a friction gone astray on joint 3 and an offset on joint 6: theirs alone to fix
+    phi = np.array(arm.friction)
+    phi[2, 0] = 4.0
+    off = np.array(arm.offset)
+    off[5] += 1.0
+    assert np.all(rms(arm.link_params, phi, off)[[2, 5]] > nominal[[2, 5]])
+    params, phi2, off2, warnings, joints = never_worse(W, dq, tau, theta0, arm.link_params,
+                                                       phi, off)
+    assert joints == [3, 6] and len(warnings) == 2 and "joint 3" in warnings[0]
+    np.testing.assert_array_equal(params, arm.link_params)
+    assert np.all(rms(params, phi2, off2) <= nominal)
+    assert np.all(rms(params, phi2, off2)[[2, 5]] < 0.05)
+    # bodies gone astray (body 6 twice as heavy): the nominal bodies, friction refitted
+    bad = np.array(arm.link_params)
+    bad[5] *= 2.0
+    params, phi3, off3, warnings, joints = never_worse(W, dq, tau, theta0, bad, arm.friction,
+                                                       arm.offset)
+    np.testing.assert_array_equal(params, theta0)
+    assert joints and "bodies kept nominal" in warnings[-1]
+    assert np.all(rms(params, phi3, off3) <= nominal)
+
+
+def test_prepare_filters_by_the_time_stamps():
+    """A logger's jitter (steps of 0.7-1.6 ms, a few of 9 ms, as the real recording has): the
+    signals are resampled onto a uniform grid before the zero-phase filter, so ``ddq`` is
+    right; filtered sample by sample it was 12 % off on the real recording."""
+    rng = np.random.default_rng(0)
+    dt = rng.uniform(0.7e-3, 1.6e-3, 12000)
+    dt[rng.choice(12000, 40, replace=False)] = 9e-3
+    t = np.concatenate(([0.0], np.cumsum(dt)))
+    w = 2 * np.pi * np.array([0.3, 0.5, 0.7, 0.4, 0.6, 0.8, 0.35])
+    q = np.sin(np.outer(t, w))
+    dq = w * np.cos(np.outer(t, w))
+    tau = q.copy()
+    tk, qk, _dqk, ddqk, _ = prepare(t, q, dq, tau)
+    truth = -w ** 2 * np.sin(np.outer(tk, w))
+    np.testing.assert_allclose(qk, np.sin(np.outer(tk, w)), atol=2e-4)
+    assert np.abs(ddqk - truth).max() < 0.01 * np.abs(truth).max()
+    # uniform traffic is filtered as it is, on its own time stamps
+    t_u = np.arange(6000) * 1e-3
+    tu = prepare(t_u, np.sin(np.outer(t_u, w)), w * np.cos(np.outer(t_u, w)),
+                 np.zeros((6000, 7)))[0]
+    assert set(np.round(tu * 1e3).astype(int)) <= set(range(6000))
+
+
+def test_never_worse_than_nominal_on_the_real_recording():
+    """The real Panda (no hand: body 7 is panda_link7 alone), calibrated on its first 11 s:
+    no joint fits worse than the nominal model, and on the last 10 s, held out, the residual
+    stays below the nominal model's on every joint (measured 0.047-0.21 N·m RMS, the nominal
+    model 0.21-0.65)."""
+    from sim.arm import ArmParams as Arm
+
+    t, q, dq, tau = real_recording()
+    cut = int(np.searchsorted(t, 11.0))
+    arm = calibrate_segments([(t[:cut], q[:cut], dq[:cut], tau[:cut])], end_effector="none",
+                             source="real recording, first 11 s")
+    before, after = np.array(arm.report["rms_before"]), np.array(arm.report["rms_after"])
+    assert np.all(after <= before), (before, after)
+    assert arm.report["fallback_joints"] == []
+    _t, qh, dqh, ddqh, tauh = prepare(t[cut:], q[cut:], dq[cut:], tau[cut:])
+    held = {}
+    for name, a in (("nominal", Arm.nominal("none")), ("calibrated", arm)):
+        model = PandaModel(arm=a)
+        res = tauh - np.array([model.rnea(qh[k], dqh[k], ddqh[k]) for k in range(len(qh))])
+        held[name] = np.sqrt(np.mean(res ** 2, axis=0))
+    assert np.all(held["calibrated"] < held["nominal"]), held
+    assert np.all(held["calibrated"] < 0.25), held

@@ -102,13 +102,16 @@ def test_sensor_noise_is_seeded_and_has_the_documented_spread(path):
 
 
 def test_reality_gap_changes_the_plant_not_the_nominal_model(path, model):
-    plant = PandaPlant(sensor=SensorModel.noiseless(), gap=RealityGap(seed=1))
+    gap = RealityGap(seed=1)
+    plant = PandaPlant(sensor=SensorModel.noiseless(), gap=gap)
     plant.reset(path.q[0])
     s = plant.step(path.q[0], np.zeros(7), np.zeros(7))
     # at rest on target the command is the nominal model's gravity torque (read through
-    # the sensor's offset)...
+    # the sensor's gain, drift and offset)...
+    gravity = model.rnea(path.q[0], np.zeros(7), np.zeros(7))
     np.testing.assert_allclose(s.tau_J - plant.arm.offset,
-                               model.rnea(path.q[0], np.zeros(7), np.zeros(7)), atol=1e-9)
+                               gap.unmodelled().sensor(0.0, gravity), atol=1e-9)
+    assert np.abs(s.tau_J - plant.arm.offset - gravity).max() > 1e-3  # the gain error
     # ...which the gapped arm does not balance: it accelerates
     assert np.abs(plant.last_ddq).max() > 1e-3
     masses = [plant.model.body(f"panda_link{i}").mass[0] for i in range(1, 8)]
