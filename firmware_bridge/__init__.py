@@ -20,5 +20,7 @@ The plug-in's only way to the robot. Modules, one concept each:
 - :mod:`.faults`: drop, corrupt, duplicate, delay, silence.
 - :mod:`.record`, :mod:`.replay`: bus logs with python-can's writers and readers.
 - :mod:`.busload`, :mod:`.bench`: bus load and the bridge's speed.
+- :mod:`.checks`: the check suite every link kind passes (as :mod:`iem.checks` for
+  estimators).
 - :mod:`.errors`: the bridge's errors under :class:`iem.errors.IemError`.
 """

@@ -1,4 +1,5 @@
-"""The link table, the protocols at the seam, bus errors and silence diagnostics."""
+"""The link table, bus errors and silence diagnostics. The protocols at the seam, for every
+link kind: test_link_conformance.py (firmware_bridge.checks)."""
 
 import can
 import pytest
@@ -10,7 +11,7 @@ from firmware_bridge.errors import (
     ControllerSilent,
     LinkError,
 )
-from firmware_bridge.links import LINKS, JointStateSource, PayloadSink, open_link
+from firmware_bridge.links import LINKS, open_link
 from iem.errors import IemError, PayloadError
 from sim.payload import Payload
 
@@ -31,15 +32,6 @@ def test_unknown_kinds_name_the_valid_ones():
 def test_socketcan_failure_is_a_link_error_with_a_hint():
     with pytest.raises(LinkError, match="cannot open socketcan bus on channel 'iemnone0'"):
         open_bus("socketcan", "iemnone0")
-
-
-def test_links_implement_the_seam(channel):
-    link = open_link("virtual", channel, profile="classic")
-    serial_link = open_link("serial", "loop://", profile="fd")  # a config may name one for all
-    for x in (link, serial_link):
-        assert isinstance(x, JointStateSource) and isinstance(x, PayloadSink)
-    link.close()
-    serial_link.close()
 
 
 class BrokenBus(can.BusABC):

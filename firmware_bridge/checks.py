@@ -1,0 +1,484 @@
+"""One check suite that every link passes, as :mod:`iem.checks` is for estimators.
+
+A link is checked through a :class:`Harness`: a link of one kind of
+:data:`~firmware_bridge.links.LINKS`, opened on a fresh channel, and the other end of it: a
+controller that publishes joint states and answers payload commands, or a recording that
+holds them. :func:`check_link` runs every ``check_*`` function of this module (listed in
+:data:`CHECKS`, so a test can parametrise over them) on a factory of harnesses, each check on
+a fresh one. A check that fails raises :class:`CheckFailed` (an :class:`AssertionError`)
+saying what was expected and what was found.
+
+What every link does (the protocols of :mod:`firmware_bridge.links`):
+
+- it is a :class:`~firmware_bridge.links.JointStateSource`, and a
+  :class:`~firmware_bridge.links.PayloadSink` exactly where its kind says ``sink``; its
+  ``rate_hz`` is :func:`~firmware_bridge.links.rate_hz` of its kind and profile;
+- ``read`` returns the joint states the other end sent, in order, one per call: finite
+  float arrays of shape (7,), time stamps and cycle counters that move forward; ``counters``
+  count what was received and delivered, and on a clean stream nothing dropped or lost;
+- with nothing to read, a live link raises
+  :class:`~firmware_bridge.errors.ControllerSilent` (a :class:`TimeoutError`) after the
+  timeout given, counts the silence and stays usable; a recording raises
+  :class:`~firmware_bridge.errors.EndOfStream` after its last joint state, and again at every
+  later ``read``;
+- ``close`` may be called twice;
+- a sink's ``send`` returns the command's sequence number (1..255, one more each time), and
+  the other end's acknowledgement arrives through ``wait_ack`` (and ``last_ack``) with the
+  load in force; an impossible payload is refused before anything is sent
+  (:class:`~iem.errors.PayloadError`, no number used); an acknowledgement that does not come
+  is :class:`~firmware_bridge.errors.AckTimeout`;
+- an unknown option names the kind's options (:class:`~firmware_bridge.errors.BridgeConfigError`,
+  before anything opens), and a channel that cannot be opened raises the kind's documented
+  error.
+
+Two harnesses are here, for what any kind of its sort needs: :class:`ControllerHarness` (a
+kind the simulated controller's port serves: ``virtual``, ``socketcan``, ``slcan`` and
+``serial``, the last two on a pty) and :class:`RecordingHarness` (``replay`` of a CAN log,
+``recording`` of a CSV or rosbag2 bag). The others (``franka`` behind a fake pylibfranka,
+``ros2`` over loopback DDS) are the tests'.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from iem.errors import IemError, PayloadError
+from iem.types import JointState
+from sim.payload import Payload
+
+from .errors import AckTimeout, BridgeConfigError, ControllerSilent, EndOfStream
+from .links import LINKS, JointStateSource, LinkCounters, PayloadSink, open_link, rate_hz
+from .protocol import LoadAck
+from .reassembly import CYCLE_MOD
+
+N_STATES = 20
+"""Joint states a check has the other end send (a few frames: a pty's buffer holds them)."""
+READ_TIMEOUT_S = 5.0
+"""How long a check waits for a joint state the other end has sent (a loaded machine)."""
+SILENCE_S = 0.05
+"""The ``read`` timeout a check gives when nothing was sent."""
+ACK_TIMEOUT_S = 10.0
+"""How long a check waits for an acknowledgement, serving the other end meanwhile."""
+TOOL = Payload("tool", 0.73, (0.01, -0.02, 0.06), (2e-3, 1e-4, -2e-4, 3e-3, 3e-4, 1.5e-3))
+"""A physically consistent load for the sink checks."""
+CAN_TOLERANCE = (0.5e-5 + 1e-12, 0.5e-4 + 1e-12, 0.005 + 1e-12)
+"""Half the CAN wire's steps of q, dq and tau_J (:mod:`firmware_bridge.protocol`): how far a
+joint state read from a CAN link or log may lie from what was sent."""
+IMPOSSIBLE = Payload("impossible", -1.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 1.0, 0.0, 1.0))
+"""A load no sink may send: negative mass."""
+
+
+class CheckFailed(IemError, AssertionError):
+    """A link broke one of the shared checks."""
+
+
+def _fail(check: str, kind: str, message: str) -> CheckFailed:
+    return CheckFailed(f"{check} ({kind}): {message}")
+
+
+class Harness:
+    """A link of one kind, open on a fresh channel, and the other end of it.
+
+    Attributes:
+        kind: the link kind (a key of :data:`~firmware_bridge.links.LINKS`).
+        channel: the channel the link was opened on.
+        profile: the wire profile it was opened with.
+        link: the link under check (opened by the harness, closed by :meth:`close`).
+        recorded: joint states the recording holds, or None for a live link.
+        tolerance: absolute tolerances of ``(q, dq, tau_J)`` against what was sent (the
+            wire's resolution; zeros: exact), or None where what was sent is not known.
+        bad_channel: ``(channel, error class)``: a channel of this kind that cannot be
+            opened and the error the kind documents for it, or None.
+    """
+
+    kind: str
+    channel: str
+    profile: str = "fd"
+    link: object
+    recorded: int | None = None
+    tolerance: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
+    bad_channel: tuple[str, type[Exception]] | None = None
+
+    def publish(self, n: int) -> list[JointState] | None:
+        """The other end sends ``n`` more joint states (a recording: its next ``n``); what
+        it sent, or None where the values are not known."""
+        raise NotImplementedError
+
+    def serve(self) -> None:
+        """The other end answers the payload commands it received (if it does not by
+        itself)."""
+
+    def close(self) -> None:
+        """Close the link (again, if a check closed it) and the other end."""
+        self.link.close()
+
+    def __enter__(self) -> Harness:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc is None:
+            self.close()
+            return
+        with contextlib.suppress(Exception):  # the check's failure is the one to report
+            self.close()
+
+
+class ControllerHarness(Harness):
+    """A kind the simulated controller serves, its other end the controller's port
+    (:func:`firmware_bridge.sim_controller.open_port`) publishing ``states`` (a function
+    ``states(n, stride, start) -> [JointState]`` of cycles ``start, start + stride, ...``)
+    and acknowledging every command with the load it carries.
+
+    Args:
+        kind: the link kind.
+        interface: the controller's interface (``<kind>`` or ``<kind>-pty``).
+        channel: the bus channel (not used by the ``-pty`` interfaces, which make a pty).
+        states: the joint states' generator.
+        profile: the CAN wire profile.
+        bad_channel: see :class:`Harness`.
+    """
+
+    def __init__(self, kind: str, interface: str, states: Callable[..., Sequence[JointState]],
+                 channel: str = "", profile: str = "fd",
+                 bad_channel: tuple[str, type[Exception]] | None = None) -> None:
+        from .sim_controller import open_port
+
+        self.kind, self.profile, self.bad_channel = kind, profile, bad_channel
+        self._states = states
+        self.port, pty = open_port(interface, channel, profile)
+        self.channel = pty or channel
+        self.stride = getattr(self.port, "stride", 1)
+        if LINKS[kind].bus is not None:
+            self.tolerance = CAN_TOLERANCE
+        try:
+            self.link = open_link(kind, self.channel, profile=profile)
+        except BaseException:
+            self.port.close()
+            raise
+        self._next = 0
+        self._wait_open()
+
+    def _wait_open(self) -> None:
+        """An slcan adapter drops frames until the link opens its channel (``O``)."""
+        bus = getattr(self.port, "bus", None)
+        deadline = time.monotonic() + READ_TIMEOUT_S
+        while not getattr(bus, "is_open", True) and time.monotonic() < deadline:
+            self.port.poll_commands()
+            time.sleep(0.001)
+
+    def publish(self, n: int) -> list[JointState]:
+        out = list(self._states(n, self.stride, self._next))
+        for s in out:
+            self.port.tick(s.cycle, s.t)
+            self.port.publish(s)
+        self._next = out[-1].cycle + self.stride if out else self._next
+        return out
+
+    def serve(self) -> None:
+        for cmd in self.port.poll_commands():
+            self.port.send_ack(LoadAck(seq=cmd.seq, applied=True, load=cmd.load))
+
+    def close(self) -> None:
+        try:
+            self.link.close()
+        finally:
+            self.port.close()
+
+
+class RecordingHarness(Harness):
+    """A recording (``replay``: a CAN log; ``recording``: a CSV or rosbag2 bag) at ``path``
+    that holds ``states``, opened with ``options`` (e.g. ``pace``)."""
+
+    def __init__(self, kind: str, path, states: Sequence[JointState], profile: str = "fd",
+                 tolerance: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 bad_channel: tuple[str, type[Exception]] | None = None, **options) -> None:
+        self.kind, self.channel, self.profile = kind, str(path), profile
+        self.tolerance, self.bad_channel = tolerance, bad_channel
+        self._states = list(states)
+        self.recorded = len(self._states)
+        self._next = 0
+        self.link = open_link(kind, self.channel, profile=profile, **options)
+
+    def publish(self, n: int) -> list[JointState]:
+        out = self._states[self._next:self._next + n]
+        self._next += len(out)
+        return out
+
+
+# -- helpers -------------------------------------------------------------------------------
+def _read(h: Harness, name: str, n: int) -> list[JointState]:
+    out = []
+    for i in range(n):
+        try:
+            out.append(h.link.read(READ_TIMEOUT_S))
+        except (ControllerSilent, EndOfStream) as exc:
+            raise _fail(name, h.kind, f"read {i} of the {n} joint states sent, then "
+                                      f"{type(exc).__name__}: {exc}") from exc
+    return out
+
+
+def _check_states(h: Harness, name: str, got: list[JointState], sent) -> None:
+    for s in got:
+        if not isinstance(s, JointState):
+            raise _fail(name, h.kind, f"read returned a {type(s).__name__}, not a JointState")
+        for field in ("q", "dq", "tau_J"):
+            v = getattr(s, field)
+            if not (isinstance(v, np.ndarray) and v.shape == (7,) and v.dtype == float
+                    and np.all(np.isfinite(v))):
+                raise _fail(name, h.kind, f"{field} of cycle {s.cycle} is {v!r}; expected 7 "
+                                          "finite floats")
+        if not (isinstance(s.t, float) and math.isfinite(s.t)):
+            raise _fail(name, h.kind, f"t of cycle {s.cycle} is {s.t!r}, not a finite float")
+        if not (isinstance(s.cycle, int) and 0 <= s.cycle < CYCLE_MOD):
+            raise _fail(name, h.kind, f"cycle {s.cycle!r} is not an integer in 0..2**32-1")
+    for a, b in itertools.pairwise(got):
+        if not (b.t > a.t and 0 < (b.cycle - a.cycle) % CYCLE_MOD < CYCLE_MOD // 2):
+            raise _fail(name, h.kind, f"cycle {a.cycle} at t = {a.t!r} s is followed by cycle "
+                                      f"{b.cycle} at t = {b.t!r} s: not forward")
+    if sent is None or h.tolerance is None:
+        return
+    if [s.cycle for s in got] != [s.cycle for s in sent]:
+        raise _fail(name, h.kind, f"cycles read {[s.cycle for s in got]}, sent "
+                                  f"{[s.cycle for s in sent]}")
+    for a, b in zip(got, sent, strict=True):
+        if abs(a.t - b.t) > 1e-6:
+            raise _fail(name, h.kind, f"cycle {a.cycle}: t = {a.t!r} s read, {b.t!r} s sent")
+        for field, tol in zip(("q", "dq", "tau_J"), h.tolerance, strict=True):
+            err = float(np.max(np.abs(getattr(a, field) - getattr(b, field))))
+            if err > tol:
+                raise _fail(name, h.kind, f"cycle {a.cycle}: {field} is {err:.3g} off what "
+                                          f"was sent; the link allows {tol:g}")
+
+
+def _await_ack(h: Harness, name: str, seq: int) -> LoadAck:
+    """The acknowledgement of ``seq``, serving the other end between short waits."""
+    deadline = time.monotonic() + ACK_TIMEOUT_S
+    while True:
+        h.serve()
+        try:
+            return h.link.wait_ack(seq, 0.05)
+        except AckTimeout:
+            if time.monotonic() > deadline:
+                raise _fail(name, h.kind, f"no acknowledgement of command {seq} within "
+                                          f"{ACK_TIMEOUT_S:g} s") from None
+
+
+def _same_load(ack_load, sent: Payload | None) -> bool:
+    if sent is None or ack_load is None:
+        return sent is None and ack_load is None
+    return (abs(ack_load.mass - sent.mass) <= 1e-4
+            and np.allclose(ack_load.com, sent.com, atol=1e-5, rtol=0)
+            and np.allclose(ack_load.inertia, sent.inertia, atol=2e-6, rtol=0))
+
+
+# -- the checks ----------------------------------------------------------------------------
+def check_protocols(make) -> None:
+    """A JointStateSource; a PayloadSink exactly where the kind says so; its rate."""
+    name = "protocols"
+    with make() as h:
+        link, spec = h.link, LINKS[h.kind]
+        if not isinstance(link, JointStateSource):
+            raise _fail(name, h.kind, f"{type(link).__name__} is not a JointStateSource")
+        if isinstance(link, PayloadSink) != spec.sink:
+            raise _fail(name, h.kind, f"{type(link).__name__} is "
+                                      f"{'' if spec.sink else 'not '}expected to be a "
+                                      f"PayloadSink (LINKS says sink={spec.sink})")
+        if not (isinstance(link.name, str) and link.name):
+            raise _fail(name, h.kind, f"name {link.name!r} is not a non-empty str")
+        if not isinstance(link.counters, LinkCounters):
+            raise _fail(name, h.kind, f"counters is a {type(link.counters).__name__}")
+        if link.rate_hz != rate_hz(h.kind, h.profile):
+            raise _fail(name, h.kind, f"rate_hz {link.rate_hz!r}; the kind's is "
+                                      f"{rate_hz(h.kind, h.profile)!r}")
+
+
+def check_reads_joint_states(make) -> None:
+    """What was sent is read, in order, one joint state per call: 7 finite floats each,
+    time and cycle forward; ``last_frame_time`` an epoch receive time (0.0 for a
+    recording)."""
+    name = "reads joint states"
+    with make() as h:
+        sent = h.publish(N_STATES)
+        got = _read(h, name, N_STATES)
+        _check_states(h, name, got, sent)
+        t = h.link.last_frame_time
+        live = h.recorded is None
+        if not isinstance(t, float) or (abs(t - time.time()) > 600 if live else t != 0.0):
+            raise _fail(name, h.kind, f"last_frame_time {t!r}: expected "
+                                      f"{'an epoch time of now' if live else '0.0'}")
+
+
+def check_counters(make) -> None:
+    """A clean stream: received >= delivered >= read, nothing dropped, lost or silent."""
+    name = "counters"
+    with make() as h:
+        h.publish(N_STATES)
+        _read(h, name, N_STATES)
+        c = h.link.counters
+        if not c.received >= c.delivered >= N_STATES:
+            raise _fail(name, h.kind, f"received {c.received}, delivered {c.delivered} after "
+                                      f"{N_STATES} joint states read")
+        if c.dropped() or c.lost or c.silences or c.overflow:
+            raise _fail(name, h.kind, f"a clean stream counted {c.summary()}; silences "
+                                      f"{c.silences}, overflow {c.overflow}")
+
+
+def check_silence_or_end(make) -> None:
+    """Nothing to read: a live link raises ControllerSilent (a TimeoutError) after the
+    timeout given, counts it and reads on; a recording raises EndOfStream, and again."""
+    name = "silence or end"
+    with make() as h:
+        if h.recorded is not None:
+            h.publish(h.recorded)
+            _read(h, name, h.recorded)
+            for _ in range(2):
+                try:
+                    s = h.link.read(SILENCE_S)
+                except EndOfStream:
+                    continue
+                raise _fail(name, h.kind, f"read past the recording's {h.recorded} joint "
+                                          f"states: cycle {s.cycle}")
+            return
+        first = _read(h, name, len(h.publish(N_STATES) or [None] * N_STATES))
+        started = time.monotonic()
+        try:
+            s = h.link.read(SILENCE_S)
+        except ControllerSilent as exc:
+            if not isinstance(exc, TimeoutError):
+                raise _fail(name, h.kind, "ControllerSilent is not a TimeoutError") from exc
+        else:
+            raise _fail(name, h.kind, f"nothing was sent, yet read returned cycle {s.cycle}")
+        if time.monotonic() - started < SILENCE_S * 0.9:
+            raise _fail(name, h.kind, f"ControllerSilent before the {SILENCE_S:g} s given")
+        if h.link.counters.silences != 1:
+            raise _fail(name, h.kind, f"silences {h.link.counters.silences} after one")
+        again = _read(h, name, len(h.publish(N_STATES) or [None] * N_STATES))
+        _check_states(h, name, first + again, None)
+
+
+def check_close_idempotent(make) -> None:
+    """``close`` twice raises nothing."""
+    name = "close idempotent"
+    with make() as h:
+        h.link.close()
+        try:
+            h.link.close()
+        except Exception as exc:
+            raise _fail(name, h.kind, f"a second close raised {type(exc).__name__}: {exc}"
+                        ) from exc
+
+
+def check_send_and_ack(make) -> None:
+    """A sink: ``send`` gives 1, 2, ...; each command is acknowledged with the load in force
+    (None after a clear), also as ``last_ack``."""
+    name = "send and ack"
+    with make() as h:
+        if not LINKS[h.kind].sink:
+            return
+        h.publish(N_STATES)  # a link that reads its acks from the stream has one
+        for expected, load in ((1, TOOL), (2, None)):
+            seq = h.link.send(load)
+            if seq != expected:
+                raise _fail(name, h.kind, f"send returned {seq!r}, expected {expected}")
+            ack = _await_ack(h, name, seq)
+            if not (isinstance(ack, LoadAck) and ack.seq == seq and ack.applied):
+                raise _fail(name, h.kind, f"command {seq} acknowledged with {ack!r}")
+            if not _same_load(ack.load, load):
+                raise _fail(name, h.kind, f"command {seq} ({load}) acknowledged with the load "
+                                          f"{ack.load}")
+            last = h.link.last_ack
+            if last is None or last.seq != seq:
+                raise _fail(name, h.kind, f"last_ack is {last!r} after the ack of {seq}")
+
+
+def check_refuses_impossible_payload(make) -> None:
+    """A sink refuses a load that is not physically consistent before sending it:
+    PayloadError, and no sequence number used."""
+    name = "refuses impossible payload"
+    with make() as h:
+        if not LINKS[h.kind].sink:
+            return
+        try:
+            seq = h.link.send(IMPOSSIBLE)
+        except PayloadError:
+            pass
+        else:
+            raise _fail(name, h.kind, f"sent an impossible payload as command {seq}")
+        if (seq := h.link.send(None)) != 1:
+            raise _fail(name, h.kind, f"the next command got {seq}; the refused one took a "
+                                      "number")
+
+
+def check_ack_timeout(make) -> None:
+    """A sink: an acknowledgement that does not come is AckTimeout (a TimeoutError)."""
+    name = "ack timeout"
+    with make() as h:
+        if not LINKS[h.kind].sink:
+            return
+        try:
+            ack = h.link.wait_ack(200, SILENCE_S)  # never sent
+        except AckTimeout as exc:
+            if not isinstance(exc, TimeoutError):
+                raise _fail(name, h.kind, "AckTimeout is not a TimeoutError") from exc
+        else:
+            raise _fail(name, h.kind, f"an ack of a command never sent: {ack!r}")
+
+
+def check_bad_options(make) -> None:
+    """An unknown option is a BridgeConfigError naming the kind's options; a channel that
+    cannot be opened raises the kind's documented error."""
+    name = "bad options"
+    with make() as h:
+        try:
+            other = open_link(h.kind, h.channel, profile=h.profile, no_such_option=1)
+        except BridgeConfigError as exc:
+            if "its options are" not in str(exc):
+                raise _fail(name, h.kind, f"the error names no options: {exc}") from exc
+        else:
+            other.close()
+            raise _fail(name, h.kind, "an unknown option was accepted")
+        if h.bad_channel is None:
+            return
+        channel, error = h.bad_channel
+        try:
+            other = open_link(h.kind, channel, profile=h.profile)
+        except error:
+            pass
+        except Exception as exc:
+            raise _fail(name, h.kind, f"channel {channel!r} raised {type(exc).__name__}: "
+                                      f"{exc}; documented: {error.__name__}") from exc
+        else:
+            other.close()
+            raise _fail(name, h.kind, f"channel {channel!r} opened")
+
+
+CHECKS: tuple[Callable[..., None], ...] = (
+    check_protocols,
+    check_reads_joint_states,
+    check_counters,
+    check_silence_or_end,
+    check_close_idempotent,
+    check_send_and_ack,
+    check_refuses_impossible_payload,
+    check_ack_timeout,
+    check_bad_options,
+)
+"""Every check, in the order :func:`check_link` runs them."""
+SINK_CHECKS = (check_send_and_ack, check_refuses_impossible_payload, check_ack_timeout)
+"""The checks of a sink; on a link that is none they check nothing."""
+
+
+def check_link(make: Callable[[], Harness]) -> None:
+    """Run every check of :data:`CHECKS` on ``make`` (a factory of fresh harnesses).
+
+    Raises:
+        CheckFailed: the first check that fails, with what was expected and found.
+    """
+    for check in CHECKS:
+        check(make)
