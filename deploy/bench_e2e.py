@@ -55,6 +55,7 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
         config = config_from_dict({
             "link": {"kind": "virtual", "channel": virtual_channel("bench-e2e"),
                      "profile": "fd"},
+            "gate": {"allow_without_uncertainty": kind == "IEM"},  # the paper's IEM
             "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                       "seed": seed, "checkpoint_period_s": 30.0},
             "log": {"status_line": "off"}, "host": host,
@@ -88,6 +89,7 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) ->
         with tempfile.TemporaryDirectory() as tmp:
             config = config_from_dict({
                 "link": {"kind": "slcan", "channel": pty, "profile": "fd"},
+                "gate": {"allow_without_uncertainty": kind == "IEM"},  # the paper's IEM
                 "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                           "checkpoint_period_s": 30.0},
                 "log": {"status_line": "off"}, "host": host,

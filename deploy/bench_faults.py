@@ -100,6 +100,7 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
             config = config_from_dict({
                 "link": {"kind": "slcan", "channel": pty, "profile": "fd",
                          "silence_timeout_s": 0.2},
+                "gate": {"allow_without_uncertainty": model.name == "IEM"},  # the paper's IEM
                 "model": {"path": str(FsPath(tmp) / "model.msgpack"),
                           "checkpoint_period_s": 3600.0},
                 "log": {"status_line": "off"},

@@ -75,6 +75,8 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
         # the demo's plant without an arm file is the nominal model itself: the sensor's
         # noise is all its equations carry; with one, the arm's measured noise
         "arm": {"noise": "arm" if arm_file else "sensor"},
+        # the paper's IEM reports no uncertainty: the demo lets it write, as a cell must
+        "gate": {"allow_without_uncertainty": kind == "IEM"},
         "log": {"status_line": "on" if status else "off"},
         "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
     }, where="demo")

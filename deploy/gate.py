@@ -19,25 +19,28 @@ controller. In order, an estimate is refused if:
    runs); the refused load is not the written one, and the gate retries after
    ``refusal_retry_s``, doubling the wait after each further refusal up to
    ``refusal_retry_max_s``, until the controller accepts;
-9. ``uncertain``: the model reports a standard deviation and the 2-sigma band on the mass,
-   ``2 * std[0]``, is wider than ``max_mass_2sigma_kg``, or the 2-sigma radius of the CoM
-   (its standard deviations through ``r = (m r) / m``) is wider than ``max_com_2sigma_m``;
-10. ``data_disagree``: the model reports ``extra["nis"]`` (its mean normalised innovation
-    squared per degree of freedom over its recent equations, about 1 when the data agree
-    with the model) and it exceeds ``max_nis``;
-    ``out_of_distribution``: the IEM alone estimated from an input far beyond its bag's
-    training inputs (``extra["ood"]``);
-    ``unverified``: the estimate started from a payload file (``[estimate]
-    initial_payload``) and the model has not yet tested it against enough live data
-    (``extra["unverified"]``);
+9. ``unreported``: the estimate does not say how good it is: it reports no standard
+   deviations (``std``), no verdict of its data (``nis``) or no out-of-distribution verdict
+   (``ood``), typed fields of :class:`iem.types.PayloadEstimate`. The gate fails closed:
+   only ``allow_without_uncertainty`` (default false; the paper's IEM, which has no
+   uncertainty, needs it) lets such an estimate through, its reported parts still checked;
+10. ``out_of_distribution``: the IEM alone estimated from an input far beyond its bag's
+    training inputs (``ood``); ``unverified``: the estimate started from a payload file
+    (``[estimate] initial_payload``) and the model has not yet tested it against enough live
+    data; ``uncertain``: the 2-sigma band on the mass, ``2 * std[0]``, is wider than
+    ``max_mass_2sigma_kg``, or the 2-sigma radius of the CoM (its standard deviations
+    through ``r = (m r) / m``) is wider than ``max_com_2sigma_m``; ``data_disagree``:
+    ``nis`` (the mean normalised innovation squared per degree of freedom over the model's
+    recent equations, about 1 when the data agree with the model) exceeds ``max_nis``;
 11. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
     (hysteresis: it becomes stable when the spread is below the band and unstable again only
     when the spread exceeds twice the band);
 12. ``no_change``: it differs from the last written load by less than the minimum change;
 13. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
 
-Otherwise the decision is ``send``. A model without a standard deviation or ``nis`` is not
-held back by 9 and 10. Checks 1-5, 9 and 10 look at one estimate alone and live in
+Otherwise the decision is ``send``, whose log line names the groups the model's data do not
+determine (written as its prior has them; they never hold a write back). Checks 1-5, 9 and
+10 look at one estimate alone and live in
 :mod:`deploy.gate_checks`; this module keeps what depends on time and on the controller.
 Every decision is counted by reason; it is logged when its outcome or reason differs from
 the previous decision's (a steady state logs once), with the estimate that caused it.
@@ -62,7 +65,8 @@ from .time_window import TimeWindow
 log = logging.getLogger("iem.gate")
 
 REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
-           "out_of_wire_range", "controller_silent", "ack_missing", "refused", "uncertain",
+           "out_of_wire_range", "controller_silent", "ack_missing", "refused", "unreported",
+           "uncertain",
            "data_disagree", "unverified", "out_of_distribution", "unstable", "no_change",
            "rate_limited")
 REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
@@ -102,9 +106,11 @@ class GateConfig:
             (``2 * std[0]``, kg) is wider than this.
         max_com_2sigma_m: no write while the model's 2-sigma radius of the CoM (m) is wider
             than this: by default issue 10's 5 mm, the error a written load may have.
-        max_nis: no write while the model's ``extra["nis"]`` (mean normalised innovation
-            squared per degree of freedom, dimensionless, about 1 when the data agree with
-            the model) exceeds this.
+        max_nis: no write while the model's ``nis`` (mean normalised innovation squared per
+            degree of freedom, dimensionless, about 1 when the data agree with the model)
+            exceeds this.
+        allow_without_uncertainty: write estimates that do not report ``std``, ``nis`` or
+            ``ood`` (the paper's IEM); by default they are held back (``unreported``).
         refusal_retry_s: after the controller refuses a write, retry after this time (s);
             the wait doubles with each further refusal in a row ...
         refusal_retry_max_s: ... up to this (s).
@@ -124,6 +130,7 @@ class GateConfig:
     max_mass_2sigma_kg: float = 0.02
     max_com_2sigma_m: float = 0.005
     max_nis: float = 3.0
+    allow_without_uncertainty: bool = False
     refusal_retry_s: float = 1.0
     refusal_retry_max_s: float = 10.0
 
@@ -137,7 +144,7 @@ class Decision:
     payload: Payload | None = None
     detail: str = ""
     from_prior: tuple = ()
-    """Of a ``send``: the groups the model's data do not determine (``extra["undetermined"]``),
+    """Of a ``send``: the groups the model's data do not determine (not in its ``determined``),
     written as its prior has them."""
 
     @property
@@ -248,7 +255,7 @@ class SafetyGate:
     def observe(self, t: float, phi: np.ndarray, estimate=None) -> None:
         """Add the smoothed estimate ``phi`` of one cycle to the stability window;
         ``estimate`` is the raw :class:`iem.types.PayloadEstimate` it came from (its ``std``
-        and ``extra["nis"]`` are checked by :meth:`decide`)."""
+        and ``nis`` are checked by :meth:`decide`)."""
         if estimate is not None:
             self._estimate = estimate
         if np.isfinite(phi).all():  # copied into the window's ring
@@ -313,7 +320,9 @@ class SafetyGate:
             return Decision(t, "no_change", payload)
         if t - self._last_sent_t < 1.0 / c.max_rate_hz:
             return Decision(t, "rate_limited", payload)
-        prior = tuple(getattr(estimate, "extra", {}).get("undetermined", ()))
+        determined = getattr(estimate, "determined", None)
+        prior = () if determined is None else tuple(g for g in ("mass", "com", "inertia")
+                                                    if g not in determined)
         note = f"; {' and '.join(prior)} from the prior (the motion does not determine " \
                f"{'it' if len(prior) == 1 else 'them'})" if prior else ""
         return Decision(t, "send", payload,

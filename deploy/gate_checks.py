@@ -63,38 +63,53 @@ def com_2sigma(phi, std) -> float:
 
 
 def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
-    """``("out_of_distribution" | "unverified" | "uncertain" | "data_disagree", detail)`` if
-    the model's own figures say its estimate (an :class:`iem.types.PayloadEstimate`) is not
-    good enough to write, else None; also None for a model that reports none of them.
+    """``(reason, detail)`` if the model's own figures say its estimate (an
+    :class:`iem.types.PayloadEstimate`) is not good enough to write, else None. It fails
+    closed: what it needs and the estimate does not report holds the write back.
 
-    - ``out_of_distribution``: ``extra["ood"]``: the IEM's learner met an input far beyond its
-      bag's training inputs (:meth:`iem.ensemble.IncrementalEnsemble.ood_score`);
-    - ``unverified``: ``extra["unverified"]``: the estimate started from a payload file and
-      the model has not yet tested it against enough live data;
+    - ``unreported``: the estimate is not a :class:`iem.types.PayloadEstimate`, or it does
+      not report its standard deviations (``std``), its data's verdict (``nis``) or its
+      out-of-distribution verdict (``ood``): None for any of them. Unless the cell allows
+      writing without them (``allow_without_uncertainty``; the paper's IEM needs it): then
+      what is reported is still checked;
+    - ``out_of_distribution``: ``ood``: the IEM's learner met an input far beyond its bag's
+      training inputs (:meth:`iem.ensemble.IncrementalEnsemble.ood_score`);
+    - ``unverified``: the estimate started from a payload file and the model has not yet
+      tested it against enough live data;
     - ``uncertain``: ``2 * std[0]`` (the 2-sigma band on the mass, kg) is wider than
       ``max_mass_2sigma_kg``, or the 2-sigma radius of the CoM is wider than
       ``max_com_2sigma_m``, or either is not a number (no band known). The CoM's standard
       deviations are those of ``r = (m r) / m`` to first order, ``sqrt(std[1:4]**2 +
       (r * std[0])**2) / m`` (the estimate carries standard deviations, not their
       correlations); the radius is their norm;
-    - ``data_disagree``: ``extra["nis"]`` (the mean normalised innovation squared per degree
-      of freedom over the model's recent equations, about 1 when the data agree with the
-      model) exceeds ``max_nis``; a NaN ``nis`` (no verdict yet) does not hold a write back.
+    - ``data_disagree``: ``nis`` (the mean normalised innovation squared per degree of
+      freedom over the model's recent equations, about 1 when the data agree with the
+      model) exceeds ``max_nis``; a NaN ``nis`` (no equation tested yet) does not hold a
+      write back.
     """
-    if estimate is None:
-        return None
-    extra = getattr(estimate, "extra", None) or {}
-    if extra.get("ood"):
+    from iem.types import PayloadEstimate
+
+    if not isinstance(estimate, PayloadEstimate):
+        if config.allow_without_uncertainty and estimate is None:
+            return None
+        return ("unreported", f"the model gave {type(estimate).__name__}, not a "
+                              "PayloadEstimate: nothing says how good it is")
+    missing = [name for name in ("std", "nis", "ood") if getattr(estimate, name) is None]
+    if missing and not config.allow_without_uncertainty:
+        return ("unreported", f"the model does not report {', '.join(missing)}; set [gate] "
+                              "allow_without_uncertainty = true to write without them")
+    if estimate.ood:
+        extra = estimate.extra or {}
         why = (f"the learner's input lies {extra.get('ood_score', 0):.3g} standard deviations "
                "beyond what its bag was trained on")
         if "velocity_score" in extra:
             why += (f" (its joint velocities score {extra['velocity_score']:.3g} against the "
                     "bag's training velocities)")
         return ("out_of_distribution", why)
-    if extra.get("unverified"):
+    if estimate.unverified:
         return ("unverified", "the estimate starts from a payload file and has not yet been "
                               "tested against enough live data")
-    std = getattr(estimate, "std", None)
+    std = estimate.std
     if std is not None:
         band = 2.0 * float(np.asarray(std, dtype=float).reshape(-1)[0])
         if not band <= config.max_mass_2sigma_kg:
@@ -104,8 +119,8 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
         if not radius <= config.max_com_2sigma_m:
             return ("uncertain", f"2-sigma radius of the CoM {radius * 1e3:.3g} mm > "
                                  f"{config.max_com_2sigma_m * 1e3:g} mm")
-    nis = extra.get("nis")
-    if nis is not None and math.isfinite(nis) and nis > config.max_nis:
+    nis = estimate.nis
+    if nis is not None and not math.isnan(nis) and not nis <= config.max_nis:
         return ("data_disagree", f"normalised innovation squared {nis:.3g} per degree of "
                                  f"freedom > {config.max_nis:g}: the data disagree with the model")
     return None

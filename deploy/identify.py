@@ -64,6 +64,9 @@ def configure(parser) -> None:
                         help="recording of the same motion without the payload (any format)")
     parser.add_argument("--arm", metavar="ARM",
                         help="arm file from 'iem calibrate' instead of --bare (any motion)")
+    parser.add_argument("--end-effector", metavar="EE", default=None,
+                        help="what the arm carries as part of itself (franka_hand, none or a "
+                             "tool's .toml); with --arm, the arm file must be for it")
     parser.add_argument("--out", required=True, metavar="P.toml",
                         help="payload file to write (mass, CoM, inertia about the CoM)")
     parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
@@ -115,7 +118,12 @@ def run(args) -> int:
     bare = (read_log(args.bare, args.profile, args.format, args.topic)
             if args.bare is not None else None)
     decoded = time.perf_counter()
-    result = identify(loaded, bare=bare, arm=args.arm)
+    arm = args.arm
+    if arm is not None and args.end_effector:  # the arm file must be for the declared one
+        from .training import load_arm_file
+
+        load_arm_file(arm, args.end_effector)
+    result = identify(loaded, bare=bare, arm=arm)
     done = time.perf_counter()
     name = args.name or FsPath(args.out).stem or "identified"
     summary = result.summary(name)

@@ -171,14 +171,17 @@ class BatchEnsemble:
         if x.shape != (N_IN,):
             raise InvalidInputError(f"x must be [q, dq, tau] with {N_IN} values, got {x.shape}")
         if not self.fitted:
-            return PayloadEstimate(t=t, phi=np.full(N_OUT, math.nan), bag=-1)
+            return PayloadEstimate(t=t, phi=np.full(N_OUT, math.nan), std=None, bag=-1,
+                                   nis=None, ood=None, determined=None)
         phi = np.zeros(N_OUT)
         for learner in self._learners:
             phi += learner.predict_one(x)
         for tree in self._trees:
             phi += tree.predict_one(x)
         phi /= len(self._learners) + len(self._trees)
-        return PayloadEstimate(t=t, phi=phi, bag=-1)
+        # the paper's baseline: no standard deviation, no test of its data, no OOD verdict
+        return PayloadEstimate(t=t, phi=phi, std=None, bag=-1, nis=None, ood=None,
+                               determined=None)
 
     def predict_many(self, X, F) -> np.ndarray:
         """The mean of the members' outputs, ``(N, 10)`` for inputs ``(N, 21)``."""

@@ -52,7 +52,7 @@
   published learners, with the open bag closed without its refit.
 - Out of distribution (:mod:`iem.ood_hold`): an estimate of a closed bag whose input lies
   beyond its learner's training inputs (``ood_threshold``, ``velocity_threshold``) carries
-  ``extra["ood"] = True``; :meth:`predict_one` and :meth:`learn_predict_one` then give the
+  ``ood = True``; :meth:`predict_one` and :meth:`learn_predict_one` then give the
   last estimate that was not flagged, for at most ``ood_hold_s``. :meth:`predict_raw` and
   :meth:`learn_predict_raw` give the learners' own estimates (IEM+phys takes those, with
   their scores: its physics governs there).
@@ -543,8 +543,10 @@ class IncrementalEnsemble:
         learning = bag == self._open  # the open bag trains on this very point: not flagged
         ood = self._ood
         phi, score, vscore = learner.estimate(x, ood.scores_velocity(learning))
-        return PayloadEstimate(t=t, phi=phi, bag=bag, learning=learning,
-                               extra=ood.flags(score, vscore, learning))
+        extra = ood.flags(score, vscore, learning)
+        # the paper's learner has no standard deviation and tests no data: it says so
+        return PayloadEstimate(t=t, phi=phi, std=None, bag=bag, learning=learning, nis=None,
+                               ood=extra.pop("ood"), determined=None, extra=extra)
 
     def reset(self) -> None:
         """A new task, perhaps with another payload: nothing is held until an estimate is
@@ -563,7 +565,8 @@ class IncrementalEnsemble:
             raise InvalidInputError(f"x must be [q, dq, tau] with {N_IN} values, got {x.shape}")
         bag = self._bag_for(x[:7], flange)
         if bag < 0:
-            return PayloadEstimate(t=t, phi=np.full(10, math.nan), bag=-1)
+            return PayloadEstimate(t=t, phi=np.full(10, math.nan), std=None, bag=-1,
+                                   nis=None, ood=None, determined=None)
         return self._estimate(x, bag, t)
 
     def predict_many(self, X, F) -> np.ndarray:

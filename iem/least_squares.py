@@ -124,7 +124,9 @@ class RecursiveLeastSquares:
 
     def predict_one(self, x=None, flange=None, t: float = 0.0) -> PayloadEstimate:
         std = np.sqrt(np.maximum(np.diag(self.P), 0.0))
-        return PayloadEstimate(t=t, phi=self.phi.copy(), std=std)
+        # least squares knows its spread, but neither tests its data nor knows a training set
+        return PayloadEstimate(t=t, phi=self.phi.copy(), std=std, nis=None, ood=None,
+                               determined=None)
 
     def predict_many(self, X, F=None) -> np.ndarray:
         return np.tile(self.phi, (np.asarray(X).shape[0], 1))

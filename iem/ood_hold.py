@@ -3,7 +3,7 @@
 Each learner standardises its inputs (``center``, ``scale``: the mean and standard deviation
 of its training inputs). The *score* of an input is the largest ``|x - center| / scale``
 over the 21 inputs; above ``threshold`` (default :data:`OOD_THRESHOLD`) an estimate of a
-closed bag carries ``extra["ood"] = True``. So does one whose joint velocities score above
+closed bag carries ``ood = True``. So does one whose joint velocities score above
 ``velocity_threshold`` (default :data:`VELOCITY_THRESHOLD`; ``extra["velocity_score"]``): a
 Mahalanobis distance to the learner's training velocities
 (:meth:`iem.learner.WeakLearner.velocity_score`), which knows how they go together. A bag's
@@ -93,13 +93,13 @@ class OodHold:
             if self.scores_velocity(learning):
                 extra["velocity_score"] = vscore
                 ood = ood or vscore > self.velocity_threshold
-        extra["ood"] = ood
+        extra["ood"] = ood  # taken out into the estimate's typed ood by the ensemble
         return extra
 
     def held(self, est: PayloadEstimate) -> PayloadEstimate:
         """``est``, or, if it is flagged, the last estimate that was not (see the module
         docstring)."""
-        if not est.extra.get("ood"):
+        if not est.ood:
             if est.bag >= 0:
                 self._trusted = est.phi.copy()
                 self._flagged_since = None
@@ -108,5 +108,6 @@ class OodHold:
             self._flagged_since = est.t
         if self._trusted is None or est.t - self._flagged_since >= self.hold_s:
             return est
-        return PayloadEstimate(t=est.t, phi=self._trusted.copy(), bag=est.bag,
-                               learning=est.learning, extra={**est.extra, "held": True})
+        return PayloadEstimate(t=est.t, phi=self._trusted.copy(), std=est.std, bag=est.bag,
+                               learning=est.learning, nis=est.nis, ood=est.ood,
+                               determined=est.determined, extra={**est.extra, "held": True})

@@ -60,9 +60,9 @@ physics but needs rich motion and time. This model keeps both, per estimate:
   1.44 kg for 1.615 over that 0.3 s, and the smoothing had carried its first, lower,
   readings on for about 0.6 s more).
 
-**What the data do not determine**: an estimate names in ``extra["undetermined"]`` the
-parameter groups (``mass``, ``com``, ``inertia``) for which the window's equations alone say
-less than the prior (a short or slow motion hardly sees the inertia): those come from the
+**What the data do not determine**: an estimate's ``determined`` leaves out the parameter
+groups (``mass``, ``com``, ``inertia``) for which the window's equations alone say less than
+the prior (a short or slow motion hardly sees the inertia): those come from the
 prior, and the safety gate says so when it writes them.
 
 ``observe_one(x, flange)`` does everything but train the ensemble: the payload part of
@@ -265,7 +265,7 @@ class PhysicsInformedEnsemble:
     def start_from(self, phi, std) -> None:
         """Start from a known payload (e.g. ``iem identify``'s): ``phi`` with standard
         deviations ``std`` is the prior (instead of the ensemble's summary) until the data
-        show a payload change; its estimates say ``extra["unverified"]`` until the window
+        show a payload change; its estimates say ``unverified`` until the window
         holds :data:`DETECT_AFTER` equations, so a gate can wait for the live data to judge
         it (a wrong file then inflates the prior, or is detected as a change)."""
         phi = np.asarray(phi, dtype=float).reshape(10)
@@ -533,12 +533,7 @@ class PhysicsInformedEnsemble:
     def _estimate(self, post: Posterior, t: float, bag: int = -1,
                   learning: bool = False) -> PayloadEstimate:
         extra = {"change": True, "reset": True} if self._changed else {}
-        if self._undetermined:
-            extra["undetermined"] = self._undetermined
-        if self._innovation.count:
-            extra["nis"] = self._innovation.nis
-        if self._initial is not None and self._window.m < DETECT_AFTER:
-            extra["unverified"] = True
+        unverified = self._initial is not None and self._window.m < DETECT_AFTER
         shown, phi = self._projected(post)
         # the prior alone is already the mean of the ensemble's estimates since the change,
         # and the first estimate with the physics supersedes it: the caller's smoothing
@@ -549,7 +544,12 @@ class PhysicsInformedEnsemble:
         std = shown.std
         if self._bias_var is not None:  # what the arm model's error reads as payload
             std = np.sqrt(np.square(std) + self._bias_var)
+        # the physics is the estimate: the learners' out-of-distribution inputs inflate the
+        # prior instead of flagging it; the NIS is NaN until the first equation is tested
         return PayloadEstimate(t=t, phi=phi, std=std, bag=bag, learning=learning,
+                               nis=self._innovation.nis, ood=False, unverified=unverified,
+                               determined=tuple(g for g in GROUPS
+                                                if g not in self._undetermined),
                                extra=extra)
 
     def _projected(self, post: Posterior) -> tuple[Posterior, np.ndarray]:
@@ -580,7 +580,8 @@ class PhysicsInformedEnsemble:
         if post is None:
             prior = self._prior(x, flange)
             if prior is None:
-                return PayloadEstimate(t=t, phi=np.full(10, math.nan), bag=bag)
+                return PayloadEstimate(t=t, phi=np.full(10, math.nan), std=None, bag=bag,
+                                       nis=None, ood=None, determined=None)
             post = combine(*prior, self._window, self.eps)
         return self._estimate(post, t, bag, learning)
 

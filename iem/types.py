@@ -69,14 +69,33 @@ class JointState:
 
 @dataclass(frozen=True)
 class PayloadEstimate:
-    """An estimate of the payload parameters at one instant.
+    """An estimate of the payload parameters at one instant, with what the safety gate needs
+    to judge it.
+
+    The gate fails closed: it writes only an estimate that reports its standard deviations,
+    its data's verdict and its out-of-distribution verdict (``std``, ``nis``, ``ood`` not
+    None), unless the cell allows writing without them (``[gate]
+    allow_without_uncertainty``). A model that cannot say one of them passes None for it,
+    explicitly: the fields are typed, so a misspelt or forgotten one is an error where the
+    estimate is made, never a write let through.
 
     Attributes:
         t: time of the joint state it was made from, in s.
         phi: parameters in the paper's order (see module docstring), units kg, kg·m, kg·m².
-        std: one standard deviation per parameter, same units, or None if the model has none.
+        std: one standard deviation per parameter, same units; None: the model has none.
         bag: index of the bag whose learner made it, or -1 if no bag was involved.
         learning: True if the learner was trained on this instant before predicting.
+        nis: the mean normalised innovation squared per degree of freedom of the model's
+            recent equations (about 1 while the data agree with it; NaN: no verdict yet);
+            None: the model does not test its data.
+        ood: True if the estimate comes from an input beyond what its learner was trained
+            on; None: the model cannot say.
+        unverified: True while an estimate started from a payload file has not yet been
+            tested against enough live data.
+        determined: the parameter groups (:data:`GROUPS`) the data determine; the others are
+            the prior's; None: the model cannot say.
+        extra: diagnostics that no safety decision reads (``change``, ``reset``,
+            ``ood_score``, ``velocity_score``, ``held``).
     """
 
     t: float
@@ -84,4 +103,8 @@ class PayloadEstimate:
     std: np.ndarray | None = None
     bag: int = -1
     learning: bool = False
+    nis: float | None = None
+    ood: bool | None = None
+    unverified: bool = False
+    determined: tuple[str, ...] | None = None
     extra: dict = field(default_factory=dict, compare=False)

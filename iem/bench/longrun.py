@@ -24,7 +24,7 @@ probation so far, :mod:`iem.budget`), ``estimate_us`` (p50/p99 of ``predict_one`
 how many) and ``mae`` per group (mass, com, inertia) of the smoothed estimate against the
 true payload; ``changes``: payload changes reported (false alarms: the payload never
 changes); ``ood_share``: the share of estimates flagged out of distribution
-(``extra["ood"]``; the IEM's own estimates carry it).
+(``ood``; the IEM's own estimates carry it).
 
 Then the first minute of the motion is driven backwards (every segment reversed, in reverse
 order: the same poses, every velocity reversed) by a fresh plant, and each model, as it is
@@ -171,7 +171,7 @@ class _Feed:
         self.smoothed.append(smoothed)
         if est.extra.get("change"):
             self.changes += 1
-        self.ood += bool(est.extra.get("ood"))
+        self.ood += bool(est.ood)
         if k % ROUTE_EVERY == 0:
             flange = self.kin.flange_position(state.q)
             router = self.router

@@ -125,12 +125,15 @@ class RealisticBench(Bench):
     def calibrate(self):
         """The bare arm along the calibration motion, calibrated: ``(arm, held_out)``, with
         the residual RMS per joint on a held-out bare run of the new task path."""
-        from sim.calibration import calibrate, residual_rms
+        from sim.calibration import residual_rms
+        from sim.calibration_noise import calibrate_with_noise
         from sim.paths import calibration_path
 
         plant = self._plant_cls(payload=None, seed=CAL_NOISE_BASE + self.seed, gap=self.gap)
         r = plant.follow(calibration_path())
-        arm = calibrate(r.t, r.q, r.dq, r.tau, source="bench realistic calibration motion")
+        # as iem calibrate: the arm, and the noise it leaves in IEM+phys's equations
+        arm = calibrate_with_noise([(r.t, r.q, r.dq, r.tau)],
+                                   source="bench realistic calibration motion")
         held = self._plant_cls(payload=None, seed=CAL_NOISE_BASE + self.seed + 1,
                                gap=self.gap).follow(self.excitation)
         check = {"path": self.excitation.name,
@@ -142,7 +145,8 @@ class RealisticBench(Bench):
         return arm, check
 
     def make_models(self, arm_file=None) -> dict:
-        from sim.arm import arm_spec
+        from deploy.training import arm_torque_noise
+        from sim.arm import arm_spec, load_arm
 
         q = self.quick
         common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
@@ -151,8 +155,10 @@ class RealisticBench(Bench):
             "IEM": IncrementalEnsemble(**common),
             "IEM+phys": PhysicsInformedEnsemble(ensemble=common),
             "IEM+cal": IncrementalEnsemble(**common),
-            "IEM+phys+cal": PhysicsInformedEnsemble(ensemble=common,
-                                                    dynamics=arm_spec(arm_file)),
+            # the calibrated arm, with the noise iem calibrate measured on it (iem train)
+            "IEM+phys+cal": PhysicsInformedEnsemble(
+                ensemble=common, dynamics=arm_spec(arm_file),
+                torque_noise=arm_torque_noise(load_arm(arm_file))),
         }
 
 

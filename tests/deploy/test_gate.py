@@ -2,14 +2,21 @@
 
 import logging
 import math
+from functools import partial
 
 import numpy as np
 import pytest
 
 from deploy.gate import REASONS, Decision, GateConfig, SafetyGate
 from deploy.gate_checks import com_2sigma
+from iem.types import PayloadEstimate
 from sim.family import test_payloads
 from sim.payload import Payload
+
+Config = partial(GateConfig, allow_without_uncertainty=True)
+"""These tests are about the gate's own logic (checks of the load, stability, rate, acks,
+refusals, the wire, the model's figures where given) and often give no raw estimate: they
+allow that. The contract that fails closed without it is tests/deploy/test_gate_contract.py's."""
 
 P = test_payloads()["test-3w"]  # 1.615 kg, CoM about 64 mm out, physically consistent
 DT = 0.01  # s between estimates in these sequences (the service: 1 ms)
@@ -47,7 +54,7 @@ def first_send(gate: SafetyGate, phi=None) -> float:
 
 # -- the estimate itself ----------------------------------------------------------------------
 def test_a_stable_consistent_estimate_is_sent_after_one_stability_window():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     decisions = feed(gate, phi_of(), 0.0, 0.6)
     before = [d for d in decisions if d.t < 0.45]
     assert before and set(reasons(before)) == {"unstable"}
@@ -63,12 +70,12 @@ def test_a_stable_consistent_estimate_is_sent_after_one_stability_window():
 @pytest.mark.parametrize("bad", [
     np.full(10, np.nan), np.r_[phi_of()[:9], np.inf], phi_of()[:9]])
 def test_not_finite_or_wrong_shape(bad):
-    decision = SafetyGate().decide(1.0, bad)
+    decision = SafetyGate(Config()).decide(1.0, bad)
     assert decision.reason == "not_finite" and not decision.send and decision.payload is None
 
 
 def test_inconsistent_mass_inertia_and_triangle_inequality():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     zero = phi_of()
     zero[0] = 0.0
     assert gate.decide(0.0, zero).reason == "inconsistent"
@@ -84,28 +91,28 @@ def test_inconsistent_mass_inertia_and_triangle_inequality():
 
 def test_over_rated_mass():
     heavy = Payload("x", 3.5, P.com, P.inertia).to_phi()
-    d = SafetyGate().decide(0.0, heavy)
+    d = SafetyGate(Config()).decide(0.0, heavy)
     assert d.reason == "over_rated" and "3.500 kg > rated 3 kg" in d.detail
-    assert SafetyGate(GateConfig(rated_mass_kg=3.0)).decide(0.0, phi_of()).reason != "over_rated"
+    assert SafetyGate(Config(rated_mass_kg=3.0)).decide(0.0, phi_of()).reason != "over_rated"
 
 
 def test_com_too_far_from_the_flange():
     far = phi_of(dcom=(0.0, 0.0, 0.2 - P.com[2]))
-    d = SafetyGate().decide(0.0, far)
+    d = SafetyGate(Config()).decide(0.0, far)
     assert d.reason == "com_too_far" and "> 0.15 m" in d.detail
-    d = SafetyGate(GateConfig(max_com_radius_m=0.25)).decide(0.0, far)
+    d = SafetyGate(Config(max_com_radius_m=0.25)).decide(0.0, far)
     assert d.reason != "com_too_far"
 
 
 def test_physical_refusals_come_before_the_stream_conditions():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     gate.controller_silent(True)
     assert gate.decide(0.0, np.full(10, np.nan)).reason == "not_finite"
     assert gate.decide(0.1, phi_of()).reason == "controller_silent"
 
 
 def test_non_finite_estimates_are_not_watched():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     feed(gate, lambda t: phi_of() if t < 0.3 else np.full(10, np.nan), 0.0, 0.6)
     # the window holds only the finite ones (0 .. 0.29 s): not watched long enough
     assert "not yet watched" in gate.decide(0.6, phi_of()).detail
@@ -122,7 +129,7 @@ def wobble(amplitude: float, what: str):
 
 @pytest.mark.parametrize(("what", "band"), [("mass", 0.02), ("com", 0.004)])
 def test_stability_has_hysteresis(what, band):
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     assert "unstable" not in reasons(feed(gate, phi_of(), 0.0, 0.6)[-3:])
     # stable: a spread of 1.5 bands keeps it stable (below twice the band)
     assert "unstable" not in reasons(feed(gate, wobble(1.5 * band, what), 0.61, 1.6))
@@ -139,7 +146,7 @@ def test_stability_has_hysteresis(what, band):
 
 # -- no change, rate limit ------------------------------------------------------------------
 def test_min_change_against_the_last_written_load():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     first_send(gate)
     # 5 g and 1 mm moves (below 10 g / 2 mm) are not worth a write, even after a long time
     assert set(reasons(feed(gate, phi_of(dm=0.005), 0.61, 2.0))) == {"no_change"}
@@ -154,7 +161,7 @@ def test_min_change_against_the_last_written_load():
 
 @pytest.mark.parametrize("rate", [1.0, 2.0])
 def test_rate_limit(rate):
-    gate = SafetyGate(GateConfig(max_rate_hz=rate))
+    gate = SafetyGate(Config(max_rate_hz=rate))
     t_sent = first_send(gate)
     decisions = feed(gate, phi_of(dm=0.015), 0.61, 2.0)
     sends = [d for d in decisions if d.send]
@@ -166,7 +173,7 @@ def test_rate_limit(rate):
 
 # -- the controller: silence, acknowledgements -----------------------------------------------
 def test_silent_controller_stops_sends_and_they_resume():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     first_send(gate)
     gate.controller_silent(True)
     silent = feed(gate, phi_of(dm=0.05), 0.61, 2.5)
@@ -178,7 +185,7 @@ def test_silent_controller_stops_sends_and_they_resume():
 
 
 def test_unacknowledged_write_stops_sends_until_the_ack_arrives():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     t_sent = first_send(gate)
     gate.sent_command(7, t_sent)
     waiting = feed(gate, phi_of(dm=0.015), 0.61, 0.9)
@@ -193,7 +200,7 @@ def test_unacknowledged_write_stops_sends_until_the_ack_arrives():
 
 
 def test_missing_ack_stops_sends_until_the_retry_time():
-    config = GateConfig(ack_timeout_s=0.5, ack_retry_s=2.0)
+    config = Config(ack_timeout_s=0.5, ack_retry_s=2.0)
     gate = SafetyGate(config)
     t_sent = first_send(gate)
     gate.sent_command(1, t_sent)
@@ -210,7 +217,7 @@ def test_missing_ack_stops_sends_until_the_retry_time():
 
 
 def test_a_late_ack_ends_the_retry_wait():
-    gate = SafetyGate(GateConfig(ack_timeout_s=0.5, ack_retry_s=100.0))
+    gate = SafetyGate(Config(ack_timeout_s=0.5, ack_retry_s=100.0))
     t_sent = first_send(gate)
     gate.sent_command(3, t_sent)
     assert set(reasons(feed(gate, phi_of(dm=0.015), 0.61, 2.0))) == {"ack_missing"}
@@ -220,14 +227,14 @@ def test_a_late_ack_ends_the_retry_wait():
 
 # -- bookkeeping -------------------------------------------------------------------------------
 def test_due_follows_the_decision_period():
-    gate = SafetyGate(GateConfig(decision_period_s=0.05))
+    gate = SafetyGate(Config(decision_period_s=0.05))
     assert gate.due(0.0)
     gate.decide(1.0, phi_of())
     assert not gate.due(1.04) and gate.due(1.05)
 
 
 def test_counts_and_summary():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     decisions = feed(gate, phi_of(), 0.0, 0.6)
     gate.sent_command(1, next(d for d in decisions if d.send).t)
     gate.acknowledged(1)
@@ -244,7 +251,7 @@ def test_counts_and_summary():
 
 
 def test_a_decision_is_logged_when_its_reason_changes(caplog):
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     nan = np.full(10, np.nan)
     with caplog.at_level(logging.DEBUG, logger="iem.gate"):
         for t in (0.0, 0.1, 0.2):
@@ -266,11 +273,10 @@ kg·m² is beyond the CAN signal's range (±0.524 kg·m²)."""
 
 
 def wire_gate(profile: str = "fd", **config) -> SafetyGate:
-    from functools import partial
 
     from firmware_bridge.protocol import payload_wire_error
 
-    return SafetyGate(GateConfig(**config), wire_check=partial(payload_wire_error,
+    return SafetyGate(Config(**config), wire_check=partial(payload_wire_error,
                                                                 profile=profile))
 
 
@@ -288,7 +294,7 @@ def test_a_load_the_wire_cannot_carry_is_refused_counted_and_logged(profile, cap
     logged = [r for r in caplog.records if getattr(r, "reason", "") == "out_of_wire_range"]
     assert len(logged) == 1 and logged[0].levelno == logging.INFO  # once, when it began
     # the same bar without a wire check (a link without ranges) would be written
-    assert any(d.send for d in feed(SafetyGate(), BAR.to_phi(), 0.0, 1.0))
+    assert any(d.send for d in feed(SafetyGate(Config()), BAR.to_phi(), 0.0, 1.0))
     # and a load the wire carries passes the check
     assert first_send(wire_gate(profile)) > 0
 
@@ -327,8 +333,8 @@ def estimate(std_mass: float | None = None, nis: float | None = None):
     from iem.types import PayloadEstimate
 
     std = None if std_mass is None else np.r_[std_mass, np.full(9, 1e-4)]
-    return PayloadEstimate(t=0.0, phi=phi_of(), std=std,
-                           extra={} if nis is None else {"nis": nis})
+    return PayloadEstimate(t=0.0, phi=phi_of(), std=std, nis=math.nan if nis is None else nis,
+                           ood=False)
 
 
 def feed_with(gate: SafetyGate, est, t0: float, t1: float) -> list:
@@ -342,16 +348,16 @@ def feed_with(gate: SafetyGate, est, t0: float, t1: float) -> list:
 
 
 def test_a_wide_two_sigma_band_on_the_mass_holds_writes_back():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     wide = feed_with(gate, estimate(std_mass=0.011), 0.0, 1.0)  # 2 sigma = 0.022 kg > 0.02
     assert set(reasons(wide)) == {"uncertain"}
     assert "2-sigma band on the mass 0.022 kg > 0.02 kg" in wide[0].detail
     narrow = feed_with(gate, estimate(std_mass=0.009), 1.01, 1.2)  # 0.018 kg: written
     assert narrow[0].send
     # the limit is the configured one; a NaN std is no band at all
-    loose = SafetyGate(GateConfig(max_mass_2sigma_kg=0.05))
+    loose = SafetyGate(Config(max_mass_2sigma_kg=0.05))
     assert any(d.send for d in feed_with(loose, estimate(std_mass=0.011), 0.0, 1.0))
-    assert set(reasons(feed_with(SafetyGate(), estimate(std_mass=math.nan), 0.0, 1.0))) == {
+    assert set(reasons(feed_with(SafetyGate(Config()), estimate(std_mass=math.nan), 0.0, 1.0))) == {
         "uncertain"}
 
 
@@ -367,13 +373,13 @@ def test_a_wide_two_sigma_radius_of_the_com_holds_writes_back():
                                                          np.full(6, 1e-4)])
 
     # radius 2 * sqrt(3 * std_mr² + |r|² std_m²) / m: about 6.9 mm for 0.0032 kg·m
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     wide = feed_with(gate, est(0.0032), 0.0, 1.0)
     assert set(reasons(wide)) == {"uncertain"}
     assert "2-sigma radius of the CoM" in wide[0].detail and "> 5 mm" in wide[0].detail
     narrow = feed_with(gate, est(0.001), 1.01, 1.2)  # about 2.2 mm: written
     assert narrow[0].send
-    assert any(d.send for d in feed_with(SafetyGate(GateConfig(max_com_2sigma_m=0.01)),
+    assert any(d.send for d in feed_with(SafetyGate(Config(max_com_2sigma_m=0.01)),
                                          est(0.0032), 0.0, 1.0))
     # the radius is the docstring's formula, from the payload's own mass and CoM
     r2 = float(np.dot(P.com, P.com))
@@ -395,26 +401,28 @@ def test_the_com_two_sigma_radius_matches_sampling():
 
 
 def test_data_disagreeing_with_the_model_holds_writes_back():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     bad = feed_with(gate, estimate(std_mass=0.001, nis=4.5), 0.0, 1.0)
     assert set(reasons(bad)) == {"data_disagree"}
     assert "normalised innovation squared 4.5" in bad[0].detail and "> 3" in bad[0].detail
     good = feed_with(gate, estimate(std_mass=0.001, nis=1.1), 1.01, 1.2)
     assert good[0].send
-    assert any(d.send for d in feed_with(SafetyGate(GateConfig(max_nis=5.0)),
+    assert any(d.send for d in feed_with(SafetyGate(Config(max_nis=5.0)),
                                          estimate(nis=4.5), 0.0, 1.0))
     # no verdict yet (NaN) does not hold a write back
-    assert any(d.send for d in feed_with(SafetyGate(), estimate(nis=math.nan), 0.0, 1.0))
+    assert any(d.send for d in feed_with(SafetyGate(Config()), estimate(nis=math.nan), 0.0, 1.0))
 
 
-def test_a_model_without_std_or_nis_is_not_held_back():
-    assert any(d.send for d in feed_with(SafetyGate(), estimate(), 0.0, 1.0))
-    gate = SafetyGate()
-    assert first_send(gate) > 0  # no raw estimate given at all
+def test_a_model_without_std_or_nis_is_held_back_unless_allowed():
+    iem = PayloadEstimate(t=0.0, phi=phi_of(), std=None, nis=None, ood=False)
+    assert any(d.send for d in feed_with(SafetyGate(Config()), iem, 0.0, 1.0))
+    held = reasons(feed_with(SafetyGate(GateConfig()), iem, 0.0, 1.0))
+    assert set(held) == {"unreported"}
+    assert first_send(SafetyGate(Config())) > 0  # no raw estimate given at all, allowed
 
 
 def test_decide_takes_the_raw_estimate_or_the_last_observed_one():
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     feed(gate, phi_of(), 0.0, 0.6)  # stable (and written once)
     gate.observe(0.7, phi_of(), estimate(std_mass=0.05))
     assert gate.decide(0.7, phi_of(dm=0.015)).reason == "uncertain"  # the observed one
@@ -437,7 +445,7 @@ def until_send(gate: SafetyGate, phi, t0: float, t1: float) -> tuple[list, Decis
 
 
 def test_a_refused_load_is_not_the_written_one_and_is_retried_until_acknowledged(caplog):
-    gate = SafetyGate(GateConfig(refusal_retry_s=0.5, refusal_retry_max_s=1.0))
+    gate = SafetyGate(Config(refusal_retry_s=0.5, refusal_retry_max_s=1.0))
     target = phi_of(dm=0.015)
     t1 = first_send(gate)  # the first write, acknowledged: the robot has P
     gate.sent_command(1, t1)
@@ -485,7 +493,7 @@ def test_a_refused_load_is_not_the_written_one_and_is_retried_until_acknowledged
 
 
 def test_the_first_load_refused_leaves_nothing_written_and_is_retried():
-    gate = SafetyGate(GateConfig(refusal_retry_s=0.2))
+    gate = SafetyGate(Config(refusal_retry_s=0.2))
     t = first_send(gate)
     gate.sent_command(9, t)
     gate.refused(9, t)
@@ -495,7 +503,7 @@ def test_the_first_load_refused_leaves_nothing_written_and_is_retried():
 
 
 def test_a_refusal_of_an_older_command_is_counted_but_does_not_undo_the_newer(caplog):
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     t = first_send(gate)
     gate.sent_command(1, t)
     with caplog.at_level(logging.WARNING, logger="iem.gate"):
@@ -505,7 +513,7 @@ def test_a_refusal_of_an_older_command_is_counted_but_does_not_undo_the_newer(ca
 
 
 def test_a_load_the_link_could_not_send_is_not_the_written_one(caplog):
-    gate = SafetyGate()
+    gate = SafetyGate(Config())
     t = first_send(gate)
     assert gate.last_sent is not None
     with caplog.at_level(logging.ERROR, logger="iem.gate"):
@@ -517,11 +525,9 @@ def test_a_load_the_link_could_not_send_is_not_the_written_one(caplog):
 
 
 def test_the_out_of_distribution_reason_names_the_velocity_score():
-    from types import SimpleNamespace
-
     from deploy.gate_checks import model_doubt
 
-    est = SimpleNamespace(extra={"ood": True, "ood_score": 2.2, "velocity_score": 84.5},
-                          std=None)
-    reason, why = model_doubt(est, None)
+    est = PayloadEstimate(t=0.0, phi=phi_of(), ood=True,
+                          extra={"ood_score": 2.2, "velocity_score": 84.5})
+    reason, why = model_doubt(est, Config())
     assert reason == "out_of_distribution" and "84.5" in why and "velocities" in why

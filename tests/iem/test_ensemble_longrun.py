@@ -254,11 +254,11 @@ def test_training_inputs_are_in_distribution_and_reversed_velocities_are_not():
         x[7:14] *= -3.0  # the same pose driven the other way, faster
         est = model.predict_one(x, DATA.F[i])
         assert est.extra["ood_score"] == pytest.approx(model.ood_score(x, est.bag))
-        reversed_.append(est.extra["ood"])
+        reversed_.append(est.ood)
     assert np.max(inside) < OOD_THRESHOLD
     assert np.mean(reversed_) > 0.9
     est = model.predict_one(DATA.X[50], DATA.F[50])
-    assert est.extra["ood"] is False
+    assert est.ood is False
 
 
 def test_the_velocity_score_is_a_mahalanobis_distance_to_the_training_velocities():
@@ -291,13 +291,13 @@ def test_the_velocity_score_is_a_mahalanobis_distance_to_the_training_velocities
     assert est.bag == bag and not est.learning
     assert est.extra["velocity_score"] == pytest.approx(learner.velocity_score(other))
     assert est.extra["ood_score"] <= OOD_THRESHOLD  # every input within its scale, yet
-    assert est.extra["velocity_score"] > VELOCITY_THRESHOLD and est.extra["ood"]
-    assert model.predict_one(DATA.X[i], DATA.F[i]).extra["ood"] is False
+    assert est.extra["velocity_score"] > VELOCITY_THRESHOLD and est.ood
+    assert model.predict_one(DATA.X[i], DATA.F[i]).ood is False
     # off: no score, and the same input is flagged only by the per-input score
     plain = fitted(velocity_threshold=None)
     est = plain.predict_one(other, DATA.F[i])
     assert "velocity_score" not in est.extra
-    assert est.extra["ood"] == (est.extra["ood_score"] > OOD_THRESHOLD)
+    assert est.ood == (est.extra["ood_score"] > OOD_THRESHOLD)
     assert plain.clone().velocity_threshold is None
     assert loads(dumps(fitted(velocity_threshold=2.5))).velocity_threshold == 2.5
     with pytest.raises(InvalidInputError, match="velocity_threshold"):
@@ -324,12 +324,12 @@ def test_learners_keep_their_velocities_through_copies_and_files_not_for_another
 
 def test_ood_threshold_is_a_hyper_parameter_and_the_open_bag_is_never_flagged():
     model = fitted(ood_threshold=1e-9)
-    assert model.predict_one(DATA.X[0], DATA.F[0]).extra["ood"]
+    assert model.predict_one(DATA.X[0], DATA.F[0]).ood
     i = next(j for j in DATA.further_points()
              if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
     model.learn_one(DATA.X[i], DATA.F[i], lambda: DATA.samples_at(i))
     est = model.predict_one(DATA.X[i] + 1.0, DATA.F[i])
-    assert est.learning and est.extra["ood_score"] > 1e-9 and est.extra["ood"] is False
+    assert est.learning and est.extra["ood_score"] > 1e-9 and est.ood is False
     with pytest.raises(InvalidInputError, match="ood_threshold"):
         IncrementalEnsemble(ood_threshold=0.0)
 
@@ -342,16 +342,16 @@ def test_an_estimate_out_of_distribution_holds_the_last_one_in_it_for_ood_hold_s
     far = x.copy()
     far[7:14] *= -3.0  # the pose driven the other way, faster: flagged
     good = model.predict_one(x, f, t=0.0)
-    assert not good.extra["ood"] and "held" not in good.extra
+    assert not good.ood and "held" not in good.extra
     # flagged: the last estimate in distribution, flagged, for 0.5 s of estimate time
     for t in (0.001, 0.2, 0.45):
         est = model.predict_one(far, f, t=t)
         raw = raw_model.predict_raw(far, f, t=t)
-        assert est.extra["ood"] and est.extra["held"] and est.bag == raw.bag
+        assert est.ood and est.extra["held"] and est.bag == raw.bag
         assert est.extra["ood_score"] == raw.extra["ood_score"]
         assert np.array_equal(est.phi, good.phi) and not np.array_equal(raw.phi, good.phi)
     late = model.predict_one(far, f, t=0.55)  # the run of flags outlasted the hold
-    assert late.extra["ood"] and "held" not in late.extra
+    assert late.ood and "held" not in late.extra
     assert np.array_equal(late.phi, raw_model.predict_raw(far, f).phi)
     # back in distribution: its own estimate, and a new run of flags is held again
     assert np.array_equal(model.predict_one(x, f, t=0.6).phi, good.phi)
@@ -360,13 +360,13 @@ def test_an_estimate_out_of_distribution_holds_the_last_one_in_it_for_ood_hold_s
     j = next(j for j in DATA.further_points()
              if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
     est = model.learn_predict_one(DATA.X[j], DATA.F[j], lambda: DATA.samples_at(j), t=0.8)
-    assert est.learning and not est.extra["ood"]  # the open bag's: trusted now
+    assert est.learning and not est.ood  # the open bag's: trusted now
     assert np.array_equal(model.predict_one(far, f, t=0.9).phi, est.phi)
     assert not model.predict_raw(far, f, t=0.9).extra.get("held")
     # a new task forgets what was held; nothing to hold: the learner's own, flagged
     model.reset()
     est = model.predict_one(far, f, t=1.0)
-    assert est.extra["ood"] and "held" not in est.extra
+    assert est.ood and "held" not in est.extra
 
 
 def test_no_hold_with_ood_hold_s_zero_or_before_any_estimate_in_distribution():
@@ -379,7 +379,7 @@ def test_no_hold_with_ood_hold_s_zero_or_before_any_estimate_in_distribution():
                           model.predict_raw(far, f, t=0.1).phi)
     fresh = fitted()
     est = fresh.predict_one(far, f, t=0.0)
-    assert est.extra["ood"] and "held" not in est.extra
+    assert est.ood and "held" not in est.extra
     assert IncrementalEnsemble(ood_hold_s=2.0).clone().ood_hold_s == 2.0
     assert loads(dumps(fitted(ood_hold_s=0.25))).ood_hold_s == 0.25
     with pytest.raises(InvalidInputError, match="ood_hold_s"):

@@ -98,9 +98,10 @@ def test_estimate_is_the_projected_posterior_with_its_std():
     np.testing.assert_allclose(est.std, np.sqrt(np.diag(cov)))
     np.testing.assert_allclose(est.phi, project(mean, np.linalg.inv(cov)), rtol=1e-9)
     # the first estimate with equations restarts the smoothing; the next says only its NIS
-    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"nis", "reset"}
-    assert set(model.predict_one(X[-1], None).extra) == {"nis"}
-    assert 0.0 < est.extra["nis"] < 3.0  # the hand-made data fit the model
+    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"reset"}
+    assert set(model.predict_one(X[-1], None).extra) == set()
+    assert 0.0 < est.nis < 3.0  # the hand-made data fit the model
+    assert est.ood is False and est.std is not None  # what the gate needs, reported
 
 
 # -- the regression ----------------------------------------------------------------------

@@ -29,9 +29,9 @@ def test_the_file_is_the_first_estimate_and_stays_unverified_until_tested():
     first = model.predict_one(_hand_made(1)[0], None)
     np.testing.assert_allclose(first.phi, PHI, atol=1e-9)
     np.testing.assert_allclose(first.std, np.sqrt(std ** 2 + 0.0), rtol=0.05)
-    assert first.extra.get("unverified")
+    assert first.unverified
     est = _run(model, _hand_made(3000))
-    flags = [bool(e.extra.get("unverified")) for e in est]
+    flags = [e.unverified for e in est]
     first_verified = flags.index(False)
     assert all(flags[:first_verified]) and not any(flags[first_verified:])
     assert model._m >= DETECT_AFTER and model.changes == 0
