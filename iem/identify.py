@@ -400,20 +400,11 @@ def _load_arm(arm):
     (``sim.arm.load_arm``, ``iem calibrate``'s)."""
     if hasattr(arm, "rnea"):
         return arm
-    import importlib
-
-    try:
-        module = importlib.import_module("sim.arm")
-        loader = module.load_arm
-    except (ImportError, AttributeError):
-        raise IdentifyError(
-            f"--arm {arm}: an arm file from 'iem calibrate' is not available in this build "
-            "(no sim.arm.load_arm); identify with --bare, a bare recording of the same "
-            "motion") from None
-    params = arm if not isinstance(arm, str | bytes) and hasattr(arm, "link_params") \
-        else loader(arm)
+    from sim.arm import load_arm
     from sim.robot import PandaModel
 
+    params = arm if not isinstance(arm, str | bytes) and hasattr(arm, "link_params") \
+        else load_arm(arm)
     return PandaModel(arm=params)  # rnea: the arm's links, friction and offsets
 
 

@@ -51,12 +51,7 @@ class LearningWorker:
         self.synchronous = bool(synchronous)
         self._queue: queue.Queue | None = None
         self._thread: threading.Thread | None = None
-        self._status = {"error": None, "done": 0, "cpu_s": 0.0}  # shared with the thread
-
-    @property
-    def jobs_done(self) -> int:
-        """Jobs run so far."""
-        return self._status["done"]
+        self._status = {"error": None, "cpu_s": 0.0}  # shared with the thread
 
     def submit(self, job: Callable[[], None]) -> None:
         """Queue ``job`` (run it now if synchronous)."""
@@ -64,7 +59,6 @@ class LearningWorker:
             cpu0 = time.thread_time()
             job()
             self._status["cpu_s"] += time.thread_time() - cpu0
-            self._status["done"] += 1
             return
         if self._thread is None or not self._thread.is_alive():
             self._queue = queue.Queue()
@@ -127,7 +121,6 @@ def _loop(q: queue.Queue, status: dict) -> None:
                 job()
             finally:
                 status["cpu_s"] += time.thread_time() - cpu0
-            status["done"] += 1
         except BaseException as exc:  # kept for drain(); the worker goes on
             status["error"] = exc
         finally:

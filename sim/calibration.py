@@ -300,11 +300,6 @@ def base_basis(model: pin.Model, samples: int = 300, seed: int = 0,
     return vt[rank:].T if null else vt[:rank].T
 
 
-def _direction_names(v: np.ndarray, top: int = 3) -> str:
-    order = np.argsort(-np.abs(v))[:top]
-    return " + ".join(f"{v[i]:+.2f} body{i // 10 + 1}.{PARAM_NAMES[i % 10]}" for i in order)
-
-
 def check_excitation(q, dq, columns: np.ndarray, names: list[str],
                      to_named: np.ndarray) -> float:
     """The condition number of the prior-scaled ``columns`` (``(rows, k)``); raises

@@ -140,10 +140,6 @@ class PandaModel:
         # only the flange's frame (all frames cost twice as much; the online cycle asks this)
         return pin.updateFramePlacement(self.model, self.data, self.flange_id).translation.copy()
 
-    def tcp_position(self, q) -> np.ndarray:
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, dtype=float))
-        return self.data.oMf[self.tcp_id].translation.copy()
-
     def flange_positions(self, Q) -> np.ndarray:
         """Flange positions for many configurations, ``(N, 7) -> (N, 3)``."""
         Q = np.asarray(Q, dtype=float)
