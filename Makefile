@@ -16,8 +16,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/iem demo
 
+# one BLAS thread for the suite, as the iem command takes it (deploy/cli.py): its small
+# solves only contend for the two cores otherwise
 test: $(STAMP)
-	$(PY) -m pytest
+	OPENBLAS_NUM_THREADS=$${OPENBLAS_NUM_THREADS:-1} $(PY) -m pytest
 
 bench: $(STAMP)
 	$(VENV)/bin/iem bench sim

@@ -132,7 +132,8 @@ def case_figures(summary: dict, estimates, truth_phi) -> dict:
                                   if com is not None else None),
         "gate": summary["gate"],
         "arm_mismatch": summary.get("arm_mismatch"),
-        "speed": summary["recorded_s"] / summary["wall_s"] if summary["wall_s"] else None,
+        "speed": summary["speed"],
+        "false_alarms": summary["payload_changes"],
     }
 
 
@@ -210,7 +211,8 @@ def _line(name: str, mass: float, c: dict) -> str:
     return (f"{name:10s} {mass:5.2f} kg: MAE smoothed mass {g['mass']:.4f} com {g['com']:.4f} "
             f"inertia {g['inertia']:.5f} | raw {r['mass']:.4f} {r['com']:.4f} "
             f"{r['inertia']:.5f} | final mass {c['final_mass']:+.4f} | 2σ coverage "
-            f"m/com/I {cov_text} | {writes} | {c['speed']:.1f}x real time")
+            f"m/com/I {cov_text} | {writes} | false alarms {c['false_alarms']} | "
+            f"{c['speed']:.1f}x real time")
 
 
 def configure(parser) -> None:

@@ -23,6 +23,14 @@ imported it without :func:`iem.extras.require`. Anything else is a bug and keeps
 
 from __future__ import annotations
 
+import os
+
+# The plug-in's linear algebra is small (at most about 100 unknowns) and runs beside a 1 kHz
+# reader: OpenBLAS's worker threads only contend with it for the cores (on a busy 2-core PC
+# they made iem calibrate's small solves up to 200 times slower). One thread, unless the
+# operator says otherwise; set before NumPy loads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import importlib
 import sys

@@ -42,6 +42,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 from iem.types import PARAMS
@@ -198,7 +199,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         if not c.received:
             raise LogFileError(f"{log_file}: no CAN frames in it; is it a CAN log written by "
                                "'iem record' or python-can?")
-        other = "classic" if profile == "fd" else "fd"
+        other = next(p for p in PROFILES if p != profile)
         raise LogFileError(f"{log_file}: {c.received} frames but no complete joint-state "
                            f"cycle of the {profile} profile ({c.summary()}; {c.foreign} "
                            f"frames of other IDs); recorded with --profile {other}?")
@@ -221,6 +222,10 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
                                         for t, load, prior in service.gate.sent_loads]},
         "estimates_per_s": summary["estimates"] / summary["wall_s"]
         if summary["wall_s"] > 0 else None,
+        "speed": (estimates.t[-1] - estimates.t[0]) / summary["wall_s"]
+        if summary["wall_s"] > 0 else None,
+        # payload changes the model detected (None: a model without a detector)
+        "payload_changes": getattr(service.model, "changes", None),
     })
     if truth is not None:
         sm = estimates.smoothed_array()
@@ -278,7 +283,7 @@ def configure(parser) -> None:
                         "detected from the file)")
     parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
                         f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile a CAN log was recorded with (default fd)")
     parser.add_argument("--model", metavar="FILE", help="model file to start from (read "
                         "only; default: a fresh IEM trained on the built-in excitation path, "

@@ -50,11 +50,17 @@ class InnovationTest:
     Args:
         drift, threshold: the detector's CUSUM (:class:`iem.change.ChangeDetector`).
         dof: rows of an equation (the arm's joints).
+        level: rescale the detector's statistic by its recent level (a model whose ``R`` is
+            the sensor's alone: its misfit at speed is what the level follows); False: the
+            raw ``chi2``, for a model whose ``R`` holds the arm's measured error, where a
+            payload change stands a few times, not orders of magnitude, above the noise.
     """
 
-    def __init__(self, drift: float, threshold: float, dof: int = 7) -> None:
+    def __init__(self, drift: float, threshold: float, dof: int = 7,
+                 level: bool = True) -> None:
         self.dof = int(dof)
-        self.detector = ChangeDetector(self.dof, drift, threshold)
+        self.detector = (ChangeDetector(self.dof, drift, threshold) if level
+                         else ChangeDetector(self.dof, drift, threshold, level_equations=0))
         self._ring = np.zeros(NIS_WINDOW)
         self.reset()
 

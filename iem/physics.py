@@ -207,7 +207,8 @@ class PhysicsInformedEnsemble:
             np.asarray(noise.weight) / self._weight - 1.0, 0.0)
         self._holdoff_n = (self._reg.settle * self.update_every if self.holdoff_s < 0
                            else round(self.holdoff_s * self.rate_hz))
-        self._innovation = InnovationTest(self.drift, self.threshold)
+        # with the arm's own noise in R, the misfit the detector's level follows is in R
+        self._innovation = InnovationTest(self.drift, self.threshold, level=noise is None)
         self._spread = SpreadProjection()
         self._floor = np.square(PRIOR_FLOOR)
         self.ensemble_prior = EnsemblePrior(self._ens)
@@ -454,6 +455,9 @@ class PhysicsInformedEnsemble:
         post = self._posterior()
         if post is None:
             return False
+        offsets = self._window.offsets(post.mean)  # the equation is judged net of them
+        if offsets is not None:
+            r = r - offsets
         return self._innovation(Y, r, R, post.mean, post.cov,
                                 self._window.m >= DETECT_AFTER, curvature)
 

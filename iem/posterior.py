@@ -129,6 +129,15 @@ class EquationWindow:
             self._marginal = (0.5 * (info + info.T), self._eta - SG @ self._eta_o)
         return self._marginal
 
+    def offsets(self, phi: np.ndarray) -> np.ndarray | None:
+        """The torque offsets (7, N·m) the window's equations give for the payload ``phi``
+        (their posterior mean given it), or None without offsets: what a new equation's
+        innovation is to be judged net of."""
+        if self.offset_prec is None:
+            return None
+        A = self._w + np.diag(self.offset_prec)
+        return np.linalg.solve(0.5 * (A + A.T), self._eta_o - self._cross.T @ phi)
+
     @property
     def info(self) -> np.ndarray:
         """``sum Y^T (c R)^-1 Y``, with the offsets marginalised if there are any."""
