@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 
@@ -173,7 +174,7 @@ def configure(parser) -> None:
                         "detected from each file)")
     parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
                         f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile of CAN logs and of a live CAN link (default fd)")
     parser.add_argument("--interface", help="live link kind instead of (or besides) logs")
     parser.add_argument("--channel", help="live link channel")

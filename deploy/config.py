@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path as FsPath
 
 from firmware_bridge.links import LINKS
+from firmware_bridge.protocol import PROFILES
 from iem.errors import InvalidInputError
 
 from .gate import GateConfig
@@ -24,7 +25,6 @@ class ConfigError(InvalidInputError):
 
 
 LINK_KINDS = tuple(LINKS)  # the one table of link kinds (firmware_bridge.links)
-PROFILES = ("fd", "classic")
 MODEL_KINDS = ("IEM", "IEM+phys")
 LOG_FORMATS = ("json", "text")
 LOG_LEVELS = ("debug", "info", "warning", "error")

@@ -27,6 +27,7 @@ import sys
 import time
 from pathlib import Path as FsPath
 
+from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
 from iem.errors import InvalidInputError
 
@@ -48,7 +49,7 @@ def read_log(path, profile: str = "fd", format: str | None = None,
         states = list(source)
         counters = source.counters
     if len(states) < 2:
-        other = "classic" if profile == "fd" else "fd"
+        other = next(p for p in PROFILES if p != profile)
         raise LogFileError(f"{path}: {len(states)} complete joint-state cycle(s) of the "
                            f"{profile} profile ({counters.summary()}); a recording of the "
                            f"motion is needed (recorded with --profile {other}?)")
@@ -74,7 +75,7 @@ def configure(parser) -> None:
                         "detected from each file)")
     parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
                         f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile CAN logs were recorded with (default fd)")
     parser.add_argument("--name", help="payload name in the file (default: the file's stem)")
 

@@ -38,6 +38,8 @@ import numpy as np
 
 from iem.types import JointState
 
+from .protocol import PROFILES
+
 _ids = itertools.count()
 
 
@@ -234,7 +236,7 @@ def measure(profile: str = "fd", cycles: int = 20000, slcan_cycles: int = 3000) 
     from .busload import profile_load
 
     loads = {}
-    for name in ("fd", "classic"):
+    for name in PROFILES:
         fig = profile_load(name)
         loads[name] = {k: fig[k] for k in ("bits_per_frame", "frames_per_s", "load_percent",
                                            "rate_hz")}
@@ -259,7 +261,7 @@ def measure_ros2() -> dict:
 
 
 def configure(parser) -> None:
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile measured (default fd)")
     parser.add_argument("--cycles", type=int, default=20000,
                         help="cycles for the virtual-bus throughput (default 20000)")

@@ -159,7 +159,9 @@ def describe(fig: dict) -> str:
 
 
 def configure(parser) -> None:
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    from .protocol import PROFILES
+
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile (default fd)")
     parser.add_argument("--rate", type=float, metavar="HZ",
                         help="joint-state cycle rate (default: the profile's, from the DBC)")

@@ -44,6 +44,7 @@ from .framed import FramedControllerPort, FramedLink, heartbeat_text
 from .links import LinkCounters, bus_kinds, link_kind
 from .protocol import (
     ACK_ERRORS,
+    PROFILES,
     Heartbeat,
     LoadAck,
     LoadAssembler,
@@ -220,7 +221,7 @@ class CanDecoder:
             parts.append(f"last bad frame: {self.last_error}")
         if self.foreign_ids:
             ids = ", ".join(f"0x{k:03X}" for k in sorted(self.foreign_ids)[:8])
-            other = next(p for p in ("fd", "classic") if p != self.profile.name)
+            other = next(p for p in PROFILES if p != self.profile.name)
             theirs = {f.frame_id for f in get_profile(other).frames()}
             hint = (f" (the {other} profile's IDs: is the controller running --profile {other}?)"
                     if theirs & set(self.foreign_ids) else "")

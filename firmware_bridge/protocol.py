@@ -45,6 +45,8 @@ from .errors import BridgeConfigError, DecodeError, EncodeError
 DBC_PATH = FsPath(__file__).with_name("protocol.dbc")
 
 PROFILES = ("fd", "classic")
+"""The wire profiles (:func:`profile`): every ``--profile`` and ``[link] profile`` takes its
+choices from here."""
 
 STATE_FIELDS: tuple[str, ...] = (
     "Cycle", "Time",

@@ -21,6 +21,7 @@ from pathlib import Path as FsPath
 import can
 
 from .errors import LinkError, LogFileError
+from .protocol import PROFILES
 
 FORMATS = {".blf": "Vector BLF", ".log": "can-utils log", ".asc": "Vector ASC",
            ".trc": "PEAK TRC"}
@@ -80,7 +81,7 @@ def configure(parser) -> None:
     parser.add_argument("--channel", required=True, help="bus channel, device or URL")
     parser.add_argument("--out", required=True, metavar="FILE",
                         help=f"log file: {', '.join(FORMATS)}")
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile: opens the bus in FD mode for fd (default fd)")
     parser.add_argument("--duration", type=float, help="stop after this many s (default: "
                         "until interrupted)")

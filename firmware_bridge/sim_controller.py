@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from .protocol import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
+from .protocol import ACK_ERRORS, PROFILES, Heartbeat, LoadAck, LoadCommand
 
 MAX_LAG = 20
 """Cycles behind schedule after which the loop stops catching up and restarts its clock."""
@@ -236,7 +236,7 @@ def configure(parser) -> None:
                         help="; ".join(f"{k}: {v}" for k, v in kinds.items()))
     parser.add_argument("--channel", default="",
                         help="bus channel, device or URL (not used by the *-pty interfaces)")
-    parser.add_argument("--profile", default="fd", choices=["fd", "classic"],
+    parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile on CAN (default fd)")
     parser.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
     parser.add_argument("--payload", metavar="FILE",
