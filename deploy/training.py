@@ -19,6 +19,7 @@ import time
 
 from iem.errors import InvalidInputError
 from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
+from iem.types import NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY, FAMILIES
 
 TRAINABLE = ("IEM", "IEM+phys")
@@ -46,7 +47,7 @@ conservative default, for an arm that was not calibrated), the right choice on a
 ``sensor``, the sensor model's white noise alone: a simulated arm whose model is exact."""
 
 
-def make_model(kind: str, seed: int = 0, rate_hz: float = 1000.0, arm_file=None,
+def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
                end_effector=None, noise: str = "arm", **params):
     """A fresh model of ``kind`` for joint states at ``rate_hz``; ``params`` go to its IEM;
     ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
@@ -142,7 +143,7 @@ def load_arm_file(arm_file, end_effector=None):
     return arm, arm_record(arm, arm_file)
 
 
-def arm_torque_noise(arm, rate_hz: float = 1000.0, update_every: int = 10) -> dict:
+def arm_torque_noise(arm, rate_hz: float = NOMINAL_RATE_HZ, update_every: int = 10) -> dict:
     """What IEM+phys takes as its equations' error on ``arm`` (None: the nominal arm): the
     noise ``iem calibrate`` measured into the arm file, or the nominal arm's conservative
     default (:data:`iem.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate."""
@@ -174,7 +175,7 @@ def tandem_for(family: str, arm=None):
 
 def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
                         excitation_spec="builtin",
-                        seed: int = 0, log=print, rate_hz: float = 1000.0, arm_file=None,
+                        seed: int = 0, log=print, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
                         end_effector=None, noise: str = "arm", **params):
     """A new model of ``kind`` trained on the excitation path with ``family``'s payloads,
     for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic), on
@@ -222,7 +223,7 @@ def configure(parser) -> None:
                         help="excitation path CSV (default: the built-in 20 s path)")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the learners (an integer from 0 to 2**63-1)")
-    parser.add_argument("--rate", type=float, default=1000.0, metavar="HZ",
+    parser.add_argument("--rate", type=float, default=NOMINAL_RATE_HZ, metavar="HZ",
                         help="joint states per second the link delivers (fd 1000, classic 500)")
     parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
                         "the nominal arm)")

@@ -47,7 +47,7 @@ import threading
 import time
 from collections import deque
 
-from iem.types import JointState
+from iem.types import NOMINAL_RATE_HZ, JointState
 from sim.payload import Payload
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
@@ -92,7 +92,7 @@ class FrankaLink:
         self.robot = robot
         self.api = api
         self.name = name
-        self.rate_hz = 1000.0
+        self.rate_hz = NOMINAL_RATE_HZ
         self.silence_timeout = float(silence_timeout)
         self.load_timeout = float(load_timeout)
         self.counters = LinkCounters()
@@ -187,7 +187,7 @@ class FrankaLink:
             self._load = None if key[0] == 0.0 else Payload.from_set_load(
                 key[0], list(key[1]), list(key[2]), name="robot")
         t = float(rs.time.to_sec())
-        cycle = round(t * 1000.0) % CYCLE_MOD
+        cycle = round(t * NOMINAL_RATE_HZ) % CYCLE_MOD
         verdict = self._order.judge(cycle)
         if verdict != "deliver":
             setattr(self.counters, verdict, getattr(self.counters, verdict) + 1)

@@ -27,7 +27,7 @@ import inspect
 from dataclasses import dataclass, fields
 from typing import Protocol, runtime_checkable
 
-from iem.types import JointState
+from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import BridgeConfigError
 
@@ -219,20 +219,22 @@ LINKS: dict[str, LinkKind] = {
                       controller=True, pty=True),
     "serial": LinkKind("firmware_bridge.serial_link", "open_serial_link",
                        "msgpack messages over a serial line (COBS + CRC32 framing): any "
-                       "pyserial URL", controller=True, pty=True, fixed_rate_hz=1000.0),
+                       "pyserial URL", controller=True, pty=True, fixed_rate_hz=NOMINAL_RATE_HZ),
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
-                       "0.10; exclusive FCI); channel: the robot's IP", fixed_rate_hz=1000.0),
+                       "0.10; exclusive FCI); channel: the robot's IP",
+                       fixed_rate_hz=NOMINAL_RATE_HZ),
     "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
                      "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
-                     "the JointState topic", fixed_rate_hz=1000.0),
+                     "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
                        sink=False),
     "recording": LinkKind("firmware_bridge.recordings", "open_recording_link",
                           "a recorded rosbag2 bag (directory, .db3, .mcap; JointState topic "
                           "/franka/joint_states) or joint-state CSV (t,q1..q7,dq1..dq7,"
-                          "tau1..tau7); channel: the path", sink=False, fixed_rate_hz=1000.0),
+                          "tau1..tau7); channel: the path", sink=False,
+                          fixed_rate_hz=NOMINAL_RATE_HZ),
 }
 """The one table of link kinds: the configuration, the service, the simulated controller and
 the recorder all take their kinds from it."""

@@ -29,6 +29,8 @@ from __future__ import annotations
 import itertools
 import logging
 
+from iem.types import NOMINAL_RATE_HZ
+
 from .links import LinkCounters
 
 log = logging.getLogger("iem.bridge")
@@ -42,7 +44,7 @@ jump must agree with the heartbeat or be confirmed by the next cycle (see :class
 HEARTBEAT_MARGIN_S = 0.25
 """Tolerance of the heartbeat check of a jump: the controller's cycle may be this far (in
 controller time) from the heartbeat's cycle plus the time since it arrived."""
-CYCLES_PER_S = 1000.0
+CYCLES_PER_S = NOMINAL_RATE_HZ
 """Controller cycles per second (the protocol's 1 ms cycle)."""
 
 

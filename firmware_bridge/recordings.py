@@ -45,7 +45,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.recording import Recording
-from iem.types import N_JOINTS, JointState
+from iem.types import N_JOINTS, NOMINAL_RATE_HZ, JointState
 
 from .errors import BridgeConfigError, EndOfStream, LogFileError
 from .links import LinkCounters, open_link
@@ -62,7 +62,7 @@ CSV_COLUMNS = ("t", *(f"{s}{i}" for s in ("q", "dq", "tau") for i in range(1, N_
 """The columns a joint-state CSV must have (any order; others are ignored)."""
 CAN_CSV_HEADER = ("timestamp", "arbitration_id")
 """How python-can's CSV CAN log starts its header."""
-RATE_HZ = 1000.0
+RATE_HZ = NOMINAL_RATE_HZ
 """Joint states per second the estimator is set up for on a recording: Franka's controller
 rate (libfranka's RobotState and franka_ros2's ``/franka/joint_states``)."""
 VALID = ("a CAN log (.blf, .log, .asc, .trc), a rosbag2 bag (its directory, a .db3 or a .mcap "

@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 
-from iem.types import JointState
+from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import BridgeConfigError, ControllerSilent
 from .links import BUFFERED_CYCLES, LinkCounters
@@ -144,7 +144,7 @@ class Ros2Link:
         silence_timeout: ``read``'s default timeout, s.
     """
 
-    rate_hz = 1000.0
+    rate_hz = NOMINAL_RATE_HZ
     """Joint states per second franka_ros2 publishes on ``/franka/joint_states``."""
 
     def __init__(self, topic: str = DEFAULT_TOPIC, *, domain_id: int = 0, joints="auto",
@@ -259,7 +259,7 @@ class Ros2Link:
         self._resync = False
         self._last_t = t
         c.delivered += 1
-        return JointState(t=t, q=q, dq=dq, tau_J=tau, cycle=round(t * 1000.0) % CYCLE_MOD)
+        return JointState(t=t, q=q, dq=dq, tau_J=tau, cycle=round(t * NOMINAL_RATE_HZ) % CYCLE_MOD)
 
     def _take(self) -> None:
         from .ros2_types import JointStateMsg

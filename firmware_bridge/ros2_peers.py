@@ -31,10 +31,12 @@ import time
 
 import numpy as np
 
+from iem.types import NOMINAL_RATE_HZ
+
 from .ros2_link import JOINT_SETS, _stamp
 
 
-def joint_state_messages(n: int, t0: float, rate_hz: float = 1000.0, arm: str = "fr3"):
+def joint_state_messages(n: int, t0: float, rate_hz: float = NOMINAL_RATE_HZ, arm: str = "fr3"):
     """``n`` JointState messages of a smooth motion (rad, rad/s, N·m), stamped
     ``t0 + i/rate_hz``."""
     from .ros2_types import Header, JointStateMsg
@@ -50,8 +52,9 @@ def joint_state_messages(n: int, t0: float, rate_hz: float = 1000.0, arm: str = 
                           effort=tau[i].tolist()) for i in range(n)]
 
 
-def publish_joint_states(topic: str, n: int, *, rate_hz: float = 1000.0, domain_id: int = 0,
-                         config: str | None = None, reliable: bool = True, arm: str = "fr3",
+def publish_joint_states(topic: str, n: int, *, rate_hz: float = NOMINAL_RATE_HZ,
+                         domain_id: int = 0, config: str | None = None, reliable: bool = True,
+                         arm: str = "fr3",
                          match_timeout: float = 20.0, out=None, pace: bool = True) -> int:
     """Publish ``n`` messages on ``topic`` at ``rate_hz`` once a reader matched (sleep most
     of each period, spin the rest; ``pace=False``: as fast as the writer takes them, the
@@ -334,7 +337,7 @@ def main(argv=None) -> int:
     pub = sub.add_parser("publish", help="publish JointStates at a fixed rate")
     pub.add_argument("--topic", default="/franka/joint_states")
     pub.add_argument("--count", type=int, default=1000)
-    pub.add_argument("--rate", type=float, default=1000.0)
+    pub.add_argument("--rate", type=float, default=NOMINAL_RATE_HZ)
     pub.add_argument("--domain", type=int, default=0)
     pub.add_argument("--interface", default="")
     pub.add_argument("--peer", action="append", default=[])

@@ -33,7 +33,7 @@ import zlib
 import msgpack
 import numpy as np
 
-from iem.types import N_JOINTS, JointState
+from iem.types import N_JOINTS, NOMINAL_RATE_HZ, JointState
 from sim.payload import Payload
 
 from .errors import DecodeError, LinkError
@@ -327,7 +327,8 @@ class SerialLink(FramedLink):
         self.port = port
         self.decoder = SerialDecoder(stride=stride, window=window)
         super().__init__(name=name or f"serial link {getattr(port, 'name', port)!r}",
-                         rate_hz=1000.0 / max(1, int(stride)), silence_timeout=silence_timeout)
+                         rate_hz=NOMINAL_RATE_HZ / max(1, int(stride)),
+                         silence_timeout=silence_timeout)
         self._owns_port = owns_port
 
     def _receive(self, timeout: float) -> None:

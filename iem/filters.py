@@ -21,6 +21,7 @@ import numpy as np
 from . import kernels
 from .errors import InvalidInputError
 from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
+from .types import NOMINAL_RATE_HZ
 
 
 def butterworth2(cutoff_hz: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -46,7 +47,8 @@ class LowPass2:
     difference over exactly one cycle).
     """
 
-    def __init__(self, cutoff_hz: float, rate_hz: float = 1000.0, channels: int = 7) -> None:
+    def __init__(self, cutoff_hz: float, rate_hz: float = NOMINAL_RATE_HZ,
+                 channels: int = 7) -> None:
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)
         self.channels = int(channels)
@@ -126,7 +128,7 @@ class StateFilter:
         max_gap_s: the longest gap bridged; a longer one restarts the filter, s.
     """
 
-    def __init__(self, cutoff_hz: float = 50.0, rate_hz: float = 1000.0,
+    def __init__(self, cutoff_hz: float = 50.0, rate_hz: float = NOMINAL_RATE_HZ,
                  max_gap_s: float = DEFAULT_MAX_BRIDGE_S) -> None:
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)

@@ -27,6 +27,7 @@ tolerant of clock jitter and of a controller clock that drifts by a fraction of 
 from __future__ import annotations
 
 from .errors import InvalidInputError
+from .types import NOMINAL_RATE_HZ
 
 RESTART = -1
 """The filters start again at this sample."""
@@ -44,7 +45,7 @@ class GapRule:
         max_bridge_s: the longest gap the filters bridge, s; longer ones restart them.
     """
 
-    def __init__(self, rate_hz: float = 1000.0,
+    def __init__(self, rate_hz: float = NOMINAL_RATE_HZ,
                  max_bridge_s: float = DEFAULT_MAX_BRIDGE_S) -> None:
         if not rate_hz > 0.0 or not max_bridge_s >= 0.0:
             raise InvalidInputError(f"rate_hz must be > 0 and max_bridge_s >= 0, got "

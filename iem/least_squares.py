@@ -29,7 +29,7 @@ from .base import Samples
 from .errors import InvalidInputError
 from .regression import PayloadRegression, impulse_response, load_dynamics, noise_gains
 from .sensor import DEFAULT_SENSOR
-from .types import PayloadEstimate
+from .types import NOMINAL_RATE_HZ, PayloadEstimate
 
 __all__ = ["DEFAULT_PRIOR_STD", "RecursiveLeastSquares", "impulse_response", "load_dynamics",
            "noise_gains"]
@@ -55,7 +55,7 @@ class RecursiveLeastSquares:
     def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
-                 rate_hz: float = 1000.0,
+                 rate_hz: float = NOMINAL_RATE_HZ,
                  decimate: int = 0, prior_std=DEFAULT_PRIOR_STD) -> None:
         self.dynamics = dynamics
         self.sigma_tau = float(sigma_tau)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import GROUPS, PARAMS
+from .types import GROUPS, NOMINAL_RATE_HZ, PARAMS
 
 PAPER_NEW_PATH_MAE = {"mass": 0.007, "com": 0.008, "inertia": 0.0007}
 CONVERGENCE_THRESHOLDS = {g: 2.0 * v for g, v in PAPER_NEW_PATH_MAE.items()}
@@ -53,7 +53,7 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def convergence_s(t, estimates, truth, thresholds=None, window_s: float = 0.1,
-                  dt: float = 1e-3) -> dict[str, float | None]:
+                  dt: float = 1.0 / NOMINAL_RATE_HZ) -> dict[str, float | None]:
     """Per group, the first time after which the moving-average error stays in bounds."""
     thresholds = CONVERGENCE_THRESHOLDS if thresholds is None else thresholds
     t = np.asarray(t, dtype=float)

@@ -89,7 +89,7 @@ from .posterior import EquationWindow, Posterior, combine, prior_inflation
 from .regression import PayloadRegression
 from .sensor import DEFAULT_SENSOR
 from .torque_noise import TorqueNoise
-from .types import GROUPS, PayloadEstimate
+from .types import GROUPS, NOMINAL_RATE_HZ, PayloadEstimate
 
 __all__ = ["DETECT_AFTER", "LIVE_PROJECT_BUDGET", "MODEL_ERROR_GAIN", "NIS_WINDOW",
            "PRIOR_FLOOR", "SPREAD_WAIT", "PhysicsInformedEnsemble", "prior_inflation"]
@@ -157,7 +157,7 @@ class PhysicsInformedEnsemble:
                  dynamics: str = "sim.robot:panda_dynamics",
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 4.0,
-                 rate_hz: float = 1000.0,
+                 rate_hz: float = NOMINAL_RATE_HZ,
                  update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
                  threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS,
                  refresh_every: int = 5, project_budget: int = 0,

@@ -40,6 +40,7 @@ from .errors import InvalidInputError
 from .filters import LowPass2, butterworth2
 from .gaps import RESTART, SKIP
 from .sensor import DEFAULT_SENSOR
+from .types import NOMINAL_RATE_HZ
 
 
 def impulse_response(cutoff_hz: float, rate_hz: float, n: int = 4000) -> np.ndarray:
@@ -131,7 +132,7 @@ class PayloadRegression:
     def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
-                 rate_hz: float = 1000.0,
+                 rate_hz: float = NOMINAL_RATE_HZ,
                  every: int = 1, settle: int = 0, payload_inertia: bool = False,
                  decimate: int = 1, model_error_std=None) -> None:
         if int(every) < 1 or int(decimate) < 1:

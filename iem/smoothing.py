@@ -18,6 +18,7 @@ import numpy as np
 
 from . import kernels
 from .errors import InvalidInputError
+from .types import NOMINAL_RATE_HZ
 
 DEFAULT_TAU_S = 0.2
 """Default time constant of the output smoothing, s."""
@@ -26,7 +27,7 @@ DEFAULT_TAU_S = 0.2
 class ExponentialSmoother:
     """Exponential moving average of a vector signal sampled every ``dt`` s."""
 
-    def __init__(self, tau_s: float = DEFAULT_TAU_S, dt: float = 1e-3) -> None:
+    def __init__(self, tau_s: float = DEFAULT_TAU_S, dt: float = 1.0 / NOMINAL_RATE_HZ) -> None:
         if not tau_s >= 0.0 or not dt > 0.0:
             raise InvalidInputError(f"tau_s must be >= 0 s and dt > 0 s, got {tau_s}, {dt}")
         self.tau_s = float(tau_s)

@@ -27,6 +27,12 @@ GROUPS: dict[str, tuple[int, ...]] = {
 
 N_JOINTS = 7
 
+NOMINAL_RATE_HZ = 1000.0
+"""The controller's nominal joint-state rate, Hz: a Franka's 1 kHz cycle (libfranka's
+RobotState, franka_ros2's ``/franka/joint_states``, the ``fd`` wire profile of
+``protocol.dbc``). The default rate of every filter and estimator; what a link really
+delivers is ``firmware_bridge.links.rate_hz`` (the ``classic`` profile's is 500 Hz)."""
+
 
 def _vec7(name: str, value) -> np.ndarray:
     if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (N_JOINTS,) \

@@ -22,6 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from iem.torque_noise import TorqueNoise, bias_std, equations, measure, phantom_payloads
+from iem.types import NOMINAL_RATE_HZ
 
 from .arm import ArmDynamics, ArmParams
 from .calibration import CalibrationError, CalibrationSettings, calibrate_segments
@@ -32,7 +33,7 @@ BLOCK_S = 2.0
 """Length of a held-out block, s."""
 MIN_HELD_S = 2.0
 """Shortest held-out traffic, s, over all folds."""
-REGRESSION = {"cutoff_hz": 4.0, "rate_hz": 1000.0, "update_every": 10}
+REGRESSION = {"cutoff_hz": 4.0, "rate_hz": NOMINAL_RATE_HZ, "update_every": 10}
 """The equations the noise is measured in: IEM+phys's defaults (its low-pass cut-off, the
 joint states' rate and the block size)."""
 

@@ -65,9 +65,10 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.errors import PathError
+from iem.types import NOMINAL_RATE_HZ
 from sim.robot import PandaModel, panda
 
-RATE_HZ = 1000.0
+RATE_HZ = NOMINAL_RATE_HZ
 """Sample rate of every :class:`Path`, Hz."""
 
 N_JOINTS = 7

@@ -43,13 +43,13 @@ import numpy as np
 import pinocchio as pin
 
 from iem.sensor import SensorModel
-from iem.types import JointState
+from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .arm import GAZ_PHI, ArmParams, friction_torque, full_friction
 from .payload import Payload
 from .robot import TAU_MAX, PandaModel, panda_urdf
 
-DT = 1e-3
+DT = 1.0 / NOMINAL_RATE_HZ
 """Control and integration period, s (1 kHz, as the Franka's real-time loop)."""
 
 PAYLOAD_BODY = "payload"

@@ -101,7 +101,7 @@ from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
 from iem.sensor import SensorModel
-from iem.types import GROUPS, PARAMS, JointState
+from iem.types import GROUPS, NOMINAL_RATE_HZ, PARAMS, JointState
 
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged
 from .report import paper_forgetting
@@ -110,7 +110,7 @@ MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS", "IEM+phys")
 CHANGE_TO = "test-4w"
 """The payload the ``payload_change`` scenario switches to at mid-path."""
 ROUTE_SIZES = (1, 10, 100, 1000, 10000)
-PACED_RATE_HZ = 1000.0
+PACED_RATE_HZ = NOMINAL_RATE_HZ
 """The rate at which :func:`cycle_timing`'s paced run feeds the cycle: the Panda's."""
 
 

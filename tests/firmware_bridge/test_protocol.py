@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from firmware_bridge.can_link import CanDecoder
 from firmware_bridge.errors import BridgeConfigError, EncodeError
 from firmware_bridge.protocol import PROFILES, LoadAssembler, database, profile
-from iem.types import JointState
+from iem.types import NOMINAL_RATE_HZ, JointState
 from sim.family import default_test_payload, training_payloads
 from sim.payload import Payload
 from sim.plant import SensorModel
@@ -59,6 +59,11 @@ def test_the_rates_come_from_the_dbc():
     assert profile("fd").joint_state.rate_hz == 1000 and profile("fd").joint_state.stride == 1
     assert profile("classic").joint_state.rate_hz == 500
     assert profile("classic").joint_state.stride == 2
+
+
+def test_the_fd_rate_is_the_estimators_nominal_rate():
+    """The DBC's fd cycle and the rate every filter and estimator defaults to are one rate."""
+    assert profile("fd").joint_state.rate_hz == NOMINAL_RATE_HZ
 
 
 @pytest.mark.parametrize("name", PROFILES)
