@@ -16,6 +16,8 @@ from pathlib import Path as FsPath
 from firmware_bridge.links import LINKS
 from firmware_bridge.protocol import PROFILES
 from iem.errors import InvalidInputError
+from iem.filters import DEFAULT_CUTOFF_HZ
+from iem.smoothing import DEFAULT_TAU_S
 
 from .gate import GateConfig
 
@@ -75,8 +77,8 @@ class ArmConfig:
 class EstimateConfig:
     """The online estimate (``[estimate]``)."""
 
-    smoothing_tau_s: float = 0.2
-    filter_cutoff_hz: float = 50.0
+    smoothing_tau_s: float = DEFAULT_TAU_S
+    filter_cutoff_hz: float = DEFAULT_CUTOFF_HZ
     learn: bool = True
     max_lag_s: float = 0.1
     background_learning: bool = True

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 
+from iem.budget import DEFAULT_BUDGET_BAGS
 from iem.errors import InvalidInputError
 from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
 from iem.types import NOMINAL_RATE_HZ
@@ -30,7 +31,8 @@ def best_model_kind() -> str:
     return DEFAULT_MODEL if DEFAULT_MODEL in TRAINABLE else "IEM"
 
 
-DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities", "budget_bags": 2000}
+DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities",
+                   "budget_bags": DEFAULT_BUDGET_BAGS}
 """The ensemble settings of a model the plug-in trains (``iem train``, ``train_if_missing``),
 beyond the paper's rule: each bag's learner also trains on its own samples driven backwards
 (:mod:`sim.coverage`; exact, on the model's arm: the first minute of ``iem bench longrun``,

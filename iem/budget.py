@@ -32,6 +32,10 @@ import numpy as np
 
 from .errors import InvalidInputError
 
+DEFAULT_BUDGET_BAGS = 2000
+"""The bag budget of a model the plug-in trains (``deploy.training.DEPLOY_ENSEMBLE``) and of
+``iem bench longrun`` (``--budget``)."""
+
 PROBATION_SHARE = 0.1
 """Default probation pool, a share of the budget (200 of 2,000 bags: at the 77 new bags a
 minute of ``iem bench longrun``'s never-repeating motion, about 2.5 minutes of new ground

@@ -23,6 +23,10 @@ from .errors import InvalidInputError
 from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
 from .types import NOMINAL_RATE_HZ
 
+DEFAULT_CUTOFF_HZ = 50.0
+"""Default cut-off of :class:`StateFilter`'s low-pass on ``dq``, Hz (the plug-in's
+``[estimate] filter_cutoff_hz``)."""
+
 
 def butterworth2(cutoff_hz: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """Numerator ``b`` and denominator ``a`` (``a[0] = 1``) of the 2nd-order low-pass."""
@@ -128,7 +132,7 @@ class StateFilter:
         max_gap_s: the longest gap bridged; a longer one restarts the filter, s.
     """
 
-    def __init__(self, cutoff_hz: float = 50.0, rate_hz: float = NOMINAL_RATE_HZ,
+    def __init__(self, cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float = NOMINAL_RATE_HZ,
                  max_gap_s: float = DEFAULT_MAX_BRIDGE_S) -> None:
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)

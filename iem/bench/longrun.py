@@ -56,6 +56,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from iem.budget import DEFAULT_BUDGET_BAGS
 from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
 from iem.types import JointState
@@ -70,7 +71,7 @@ MIN_SEGMENT_S = 0.5
 REVERSE_S = 60.0
 ROUTE_EVERY = 10
 """Every how many samples the route time is measured."""
-DEFAULT_BUDGET = 2000
+DEFAULT_BUDGET = DEFAULT_BUDGET_BAGS
 ROUTE_SIZES = (2000, 20000, 100000)
 """Bags of the maps the scan and the index are timed on (``route_sizes``)."""
 LONGRUN_PARAMS = {"reversal": "sim.coverage:reversed_velocities", "coverage": None}
@@ -415,8 +416,8 @@ def configure(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of motion, noise, learners")
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="BAGS",
-                        help="bag budget of the ensemble (default 2000; its newest 10 %% "
-                             "are on probation, iem/budget.py)")
+                        help=f"bag budget of the ensemble (default {DEFAULT_BUDGET}; its newest "
+                             "10 %% are on probation, iem/budget.py)")
     parser.add_argument("--background", action="store_true",
                         help="train in the worker thread, off the cycle (not reproducible: "
                              "when training lands depends on the machine)")

@@ -101,6 +101,7 @@ from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
 from iem.sensor import SensorModel
+from iem.smoothing import DEFAULT_TAU_S
 from iem.types import GROUPS, NOMINAL_RATE_HZ, PARAMS, JointState
 
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged
@@ -512,7 +513,7 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
         "setup": {"quick": quick, "seed": seed, "test_payload": bench.payload.name,
                   "test_phi": bench.phi.tolist(), "training_payloads": len(bench.tandem),
                   "sensor": asdict(SensorModel()),
-                  "smoothing_tau_s": 0.2, "excitation_s": bench.excitation.duration,
+                  "smoothing_tau_s": DEFAULT_TAU_S, "excitation_s": bench.excitation.duration,
                   "new_path_s": bench.new_path.duration,
                   "change": {"from": bench.payload.name, "to": bench.change_payload.name,
                              "at_s": bench.change_at / 1000.0}},
