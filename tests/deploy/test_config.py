@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 
 from deploy.config import (
+    INT_RANGES,
+    RANGES,
     SECTIONS,
     CellConfig,
     ConfigError,
@@ -52,6 +54,61 @@ def test_example_sets_and_documents_every_key():
             stated = re.search(r"Default (\S+?)\.?(?:\s|$)", block)
             assert stated, f"[{section}] {name}: no default stated"
             assert_same(stated.group(1), getattr(cls(), name), f"[{section}] {name}")
+
+
+CELL_PC_VALUES = {("link", "kind"), ("link", "channel"), ("model", "path")}
+"""The keys the example sets to a cell PC's value instead of the default its comment states."""
+
+
+def key_comments(text: str, section: str) -> dict[str, str]:
+    """Each key of ``[section]`` -> its comment block, the '# ' markers removed."""
+    start = text.index(f"\n[{section}]\n")
+    end = text.find("\n[", start + 1)
+    part = text[start:end if end > 0 else len(text)]
+    out = {}
+    for name in re.findall(r"^(\w+) = ", part, re.M):
+        block = part[part.index(f"# {name}:"):part.index(f"\n{name} =")]
+        out[name] = " ".join(line.removeprefix("#").strip() for line in block.splitlines())
+    return out
+
+
+def test_every_key_of_the_example_is_the_dataclass_default():
+    """The dataclasses are the one source of the defaults: the example sets each key to its
+    default, but for the few it sets to a cell PC's values (their comments state the
+    default, checked above)."""
+    doc = tomllib.loads(EXAMPLE.read_text())
+    for section, cls in SECTIONS.items():
+        defaults = cls()
+        for name, value in doc[section].items():
+            value = tuple(value) if isinstance(value, list) else value
+            if (section, name) in CELL_PC_VALUES:
+                assert value != getattr(defaults, name), f"[{section}] {name}"
+            else:
+                assert value == getattr(defaults, name), f"[{section}] {name} = {value!r}"
+                assert type(value) is type(getattr(defaults, name)), f"[{section}] {name}"
+
+
+def test_every_range_the_example_states_is_the_checked_one():
+    """A numeric key's comment states the range ``config.py`` checks ("lo to hi"; an int key
+    whose -1 means "none" states 0 to hi and the -1), and a key without one states none."""
+    text = EXAMPLE.read_text()
+    number = r"-?\d[\d.e+]*\d|\d"
+    for section, cls in SECTIONS.items():
+        comments = key_comments(text, section)
+        for f in fields(cls):
+            default = getattr(cls(), f.name)
+            if type(default) not in (int, float):
+                continue
+            stated = {(float(lo), float(hi)) for lo, hi in
+                      re.findall(rf"({number}) to ({number})", comments[f.name])}
+            code = RANGES.get((section, f.name)) or INT_RANGES.get((section, f.name))
+            what = f"[{section}] {f.name}: stated {stated}, checked {code}"
+            if code is None:
+                assert not stated, what
+            elif code[0] == -1:
+                assert (0.0, float(code[1])) in stated and "-1" in comments[f.name], what
+            else:
+                assert (float(code[0]), float(code[1])) in stated, what
 
 
 def assert_same(token: str, default, what: str) -> None:
