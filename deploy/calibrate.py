@@ -26,9 +26,10 @@ import time
 
 import numpy as np
 
-from firmware_bridge.protocol import PROFILES
-from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
+from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
+
+from .options import add_end_effector, add_recording_options
 
 
 def read_states(source, duration: float | None = None, silence_s: float = 1.0):
@@ -170,19 +171,13 @@ def configure(parser) -> None:
     parser.add_argument("--out", metavar="ARM", help="arm file to write")
     parser.add_argument("--write-motion", metavar="CSV",
                         help="write the calibration motion as a path CSV (t, q1..q7) and stop")
-    parser.add_argument("--format", choices=FORMATS, help="the recordings' format (default: "
-                        "detected from each file)")
-    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
-                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
-    parser.add_argument("--profile", default="fd", choices=PROFILES,
-                        help="wire profile of CAN logs and of a live CAN link (default fd)")
+    add_recording_options(parser, "wire profile of CAN logs and of a live CAN link (default "
+                                  "fd)")
     parser.add_argument("--interface", help="live link kind instead of (or besides) logs")
     parser.add_argument("--channel", help="live link channel")
     parser.add_argument("--duration", type=float, metavar="S",
                         help="seconds of live traffic to record")
-    parser.add_argument("--end-effector", metavar="EE", default=None,
-                        help="what the arm carries as part of itself: franka_hand (default), "
-                             "none, or a payload-style .toml of the tool (as in Franka Desk)")
+    add_end_effector(parser)
 
 
 def run(args) -> int:

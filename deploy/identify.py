@@ -28,8 +28,10 @@ import time
 from pathlib import Path as FsPath
 
 from firmware_bridge.protocol import PROFILES
-from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
+from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
+
+from .options import add_end_effector, add_recording_options
 
 
 def read_log(path, profile: str = "fd", format: str | None = None,
@@ -65,18 +67,11 @@ def configure(parser) -> None:
                         help="recording of the same motion without the payload (any format)")
     parser.add_argument("--arm", metavar="ARM",
                         help="arm file from 'iem calibrate' instead of --bare (any motion)")
-    parser.add_argument("--end-effector", metavar="EE", default=None,
-                        help="what the arm carries as part of itself (franka_hand, none or a "
-                             "tool's .toml); with --arm, the arm file must be for it")
+    add_end_effector(parser)
     parser.add_argument("--out", required=True, metavar="P.toml",
                         help="payload file to write (mass, CoM, inertia about the CoM)")
     parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
-    parser.add_argument("--format", choices=FORMATS, help="the recordings' format (default: "
-                        "detected from each file)")
-    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
-                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
-    parser.add_argument("--profile", default="fd", choices=PROFILES,
-                        help="wire profile CAN logs were recorded with (default fd)")
+    add_recording_options(parser, "wire profile CAN logs were recorded with (default fd)")
     parser.add_argument("--name", help="payload name in the file (default: the file's stem)")
 
 

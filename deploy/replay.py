@@ -43,9 +43,11 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from firmware_bridge.protocol import PROFILES
-from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
+from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
 from iem.types import PARAMS
+
+from .options import add_end_effector, add_recording_options
 
 CSV_HEADER = ("t", "cycle", "bag", *PARAMS, *(f"{p}_s" for p in PARAMS),
               *(f"{p}_std" for p in PARAMS))
@@ -279,12 +281,7 @@ def configure(parser) -> None:
     parser.add_argument("file", metavar="REC", help="the recording: a CAN log (.blf, .log, "
                         ".asc, .trc), a rosbag2 bag (directory, .db3, .mcap) or a joint-state "
                         "CSV (t,q1..q7,dq1..dq7,tau1..tau7)")
-    parser.add_argument("--format", choices=FORMATS, help="the recording's format (default: "
-                        "detected from the file)")
-    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
-                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
-    parser.add_argument("--profile", default="fd", choices=PROFILES,
-                        help="wire profile a CAN log was recorded with (default fd)")
+    add_recording_options(parser, "wire profile a CAN log was recorded with (default fd)")
     parser.add_argument("--model", metavar="FILE", help="model file to start from (read "
                         "only; default: a fresh IEM trained on the built-in excitation path, "
                         "seed 0)")
@@ -294,9 +291,7 @@ def configure(parser) -> None:
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
     parser.add_argument("--arm", metavar="ARM", help="arm file of the recorded arm (from "
                         "'iem calibrate'; the model must have been trained for it)")
-    parser.add_argument("--end-effector", metavar="EE", default=None,
-                        help="what the recorded arm carried as part of itself: franka_hand "
-                             "(default), none, or a payload-style .toml of the tool")
+    add_end_effector(parser)
     parser.add_argument("--save-model", metavar="FILE",
                         help="save the model learnt during the replay here")
     parser.add_argument("--no-status", action="store_true", help="no live status line")

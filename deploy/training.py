@@ -23,6 +23,8 @@ from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
 from iem.types import NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY, FAMILIES
 
+from .options import add_end_effector
+
 TRAINABLE = ("IEM", "IEM+phys")
 
 
@@ -235,14 +237,6 @@ def configure(parser) -> None:
                              "measured noise, or a conservative default for an uncalibrated "
                              "arm; 'sensor', the sensor's white noise alone (a simulated arm "
                              "whose model is exact)")
-
-
-def add_end_effector(parser) -> None:
-    """The ``--end-effector`` option of the commands that take ``--arm``."""
-    parser.add_argument("--end-effector", metavar="EE", default=None,
-                        help="what the arm carries as part of itself: franka_hand (default), "
-                             "none, or a payload-style .toml of the tool; must match the arm "
-                             "file's")
 
 
 def run(args) -> int:

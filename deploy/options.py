@@ -1,0 +1,25 @@
+"""Command-line options that several ``iem`` commands share, defined once."""
+
+from __future__ import annotations
+
+END_EFFECTOR_HELP = ("what the arm carries as part of itself: franka_hand (default), none, or "
+                     "a payload-style .toml of the tool, as set in Franka Desk; an arm file "
+                     "or a model made for another is refused")
+
+
+def add_end_effector(parser, help: str = END_EFFECTOR_HELP) -> None:
+    """``--end-effector EE`` (:mod:`sim.end_effector`; default None: the Franka Hand)."""
+    parser.add_argument("--end-effector", metavar="EE", default=None, help=help)
+
+
+def add_recording_options(parser, profile_help: str) -> None:
+    """``--format``, ``--topic`` and ``--profile`` of the commands that read recordings
+    (:mod:`firmware_bridge.recordings`)."""
+    from firmware_bridge.protocol import PROFILES
+    from firmware_bridge.recordings import DEFAULT_TOPIC, FORMATS
+
+    parser.add_argument("--format", choices=FORMATS, help="the recordings' format (default: "
+                        "detected from each file)")
+    parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
+                        f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
+    parser.add_argument("--profile", default="fd", choices=PROFILES, help=profile_help)
