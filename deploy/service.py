@@ -237,17 +237,10 @@ class Service:
                            where=f"the model {path}" if path.exists() else "the model")
         if self.config.estimate.initial_payload:
             start_from_file(self.model, self.config.estimate.initial_payload)
-        ens = self._ensemble()
-        if hasattr(ens, "set_background"):  # a live link: learning never holds up estimating;
-            ens.set_background(self.threaded_reader  # a replay: inline, reproducible
-                               and self.config.estimate.background_learning)
-        if hasattr(self.model, "project_budget"):  # a live link: a long consistency
-            from iem.physics import LIVE_PROJECT_BUDGET  # projection is spread over cycles
-
-            self.model.project_budget = LIVE_PROJECT_BUDGET if self.threaded_reader else 0
-        prepare = getattr(self.model, "prepare", None)
-        if prepare is not None:  # the imports of the first cycles, now
-            prepare()
+        # a live link: learning and heavy work never hold up estimating; a replay: inline
+        # and at once, reproducible
+        self.model.go_live(self.threaded_reader,
+                           background=self.config.estimate.background_learning)
         if self.link is None:
             from firmware_bridge.links import open_link
 
@@ -267,10 +260,6 @@ class Service:
             smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s, dt=1.0 / self.rate_hz))
         self.gate.wire_check = wire_check_of(self.link)  # out_of_wire_range before send
         return self
-
-    def _ensemble(self):
-        """The IEM that learns (IEM+phys holds one), or the model itself."""
-        return getattr(self.model, "ensemble_model", self.model)
 
     def stop(self) -> None:
         """Ask the loop to end after the current cycle (safe from a signal handler)."""
@@ -296,8 +285,8 @@ class Service:
         publish = getattr(link, "publish_estimate", None)
         started = time.monotonic()
         cpu0 = time.thread_time()
-        ens = self._ensemble()
-        learn0 = getattr(ens, "learning_cpu_s", 0.0)
+        model = self.model
+        learn0 = model.learning_cpu_s
         save0 = self._checkpoint_cpu_s
         next_checkpoint = started + cfg.model.checkpoint_period_s
         watchdog = self.notifier.watchdog_period()
@@ -312,7 +301,6 @@ class Service:
                  extra={"event": "started"})
         reader = (LinkReader(link, cfg.link.silence_timeout_s).start() if self.threaded_reader
                   else None)
-        spreads = hasattr(self.model, "busy")  # IEM+phys: one heavy job per cycle
         deferred = 0
 
         def next_item() -> Item | None:
@@ -378,7 +366,7 @@ class Service:
                 gate.observe(t_gate, smoothed, raw)
                 self.arm_watch.observe(state.t, smoothed, raw)
                 due = gate.due(t_gate)
-                if due and spreads and self.model.busy and deferred < GATE_DEFER:
+                if due and model.busy and deferred < GATE_DEFER:
                     deferred += 1  # the model did its heavy job this cycle: decide in the
                 elif due:  # next one (the cycles' work stays level)
                     deferred = 0
@@ -400,7 +388,7 @@ class Service:
         finally:
             self.wall_s = time.monotonic() - started
             parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0, "reader": 0.0,
-                                      "learning": getattr(ens, "learning_cpu_s", 0.0) - learn0,
+                                      "learning": model.learning_cpu_s - learn0,
                                       "checkpoint": self._checkpoint_cpu_s - save0}
             if reader is not None:
                 reader.stop()
@@ -421,9 +409,8 @@ class Service:
             if self.cpu_latency is not None:  # first: the loop is over, and a failing
                 self.cpu_latency.close()  # worker or link must not keep cores polling
                 self.cpu_latency = None
-            ens = self._ensemble()
-            if hasattr(ens, "stop"):
-                ens.stop()
+            if self.model is not None:
+                self.model.stop()
             if self.link is not None:
                 self.link.close()
             self.notifier.close()

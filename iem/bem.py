@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from .base import Samples
+from .base import BaseEstimator, Samples
 from .ensemble import SENSOR_NOISE
 from .errors import InvalidInputError
 from .learner import N_IN, N_OUT, WeakLearner, output_range
@@ -32,7 +32,7 @@ from .tree import RegressionTree
 from .types import PayloadEstimate
 
 
-class BatchEnsemble:
+class BatchEnsemble(BaseEstimator):
     """The BEM: bagged single-layer networks and regression trees, trained once.
 
     Members are numbered networks first (``0 .. n_networks-1``), then trees; member ``i``

@@ -76,7 +76,7 @@ import time
 import numpy as np
 
 from .augment import TrainingAugment
-from .base import Samples
+from .base import BaseEstimator, Samples
 from .budget import BagBudget
 from .errors import InvalidInputError
 from .learner import N_IN, N_OUT, WeakLearner, output_range, saved_numbers
@@ -100,7 +100,7 @@ def _yield() -> None:
     time.sleep(0)
 
 
-class IncrementalEnsemble:
+class IncrementalEnsemble(BaseEstimator):
     """The proposed IEM.
 
     Args:
@@ -144,6 +144,7 @@ class IncrementalEnsemble:
     """
 
     name = "IEM"
+    background_learning = True
 
     def __init__(self, delta: float = DEFAULT_DELTA, rho: float = DEFAULT_RHO, lr: float = 0.5,
                  iters: int = 5, warmup_iters: int = 100, input_noise=SENSOR_NOISE,
@@ -302,7 +303,7 @@ class IncrementalEnsemble:
 
     def set_background(self, on: bool) -> None:
         """Train in the worker thread (True) or inline (False) from now on; what is pending
-        lands first. The service turns it on for a live link; a replay and the benchmarks
+        lands first. :meth:`go_live` turns it on for a live link; a replay and the benchmarks
         keep it off (inline training makes a run reproducible to the bit)."""
         on = bool(on)
         if on == self.background:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Samples
+from .base import BaseEstimator, Samples
 from .errors import InvalidInputError
 from .regression import PayloadRegression, impulse_response, load_dynamics, noise_gains
 from .sensor import DEFAULT_SENSOR
@@ -38,7 +38,7 @@ DEFAULT_PRIOR_STD = (3.0, 0.3, 0.3, 0.3, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01)
 """Prior standard deviation per parameter (kg, kg·m, kg·m²): the Panda's rated payload."""
 
 
-class RecursiveLeastSquares:
+class RecursiveLeastSquares(BaseEstimator):
     """Recursive least squares on the payload regressor.
 
     Args:
@@ -51,6 +51,8 @@ class RecursiveLeastSquares:
     """
 
     name = "LS"
+    tracks_payload = True
+    """The estimate and its covariance carry from sample to sample."""
 
     def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,

@@ -10,8 +10,8 @@ for them) and predicts; the estimate is smoothed with :class:`iem.smoothing.Expo
 
 One gap rule (:mod:`iem.gaps`) decides, from the time stamps, for every filter of the path:
 the state filter applies it, and its verdict goes to the estimator and the smoothing. Lost
-cycles up to the state filter's ``max_gap_s`` are bridged (``estimator.gap(k)``, if it has
-one: its signal filters interpolate the missing inputs; the smoothing decays by their time);
+cycles up to the state filter's ``max_gap_s`` are bridged (``estimator.gap(k)``: its signal
+filters interpolate the missing inputs; the smoothing decays by their time);
 a sample that is not newer than the last one used (a duplicate, a frame overtaken by newer
 ones) is counted in ``skipped`` and changes nothing: the last estimate is returned again.
 
@@ -22,9 +22,12 @@ output.
 When the state filter starts afresh (the first sample of a stream, the first after a gap longer
 than its ``max_gap_s`` or a time stamp that goes backwards, or after
 :meth:`OnlineIdentifier.resume`), the estimator's own signal filters restart too, through its
-``resume()`` (its payload estimate stays: a silence is not a new payload). With ``learn=False``
-an estimator that has ``observe_one(x, flange)`` (a payload state it tracks without training,
-as IEM+phys's physics) still gets every sample through it.
+``resume()`` (its payload estimate stays: a silence is not a new payload). With learning on,
+a cycle is the estimator's ``learn_predict_one`` (``learn_one`` and ``predict_one`` apart when
+``timed``); with ``learn=False`` every sample goes through ``observe_one(x, flange)`` (what
+the estimator follows of the payload without training, as IEM+phys's physics), then
+``predict_one``. Every one of these is declared by :class:`iem.base.Estimator`, with defaults
+in :class:`iem.base.BaseEstimator`.
 
 The kinematics and the tandem simulators are passed in as callables, so this module stays
 numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
@@ -107,8 +110,8 @@ class OnlineIdentifier:
 
     def resume(self) -> None:
         """The signal stream restarted: from the next sample the state filter and the
-        estimator's own signal filters (``resume()``, if it has one) start again; the
-        estimate is kept."""
+        estimator's own signal filters (its ``resume()``) start again; the estimate is
+        kept."""
         self.state_filter.reset()
 
     def step(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
@@ -119,13 +122,9 @@ class OnlineIdentifier:
         if steps == SKIP and self.raw is not None:
             return self.raw, self._smoothed.copy()
         if steps == RESTART:
-            resume = getattr(self.estimator, "resume", None)
-            if resume is not None:
-                resume()
+            self.estimator.resume()
         elif steps > 1:
-            gap = getattr(self.estimator, "gap", None)
-            if gap is not None:
-                gap(steps)
+            self.estimator.gap(steps)
         self._steps = max(steps, 1)
         flange = self.flange_position(state.q)
         if self.learn:
@@ -137,15 +136,14 @@ class OnlineIdentifier:
                 count()
                 return tandem(q, dq, ddq)
 
-            combined = None if self.timed else getattr(self.estimator, "learn_predict_one", None)
-            if combined is not None:
-                return self._finish(combined(x, flange, samples, t=state.t))
+            if not self.timed:
+                return self._finish(self.estimator.learn_predict_one(x, flange, samples,
+                                                                     t=state.t))
             t0 = time.perf_counter()
             self.estimator.learn_one(x, flange, samples)
-            if self.timed:
-                self.learn_times.append(time.perf_counter() - t0)
-                self.learnt.append(bool(asked))
-        elif hasattr(self.estimator, "observe_one"):
+            self.learn_times.append(time.perf_counter() - t0)
+            self.learnt.append(bool(asked))
+        else:
             self.estimator.observe_one(x, flange)
         t0 = time.perf_counter()
         raw = self.estimator.predict_one(x, flange, t=state.t)

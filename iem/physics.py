@@ -77,7 +77,7 @@ import math
 
 import numpy as np
 
-from .base import Samples
+from .base import BaseEstimator, Samples
 from .consistency import EPS
 from .ensemble import IncrementalEnsemble
 from .ensemble_prior import EnsemblePrior
@@ -100,7 +100,8 @@ invertible where the learners happen to agree with every training payload."""
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
 LIVE_PROJECT_BUDGET = 4
-"""Newton steps of the consistency projection per sample on a live link (``project_budget``):
+"""Newton steps of the consistency projection per sample on a live link (``project_budget``,
+set by :meth:`PhysicsInformedEnsemble.go_live`):
 about 0.15 ms here; the longest projection (200 steps) is then spread over about 70 samples
 (those of each 10 that form, test or refresh do no steps), instead of stalling one cycle for
 up to 4 ms."""
@@ -108,7 +109,7 @@ SPREAD_WAIT = 3
 """Samples a due posterior refresh may wait for one without other heavy work (spread)."""
 
 
-class PhysicsInformedEnsemble:
+class PhysicsInformedEnsemble(BaseEstimator):
     """The IEM's estimate as a prior, fused with Bayesian least squares on the regressor.
 
     Args:
@@ -135,7 +136,7 @@ class PhysicsInformedEnsemble:
             ``bias_std`` is a floor under the estimates' standard deviations.
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
-            budget (:attr:`spread`, a live link: the service sets
+            budget (:attr:`spread`, a live link: :meth:`go_live` sets
             :data:`LIVE_PROJECT_BUDGET`), each sample does at most one heavy job, the rest
             waits for the next samples: form an equation (every ``update_every`` samples),
             test and add the one formed the sample before, refresh the posterior (at most
@@ -152,6 +153,10 @@ class PhysicsInformedEnsemble:
     name = "IEM+phys"
     detects_changes = True
     """Its estimates report payload changes (``extra["change"]``)."""
+    tracks_payload = True
+    """The posterior of the samples since the last change carries from sample to sample."""
+    background_learning = True
+    """Its ensemble trains in a worker thread on a live link."""
 
     def __init__(self, ensemble: dict | None = None,
                  dynamics: str = "sim.robot:panda_dynamics",
@@ -238,6 +243,30 @@ class PhysicsInformedEnsemble:
 
         self._reg.model()
         small_linalg.cholesky(np.eye(2))
+
+    def _go_live(self, on: bool) -> None:
+        """A live link: a long consistency projection is spread over samples
+        (:data:`LIVE_PROJECT_BUDGET` Newton steps each); offline, each is done at once. Then
+        :meth:`prepare`, either way."""
+        self.project_budget = LIVE_PROJECT_BUDGET if on else 0
+        self.prepare()
+
+    def set_background(self, on: bool) -> None:
+        """The held ensemble's training in its worker thread (True) or inline (False)."""
+        self._ens.set_background(on)
+
+    @property
+    def learning_cpu_s(self) -> float:
+        """CPU time of the held ensemble's training, s."""
+        return self._ens.learning_cpu_s
+
+    def drain(self) -> None:
+        """Wait until the held ensemble's submitted training has landed."""
+        self._ens.drain()
+
+    def stop(self) -> None:
+        """Drain and stop the held ensemble's worker thread."""
+        self._ens.stop()
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""

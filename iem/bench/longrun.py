@@ -273,11 +273,8 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         windows.append(w)
         log(_fmt_window(w))
     for m in models.values():
-        if hasattr(m, "close"):
-            m.close()
-        ens = getattr(m, "ensemble_model", m)
-        if hasattr(ens, "drain"):
-            ens.drain()  # the training still in the worker lands before the replay
+        m.close()
+        m.drain()  # the training still in the worker lands before the replay
 
     reverse_mae, reverse_s = reverse_figures(models, first_minute, payload, seed, kin, tandem,
                                              log)
@@ -292,7 +289,7 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
                                   for g in ("mass", "com", "inertia")} for name in models},
         "reverse_mae": reverse_mae,
         "false_alarms": {name: (f.changes_total
-                                if getattr(models[name], "detects_changes", False) else None)
+                                if models[name].detects_changes else None)
                          for name, f in feeds.items()},
         "bags_end": {name: int(m.n_bags) for name, m in models.items()},
         "rss_mb_end": rss_mb(),
@@ -326,8 +323,7 @@ def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tande
     rollout = back_plant.follow(reverse)
     reverse_mae = {}
     for name, m in models.items():
-        if hasattr(m, "reset"):
-            m.reset()
+        m.reset()
         online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
         out = np.empty((len(rollout), 10))
         for i in range(len(rollout)):

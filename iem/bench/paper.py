@@ -47,7 +47,7 @@ it tracks the payload with its physics but, like the IEM, does not train its lea
   ``data_std_end``, the standard deviation per parameter that the path's equations alone give
   at its end (``data_std``: what the motion could tell, without the prior).
 - ``new_path_continued``: the new task path for the models that carry a payload estimate
-  between streams (``resume()``: IEM+phys, LS), continuing from their state after the
+  between streams (``tracks_payload``: IEM+phys, LS), continuing from their state after the
   excitation path instead of starting afresh: the payload did not change, so, as the plug-in
   would, they keep what the excitation path told them of it (IEM+phys: the equations since the
   last payload change). ``new_path`` is the harder case of a payload first seen on the new
@@ -68,8 +68,8 @@ sample with the ensemble training inline, as the benchmark runs it (every point 
 bag pays its SGD steps, and a new bag its warm-up); ``phys_cycle_us_median`` and
 ``phys_cycle_us_p99`` time the whole :meth:`iem.online.OnlineIdentifier.step` (state filter,
 kinematics, routing, estimate, physics update, smoothing) the way the plug-in runs it on a
-live link, the training in the learning worker (``set_background(True)``) and the heavy
-work spread over samples (``project_budget``), from the model as it was before the new path
+live link (``go_live()``: the training in the learning worker, the heavy work spread over
+samples), from the model as it was before the new path
 (:func:`cycle_timing`). That is the code's own cost, back to back;
 ``phys_cycle_paced_us_median`` / ``_p99`` time the same steps fed one per millisecond, the
 thread idle between them, as a 1 kHz cell feeds them, and ``phys_cycle_cpu_us_mean`` /
@@ -228,11 +228,11 @@ class Bench:
     # -- runs ----------------------------------------------------------------------------
     def run(self, model, rollout, learn: bool, fresh: bool = True, tandem=None) -> Run:
         """One model along one rollout. ``fresh``: a new task with a payload the model has
-        not seen, so a model with ``reset`` first forgets the payload it was estimating (it
+        not seen, so the model first forgets the payload it was estimating (``reset()``; it
         keeps what it learnt); else the payload is the one of the model's last rollout and
         only the signal stream restarts (:meth:`iem.online.OnlineIdentifier.resume`).
         ``tandem``: the model's tandem simulators (default ``self.tandem``)."""
-        if fresh and hasattr(model, "reset"):
+        if fresh:
             model.reset()
         tandem = self.tandem if tandem is None else tandem
         online = OnlineIdentifier(model, self.kin.flange_position, tandem.samples,
@@ -252,7 +252,7 @@ class Bench:
             if est.std is not None:
                 std[k] = est.std
             changes[k] = bool(est.extra.get("change"))
-        if learn and hasattr(model, "close"):
+        if learn:
             model.close()
         return Run(t=rollout.t - rollout.t[0], smoothed=smoothed, raw=raw, bags=bags,
                    learn_s=np.array(online.learn_times), learnt=np.array(online.learnt),
@@ -266,7 +266,7 @@ class Bench:
         per = mae(run.smoothed, phi)
         out = {"mae": per, "mae_groups": groups_of(per),
                "mae_groups_raw": groups_of(mae(run.raw, phi))}
-        if getattr(model, "detects_changes", False):
+        if model is not None and model.detects_changes:
             out["changes"] = int(run.changes.sum())
         if convergence and hasattr(model, "data_std"):
             out["data_std_end"] = {p: (v if math.isfinite(v) else None)  # None: unseen
@@ -295,7 +295,7 @@ class Bench:
         out = {"detect_s": None, "false_alarms": None, "mae": per,
                "mae_groups": groups_of(per),
                "mae_groups_raw": groups_of(mae(run.raw[after], phi))}
-        if getattr(model, "detects_changes", False):
+        if model.detects_changes:
             fired = np.flatnonzero(run.changes[k:])
             out["detect_s"] = None if fired.size == 0 else float(run.t[k + fired[0]] - run.t[k])
             out["false_alarms"] = int(run.changes[:k].sum())
@@ -305,7 +305,8 @@ class Bench:
 def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> dict:
     """µs per :meth:`iem.online.OnlineIdentifier.step` of ``model`` along ``rollout`` (a new
     task, learning on) with its ensemble's training in the learning worker, as the plug-in
-    runs it on a live link (its heavy work spread over samples, :data:`LIVE_PROJECT_BUDGET`):
+    runs it on a live link (:meth:`iem.base.Estimator.go_live`: its heavy work spread over
+    samples):
     ``{"median", "p99", "cpu_mean"}`` (``cpu_mean``: the step thread's CPU). The worker's own
     time is not counted (it competes for the interpreter, so it shows in the cycle's time as
     it would there).
@@ -316,16 +317,8 @@ def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> 
     of the sleep): each cycle is a short burst of interpreter and NumPy code that starts with
     cold caches and predictors. The paced figure is the one a 1 kHz cell meets; the back-to-
     back one is the code's own cost."""
-    if hasattr(model, "reset"):
-        model.reset()
-    if hasattr(model, "project_budget"):  # the live link's set-up (deploy.service)
-        from iem.physics import LIVE_PROJECT_BUDGET
-
-        model.project_budget = LIVE_PROJECT_BUDGET
-    if hasattr(model, "prepare"):
-        model.prepare()
-    ens = getattr(model, "ensemble_model", model)
-    ens.set_background(True)
+    model.reset()
+    model.go_live()  # the live link's set-up, as deploy.service makes it
     online = OnlineIdentifier(model, bench.kin.flange_position, bench.tandem.samples,
                               learn=True)
     times = np.empty(len(rollout))
@@ -346,7 +339,7 @@ def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> 
             times[k] = time.perf_counter() - t0
             cpu[k] = time.thread_time() - c0
     finally:
-        ens.stop()
+        model.stop()
     return {"median": float(np.median(times) * 1e6),
             "p99": float(np.percentile(times, 99) * 1e6),
             "cpu_mean": float(cpu.mean() * 1e6)}
@@ -394,7 +387,7 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
         log(f"excitation {name:8s} {_fmt(scen['excitation'][name]['mae_groups'])}")
     frozen = {n: copy.deepcopy(m) for n, m in models.items()}
     for name, model in frozen.items():  # the same payload, its estimate carried over
-        if not hasattr(model, "resume"):
+        if not model.tracks_payload:
             continue  # no payload state to carry: as new_path
         carried = copy.deepcopy(model)
         r = bench.run(carried, bench.new_rollout, learn=True, fresh=False)
@@ -425,7 +418,7 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
             "before_raw": scen["excitation"][name]["mae_groups_raw"],
             "after_raw": after["mae_groups_raw"]}
         f["weights_identical"] = unchanged(trained[name], model)
-        if getattr(model, "detects_changes", False):
+        if model.detects_changes:
             f["changes_after"] = int(r.changes.sum())
         if isinstance(model, InPlaceEnsemble):
             f["update"] = model.update

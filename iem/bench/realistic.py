@@ -168,7 +168,7 @@ def _score(run, phi, model, after: int = 0) -> dict:
 
     sl = slice(after, None)
     cov = coverage_of(run.raw[sl], run.std[sl], phi)
-    detects = getattr(model, "detects_changes", False)
+    detects = model.detects_changes
     return {
         "mae_groups": groups_of(mae(run.smoothed[sl], phi)),
         "mae_groups_raw": groups_of(mae(run.raw[sl], phi)),
@@ -253,7 +253,7 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
             model = copy.deepcopy(models[model_name])
             r = bench.run(model, rollout, learn=True, tandem=tandems.get(model_name))
             s = _score(r, truth, model, after)
-            if name == "payload_change" and getattr(model, "detects_changes", False):
+            if name == "payload_change" and model.detects_changes:
                 fired = np.flatnonzero(r.changes[after:])
                 s["detect_s"] = (None if fired.size == 0
                                  else float(r.t[after + fired[0]] - r.t[after]))

@@ -16,6 +16,7 @@ import pytest
 
 from deploy.config import config_from_dict
 from firmware_bridge.protocol import LoadAck
+from iem.base import BaseEstimator
 from iem.types import PayloadEstimate
 from sim.family import default_test_payload
 from sim.payload import Payload
@@ -29,7 +30,7 @@ BAR = Payload("bar", 2.5, (0.0, 0.0, 0.05), (0.6, 0.0, 0.0, 0.001, 0.0, 0.6))
 """Physically possible, within the rating and reach; Ixx beyond the CAN signal's ±0.524 kg·m²."""
 
 
-class OneLoad:
+class OneLoad(BaseEstimator):
     """A model that estimates ``load`` at every point (no bags, nothing learnt)."""
 
     name = "one-load"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from iem.base import BaseEstimator
 from iem.filters import LowPass2, StateFilter
 from iem.gaps import RESTART, SKIP, GapRule
 from iem.online import OnlineIdentifier
@@ -144,7 +145,7 @@ def test_smoother_decays_by_the_time_of_lost_cycles():
     np.testing.assert_allclose(a.value, out, rtol=1e-12)
 
 
-class _Recorder:
+class _Recorder(BaseEstimator):
     name = "recorder"
 
     def __init__(self):

@@ -9,6 +9,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from iem.base import BaseEstimator
 from iem.change import ChangeDetector, chi_square
 from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
@@ -446,7 +447,7 @@ def test_no_false_alarm_with_a_fixed_payload(switch_rollouts):
 
 
 def test_online_identifier_restarts_smoothing_on_reset_and_observes_when_frozen():
-    class Toy:
+    class Toy(BaseEstimator):
         name = "toy"
 
         def __init__(self):
@@ -475,7 +476,7 @@ def test_online_identifier_restarts_smoothing_on_reset_and_observes_when_frozen(
 def test_online_identifier_resumes_the_stream_at_its_start_and_after_gaps():
     """The first sample, a silence longer than the state filter's max_gap_s and a time stamp
     going backwards each restart the signal filters (``resume``), never the payload."""
-    class Toy:
+    class Toy(BaseEstimator):
         name = "toy"
 
         def __init__(self):
