@@ -11,16 +11,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iem import checks
+from iem import capability_checks, checks
 from iem.bem import BatchEnsemble
 from iem.checks import CheckData, CheckFailed, check_estimator
 from iem.ensemble import IncrementalEnsemble
 from iem.errors import IemError, InvalidInputError
 from iem.least_squares import RecursiveLeastSquares
 from iem.old_iem import InPlaceEnsemble
+from iem.persistence import MODELS
 from iem.physics import PhysicsInformedEnsemble
+from iem.types import PayloadEstimate
 
-# One line per estimator under check; each lambda returns a fresh, seeded estimator.
+# One line per estimator kind of iem.persistence.MODELS; each lambda returns a fresh, seeded
+# estimator.
 ESTIMATORS = {
     "IEM": lambda: IncrementalEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
     "old_IEM": lambda: InPlaceEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
@@ -88,13 +91,22 @@ def test_synthetic_path_forms_several_bags():
     assert est.n_bags > n_train  # the further points reach new ground
 
 
+def test_every_kind_is_checked():
+    """Every kind a model file may hold has a factory here, making an estimator of its class."""
+    assert sorted(ESTIMATORS) == sorted(MODELS)
+    for kind, make in ESTIMATORS.items():
+        est = make()
+        assert est.name == kind
+        assert f"{type(est).__module__}:{type(est).__name__}" == MODELS[kind]
+
+
 @pytest.mark.parametrize("check", checks.CHECKS, ids=lambda c: c.__name__)
-@pytest.mark.parametrize("name", sorted(ESTIMATORS))
+@pytest.mark.parametrize("name", sorted(MODELS))
 def test_check(name, check):
     check(ESTIMATORS[name], DATA)
 
 
-@pytest.mark.parametrize("name", sorted(ESTIMATORS))
+@pytest.mark.parametrize("name", sorted(MODELS))
 def test_check_estimator_runs_all(name):
     check_estimator(ESTIMATORS[name], DATA)
 
@@ -116,6 +128,35 @@ class _Broken(IncrementalEnsemble):
         extra = sum(a.nbytes for a in getattr(self, "_junk", []))
         return super().nbytes() + extra + (10**7 if self.fault == "huge" else 0)
 
+    def _nudge(self):
+        """Move bag 0's learner: every estimate of that bag changes."""
+        learner = self._learners[0]
+        learner.b = learner.b + 0.1
+
+    def resume(self):
+        if self.fault == "resume":
+            self._nudge()
+
+    def observe_one(self, x, flange):
+        if self.fault == "observe":
+            self._nudge()
+
+    def learn_predict_one(self, x, flange, samples, t=0.0):
+        if self.fault != "combined":
+            return super().learn_predict_one(x, flange, samples, t)
+        est = self.predict_one(x, flange, t)  # the estimate before learning the point
+        self.learn_one(x, flange, samples)
+        return est
+
+    def _go_live(self, on):
+        if self.fault == "go_live":
+            self.lr += 1.0  # each call moves it again
+
+    def close(self):
+        super().close()
+        if self.fault == "close":
+            self._nudge()
+
 
 def _broken(fault: str, **kw):
     def make():
@@ -135,6 +176,45 @@ def test_unbounded_memory_fails_its_check():
         checks.check_memory_bounded(_broken("grow"), DATA)
     with pytest.raises(CheckFailed, match="exceeds"):
         checks.check_memory_bounded(_broken("huge"), DATA)
+
+
+@pytest.mark.parametrize(("fault", "check", "match"), [
+    ("resume", capability_checks.check_resume_and_gap_keep_the_estimate, "resume.. changed"),
+    ("combined", capability_checks.check_learn_predict_one, "learn_predict_one gave"),
+    ("observe", capability_checks.check_observe_one_trains_nothing, "observe_one trained it"),
+    ("go_live", capability_checks.check_go_live_idempotent, "twice"),
+    ("close", capability_checks.check_close_drain_stop_twice, "changed the estimates"),
+])
+def test_broken_capability_fails_its_check(fault, check, match):
+    with pytest.raises(CheckFailed, match=match):
+        check(_broken(fault), DATA)
+
+
+class _Undeclared:
+    """The seam alone, none of the declared capabilities: a caller would have to probe."""
+
+    name = "undeclared"
+    n_bags = 0
+
+    def learn_one(self, x, flange, samples):
+        pass
+
+    def predict_one(self, x, flange, t=0.0):
+        return PayloadEstimate(t=t, phi=np.zeros(10))
+
+    def predict_many(self, X, F):
+        return np.zeros((len(X), 10))
+
+    def to_state(self):
+        return {}
+
+    def nbytes(self):
+        return 0
+
+
+def test_undeclared_capabilities_fail_their_check():
+    with pytest.raises(CheckFailed, match=r"lacks .*go_live.*BaseEstimator"):
+        capability_checks.check_capabilities_declared(_Undeclared, DATA)
 
 
 def test_unseeded_estimator_fails_determinism():

@@ -465,6 +465,10 @@ class Drained(IncrementalEnsemble):
         super().learn_one(x, flange, samples)
         self.drain()
 
+    def learn_predict_one(self, x, flange, samples, t: float = 0.0):
+        self.learn_one(x, flange, samples)  # the estimate after the training landed
+        return self.predict_one(x, flange, t)
+
 
 @pytest.mark.parametrize("check", [c for c in checks.CHECKS if c is not checks.check_save_load],
                          ids=lambda c: c.__name__)
