@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.payload import Payload
+from iem.payload import Payload
 
 from .gate_checks import WireCheck, check_estimate, model_doubt
 from .time_window import TimeWindow

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sim.payload import Payload
+from iem.payload import Payload
 
 if TYPE_CHECKING:
     from .gate import GateConfig

@@ -35,8 +35,8 @@ from collections.abc import Callable
 
 import can
 
+from iem.payload import Payload
 from iem.types import JointState
-from sim.payload import Payload
 
 from .errors import BridgeConfigError, DecodeError, LinkError
 from .faults import FaultSpec

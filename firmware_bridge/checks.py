@@ -49,8 +49,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from iem.errors import IemError, PayloadError
+from iem.payload import Payload
 from iem.types import JointState
-from sim.payload import Payload
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, EndOfStream
 from .links import LINKS, JointStateSource, LinkCounters, PayloadSink, open_link, rate_hz

@@ -47,8 +47,8 @@ import threading
 import time
 from collections import deque
 
+from iem.payload import Payload
 from iem.types import NOMINAL_RATE_HZ, JointState
-from sim.payload import Payload
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
 from .links import BUFFERED_CYCLES, LinkCounters

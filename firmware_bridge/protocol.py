@@ -36,8 +36,8 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from iem.payload import Payload
 from iem.types import N_JOINTS, JointState
-from sim.payload import Payload
 
 from .e2e import Profile2
 from .errors import BridgeConfigError, DecodeError, EncodeError

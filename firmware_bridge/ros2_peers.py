@@ -252,7 +252,7 @@ class Ros2ControllerPort:
         self.server = SetLoadServer(participant, service, layout=layout, answer=self._answer)
 
     def _answer(self, request) -> tuple[bool, str]:
-        from sim.payload import Payload
+        from iem.payload import Payload
 
         from .protocol import LoadCommand
 

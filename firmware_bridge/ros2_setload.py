@@ -32,7 +32,7 @@ import queue
 import threading
 import time
 
-from sim.payload import Payload
+from iem.payload import Payload
 
 from .errors import AckTimeout
 from .protocol import LoadAck

@@ -33,8 +33,8 @@ import zlib
 import msgpack
 import numpy as np
 
+from iem.payload import Payload
 from iem.types import N_JOINTS, NOMINAL_RATE_HZ, JointState
-from sim.payload import Payload
 
 from .errors import DecodeError, LinkError
 from .faults import FaultSpec

@@ -1,0 +1,101 @@
+"""The layers point one way: an import test over the packages' source (ast, every import,
+function-level ones included).
+
+The rules (issue 29): the value types and errors (``iem.types``, ``iem.payload``,
+``iem.errors``) are the numpy-only home everything imports; ``iem`` imports neither ``sim``
+nor ``deploy``; ``firmware_bridge`` and the safety gate (``deploy/gate*.py``) never import
+``sim``; ``sim`` imports neither ``deploy`` nor ``firmware_bridge``. The arrows that still
+point the wrong way are listed in :data:`KNOWN`, each to be removed by moving its module
+(the benchmarks that drive the simulator belong above it, the simulated controller beside
+the plant): a new wrong arrow fails, and so does a listed one that is gone (shrink the list).
+"""
+
+import ast
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("iem", "sim", "deploy", "firmware_bridge")
+
+FORBIDDEN = {
+    "iem": ("sim", "deploy", "firmware_bridge"),
+    "sim": ("deploy", "firmware_bridge"),
+    "firmware_bridge": ("sim", "deploy"),
+    "deploy/gate": ("sim",),
+}
+
+KNOWN = {
+    # the benchmarks that drive the simulator (to move under deploy/)
+    "iem/bench/custom.py": {"sim"},
+    "iem/bench/honesty.py": {"sim"},
+    "iem/bench/longrun.py": {"sim", "deploy"},
+    "iem/bench/paper.py": {"sim"},
+    "iem/bench/realistic.py": {"sim", "deploy"},
+    # commissioning's numerics on the arm model (Pinocchio): to move beside it
+    "iem/identify.py": {"sim"},
+    # the simulated controller and ROS 2 peer: simulators, to move beside the plant
+    "firmware_bridge/sim_controller.py": {"sim"},
+    "firmware_bridge/ros2_peers.py": {"sim"},
+}
+
+
+def _imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module.split(".")[0])
+    return out & set(PACKAGES)
+
+
+def _rules(rel: str) -> tuple[str, ...]:
+    if rel.startswith("deploy/gate"):
+        return FORBIDDEN["deploy/gate"]
+    return FORBIDDEN.get(rel.split("/")[0], ())
+
+
+def wrong_arrows() -> dict[str, set[str]]:
+    out = {}
+    for package in PACKAGES:
+        for path in sorted((REPO / package).rglob("*.py")):
+            rel = path.relative_to(REPO).as_posix()
+            bad = _imports(path) & set(_rules(rel))
+            if bad:
+                out[rel] = bad
+    return out
+
+
+def test_no_new_arrow_points_the_wrong_way():
+    found = wrong_arrows()
+    new = {f: sorted(b - KNOWN.get(f, set())) for f, b in found.items()
+           if b - KNOWN.get(f, set())}
+    assert not new, f"imports against the layers (see this test's docstring): {new}"
+
+
+def test_the_known_wrong_arrows_are_still_there():
+    """A listed arrow that is gone: take it off the list, so it cannot come back unseen."""
+    found = wrong_arrows()
+    gone = {f: sorted(b - found.get(f, set())) for f, b in KNOWN.items()
+            if b - found.get(f, set())}
+    assert not gone, f"remove from KNOWN: {gone}"
+
+
+def test_the_value_types_home_is_numpy_only():
+    for name in ("types", "payload", "errors", "torque_noise"):
+        imported = _imports(REPO / "iem" / f"{name}.py")
+        assert not imported - {"iem"}, (name, imported)
+        text = (REPO / "iem" / f"{name}.py").read_text(encoding="utf-8")
+        assert "import pinocchio" not in text and "import mujoco" not in text
+
+
+def test_the_rule_sees_a_wrong_arrow(tmp_path, monkeypatch):
+    """The test can fail: a gate module importing sim is found."""
+    import tests.test_layers as layers
+
+    fake = tmp_path / "deploy"
+    fake.mkdir()
+    (fake / "gate_extra.py").write_text("def f():\n    from sim.payload import Payload\n")
+    for package in ("iem", "sim", "firmware_bridge"):
+        (tmp_path / package).mkdir()
+    monkeypatch.setattr(layers, "REPO", tmp_path)
+    assert layers.wrong_arrows() == {"deploy/gate_extra.py": {"sim"}}
