@@ -46,15 +46,15 @@ Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 
 BENCHES: Table = {
     "sim": ("sim.bench", "RNEA, regressor and tandem speed, plant real-time factor"),
-    "paper": ("iem.bench.paper", "the paper's experiments in simulation: results.json, report"),
-    "realistic": ("iem.bench.realistic", "the models on a perturbed arm, with and without "
+    "paper": ("deploy.bench.paper", "the paper's experiments in simulation: results.json, report"),
+    "realistic": ("deploy.bench.realistic", "the models on a perturbed arm, with and without "
                   "calibration: results.json, report"),
-    "custom": ("iem.bench.custom", "the paper benchmark's models on a payload file and a path"),
+    "custom": ("deploy.bench.custom", "the paper benchmark's models on a payload file and a path"),
     "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
     "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
     "faults": ("deploy.bench_faults",
                "the plug-in on a lossy, late, corrupt stream with a silence, against a clean run"),
-    "longrun": ("iem.bench.longrun", "IEM and IEM+phys over a long random motion, per 30 s"),
+    "longrun": ("deploy.bench.longrun", "IEM and IEM+phys over a long random motion, per 30 s"),
     "real": ("deploy.bench_real", "the plug-in on a real Panda's recording: calibrated on one "
              "part, payloads identified on the rest"),
 }

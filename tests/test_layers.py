@@ -6,8 +6,8 @@ The rules (issue 29): the value types and errors (``iem.types``, ``iem.payload``
 nor ``deploy``; ``firmware_bridge`` and the safety gate (``deploy/gate*.py``) never import
 ``sim``; ``sim`` imports neither ``deploy`` nor ``firmware_bridge``. The arrows that still
 point the wrong way are listed in :data:`KNOWN`, each to be removed by moving its module
-(the benchmarks that drive the simulator belong above it, the simulated controller beside
-the plant): a new wrong arrow fails, and so does a listed one that is gone (shrink the list).
+(commissioning's numerics beside the arm model, the simulated controller beside the plant):
+a new wrong arrow fails, and so does a listed one that is gone (shrink the list).
 """
 
 import ast
@@ -24,12 +24,6 @@ FORBIDDEN = {
 }
 
 KNOWN = {
-    # the benchmarks that drive the simulator (to move under deploy/)
-    "iem/bench/custom.py": {"sim"},
-    "iem/bench/honesty.py": {"sim"},
-    "iem/bench/longrun.py": {"sim", "deploy"},
-    "iem/bench/paper.py": {"sim"},
-    "iem/bench/realistic.py": {"sim", "deploy"},
     # commissioning's numerics on the arm model (Pinocchio): to move beside it
     "iem/identify.py": {"sim"},
     # the simulated controller and ROS 2 peer: simulators, to move beside the plant

@@ -121,6 +121,7 @@ def test_commands_that_simulate_name_the_extra_to_install(without_extras, comman
 
 def test_require_and_missing_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # what an absent package does
+    monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)  # (loaded by an earlier test)
     with pytest.raises(MissingExtraError, match=r"the figures needs matplotlib \(the 'plots' "
                                                 r"extra\).*pip install 'iem-payload\[plots\]'"):
         require("matplotlib.pyplot", "the figures")

@@ -39,7 +39,7 @@ of ``--budget`` bags (the trained IEM's learners copied onto random poses within
 saved and loaded: ``load_s``, ``file_mb``, ``route_us`` (p50/p99 over 2,000 random queries)
 and the RSS it adds. Then ``route_sizes`` (new; after ``rss_mb_end`` is taken): route µs
 p50/p99 of the float32 scan against the spatial index on maps of ``--sizes`` bags
-(:mod:`iem.bench.routing`); ``--routing-only`` prints that alone, without the motion.
+(:mod:`deploy.bench.routing`); ``--routing-only`` prints that alone, without the motion.
 
 JSON keys: ``windows`` (a list), ``max_window_mae`` {model: {mass, com, inertia}},
 ``reverse_mae`` {model: {...}}, ``false_alarms`` {model: n} (None: no detector),
@@ -336,8 +336,8 @@ def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tande
 
 
 def route_sizes(kin, sizes, seed: int, log=print) -> list[dict]:
-    """Route µs, scan against index, on maps of ``sizes`` bags (:mod:`iem.bench.routing`)."""
-    from iem.bench.routing import format_rows, scan_vs_index
+    """Route µs, scan against index, on maps of ``sizes`` bags (:mod:`deploy.bench.routing`)."""
+    from deploy.bench.routing import format_rows, scan_vs_index
 
     rows = scan_vs_index(kin, sizes, seed) if sizes else []
     if rows:

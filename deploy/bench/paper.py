@@ -20,7 +20,7 @@ Scenarios (every model's output smoothed the same causal way, :mod:`iem.smoothin
   (IEM forms new bags, old_IEM updates in place, BEM never changes, LS restarts).
 - ``forgetting`` (Fig. 5): the excitation-path MAE before and after the new task path
   (``before``/``after`` smoothed, ``before_raw``/``after_raw``), and ``weights_identical``:
-  whether every excitation bag's learner is bit-identical after it (:mod:`iem.bench.honesty`;
+  whether every excitation bag's learner is bit-identical after it (:mod:`deploy.bench.honesty`;
   the old in-place IEM's are not). For the old IEM also its ``update`` (:mod:`iem.old_iem`),
   ``paper``: the paper's figures (``before`` its Table 2, ``after`` section 5.3's, ``ratio``),
   and ``variants``: the same scenario for a copy with the ``running_centre`` update (the

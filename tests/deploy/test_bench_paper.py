@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from iem.bench.paper import run_paper
+from deploy.bench.paper import run_paper
 
 GROUPS = {"mass", "com", "inertia"}
 
@@ -83,7 +83,7 @@ def test_checks_that_can_fail(results):
     for scenario in ("excitation", "new_path"):
         for model in r["models"]:
             assert set(sc[scenario][model]["mae_groups_raw"]) == GROUPS
-    from iem.bench.honesty import holdout_payloads
+    from deploy.bench.honesty import holdout_payloads
     from sim.family import training_payloads
 
     names = [p.name for p in holdout_payloads(0, 2)]

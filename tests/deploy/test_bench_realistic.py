@@ -5,8 +5,8 @@ import json
 
 import pytest
 
+from deploy.bench.realistic import BATCH_MODELS, MODEL_ORDER, SCENARIOS
 from deploy.cli import main
-from iem.bench.realistic import BATCH_MODELS, MODEL_ORDER, SCENARIOS
 
 GROUP_KEYS = {"mass", "com", "inertia"}
 

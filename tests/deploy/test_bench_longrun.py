@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from iem.bench.longrun import (
+from deploy.bench.longrun import (
     LIMIT_FRACTION,
     LONGRUN_PARAMS,
     MARGIN,
@@ -104,8 +104,8 @@ def test_sixty_minutes_hold_the_targets():
 
 
 def test_plain_is_the_papers_rule_and_the_default_is_what_iem_train_makes():
+    from deploy.bench.longrun import PLAIN_PARAMS
     from deploy.training import DEPLOY_ENSEMBLE, make_model
-    from iem.bench.longrun import PLAIN_PARAMS
 
     plain = make_model("IEM", **PLAIN_PARAMS).params()
     assert (plain["reversal"], plain["coverage"], plain["budget_bags"]) == (None, None, None)

@@ -1,6 +1,6 @@
 """``iem bench realistic``: the models on an arm that is not its nominal model.
 
-Set-up (seed ``S``; the paper benchmark's machinery, :class:`iem.bench.paper.Bench`):
+Set-up (seed ``S``; the paper benchmark's machinery, :class:`deploy.bench.paper.Bench`):
 
 - **The arm.** The plant carries the reality gap :class:`sim.plant.RealityGap` with seed
   ``GAP_SEED_BASE + S`` (link masses +-5 %, CoMs +-5 mm, inertias +-10 %, Gaz's friction
