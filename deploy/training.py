@@ -52,10 +52,11 @@ conservative default, for an arm that was not calibrated), the right choice on a
 
 
 def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
-               end_effector=None, noise: str = "arm", **params):
+               end_effector=None, noise: str = "arm", arm=None, **params):
     """A fresh model of ``kind`` for joint states at ``rate_hz``; ``params`` go to its IEM;
     ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
-    ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`."""
+    ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`;
+    ``arm``: :func:`load_arm_file`'s result for them, if the caller has it already."""
     if kind not in TRAINABLE or kind not in MODELS:
         valid = [k for k in TRAINABLE if k in MODELS]
         raise InvalidInputError(f"model kind {kind!r} cannot be trained here; valid kinds are "
@@ -67,7 +68,7 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_f
         raise InvalidInputError(f"noise {noise!r} is not valid; valid are "
                                 f"{', '.join(NOISE_SOURCES)}")
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
-        arm, _ = load_arm_file(arm_file, end_effector)
+        arm, _ = load_arm_file(arm_file, end_effector) if arm is None else arm
         extra = {}
         if arm_file is not None:
             from sim.arm import arm_spec
@@ -187,9 +188,9 @@ def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
     equations' error of ``noise`` (:data:`NOISE_SOURCES`)."""
     from sim.robot import PandaModel
 
-    arm, record = load_arm_file(arm_file, end_effector)
+    arm, record = loaded = load_arm_file(arm_file, end_effector)
     model = make_model(kind, seed, rate_hz, arm_file=arm_file, end_effector=end_effector,
-                       noise=noise, **params)
+                       noise=noise, arm=loaded, **params)
     model.trained_arm = record
     model.trained_family = family
     path = excitation(excitation_spec)

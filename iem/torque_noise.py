@@ -28,7 +28,6 @@ standard deviations. An arm without a measured noise (the nominal, uncalibrated 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -234,8 +233,3 @@ def bias_std(phantoms: np.ndarray, variances: np.ndarray) -> np.ndarray:
         return np.zeros(10)
     excess = np.mean(np.square(phantoms), axis=0) - np.mean(variances, axis=0)
     return np.sqrt(np.maximum(excess, 0.0))
-
-
-def rms(values) -> float:
-    a = np.asarray(values, dtype=float)
-    return math.sqrt(float(np.mean(a * a)))

@@ -92,6 +92,15 @@ STRIBECK_VS = 0.1
 """Stribeck velocity of a friction array that has none (a Gaz array made full), rad/s."""
 
 
+def _beyond_gaz(dq, friction: np.ndarray):
+    """``dq`` as an array, the columns ``fv_pos, fv_neg, fs_pos, fs_neg, vs_pos, vs_neg`` of
+    a full friction array, and the direction switch ``w = σ(phi2 dq)``: what the viscous and
+    Stribeck terms and their Jacobian share."""
+    dq = np.asarray(dq, dtype=float)
+    cols = tuple(friction[:, c] for c in (3, 4, 5, 6, 7, 8))
+    return dq, cols, _sigmoid(friction[:, 1] * dq)
+
+
 def friction_torque(dq, friction) -> np.ndarray:
     """Joint friction torque, N·m, at joint velocities ``dq`` (``(..., 7)``, rad/s): the one
     friction model of the arm (:meth:`ArmParams.joint_torque`). With ``w = σ(phi2 dq)``
@@ -109,9 +118,7 @@ def friction_torque(dq, friction) -> np.ndarray:
     tau = gaz_friction(dq, friction)
     if friction.shape[1] == GAZ_COLUMNS:
         return tau
-    dq = np.asarray(dq, dtype=float)
-    p2, fvp, fvn, fsp, fsn, vsp, vsn = (friction[:, c] for c in (1, 3, 4, 5, 6, 7, 8))
-    w = _sigmoid(p2 * dq)
+    dq, (fvp, fvn, fsp, fsn, vsp, vsn), w = _beyond_gaz(dq, friction)
     stribeck = (2.0 * w - 1.0) * (fsp * w * np.exp(-(dq / vsp) ** 2)
                                   + fsn * (1.0 - w) * np.exp(-(dq / vsn) ** 2))
     return tau + dq * (fvp * w + fvn * (1.0 - w)) + stribeck
@@ -124,9 +131,7 @@ def friction_jacobian(dq, friction) -> np.ndarray:
     gaz = gaz_friction_jacobian(dq, friction)
     if friction.shape[1] == GAZ_COLUMNS:
         return gaz
-    dq = np.asarray(dq, dtype=float)
-    p2, fvp, fvn, fsp, fsn, vsp, vsn = (friction[:, c] for c in (1, 3, 4, 5, 6, 7, 8))
-    w = _sigmoid(p2 * dq)
+    dq, (fvp, fvn, fsp, fsn, vsp, vsn), w = _beyond_gaz(dq, friction)
     dw = w * (1.0 - w) * dq  # d w / d phi2
     sw = 2.0 * w - 1.0
     ep, en = np.exp(-(dq / vsp) ** 2), np.exp(-(dq / vsn) ** 2)

@@ -70,12 +70,6 @@ def folds(parts, n_folds: int = FOLDS, block_s: float = BLOCK_S) -> list[tuple[l
     return [(fit, held) for fit, held in out if held]
 
 
-def arm_noise(arm: ArmParams, parts, source: str = "held-out traffic") -> TorqueNoise:
-    """The :class:`iem.torque_noise.TorqueNoise` of ``arm`` on bare-arm ``parts``, each a
-    stretch of its own."""
-    return _measure_folds([(arm, parts)], source)
-
-
 def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
                          source: str = "traffic", end_effector=None) -> ArmParams:
     """The arm fitted on all ``parts``, carrying the noise its fits measured on traffic they
@@ -96,7 +90,8 @@ def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
 
 
 def _measure_folds(pairs, source: str) -> TorqueNoise:
-    """:func:`arm_noise` over several ``(arm, held-out parts)`` pairs, pooled: the size,
+    """The noise the arms of ``(arm, held-out parts)`` pairs leave on their parts (each part a
+    stretch of its own), pooled: the size,
     correlation and drift of the residuals (:func:`iem.torque_noise.measure`), then the
     correlation weight scaled by what the phantom payloads of the held-out stretches show
     (:func:`iem.torque_noise.phantom_payloads`: their spread beyond their own variances is the
