@@ -66,7 +66,7 @@ def record_rollout(rollout, out, profile: str = "fd") -> None:
     import can
 
     from firmware_bridge.can_link import open_bus
-    from firmware_bridge.sim_controller import open_port
+    from firmware_bridge.controller_port import open_port
     from iem.types import JointState
 
     channel = f"iem-calibrate-record-{id(rollout)}-{next(_records)}"

@@ -68,7 +68,7 @@ COMMANDS: Table = {
     "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
     "identify": ("deploy.identify", "identify a payload offline from a loaded and a bare log"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
-    "sim-controller": ("firmware_bridge.sim_controller",
+    "sim-controller": ("deploy.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),
     "bus-load": ("firmware_bridge.busload", "bits per frame and bus load of a wire profile"),
     "record": ("firmware_bridge.record", "record a CAN bus to .blf, .log, .asc or .trc"),

@@ -32,10 +32,11 @@ def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed:
     On the way out: the controller is stopped (its error, if any, re-raised), the service
     closed (final checkpoint), the bus closed and the switch interval restored.
     """
-    from firmware_bridge.sim_controller import SimController, open_port
+    from firmware_bridge.controller_port import open_port
     from iem.extras import require
 
     from .service import Service
+    from .sim_controller import SimController
     from .status import StatusLine
 
     link = config.link

@@ -20,7 +20,8 @@ in ``skips``) rather than running a burst. With ``realtime=False`` it runs as fa
 
 It is usable in-process (``start()`` runs it in a thread, ``stop()`` ends it), which is how
 the demo and end-to-end benchmarks put it on the ``virtual`` bus beside the plug-in, and from
-the command line (``iem sim-controller``), which is how cross-process tests use it.
+the command line (``iem sim-controller``), which is how cross-process tests use it. Its
+port is the controller's end of a link (:func:`firmware_bridge.controller_port.open_port`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ import time
 
 import numpy as np
 
-from .protocol import ACK_ERRORS, PROFILES, Heartbeat, LoadAck, LoadCommand
+from firmware_bridge.controller_port import fault_spec, open_port
+from firmware_bridge.protocol import ACK_ERRORS, PROFILES, Heartbeat, LoadAck, LoadCommand
 
 MAX_LAG = 20
 """Cycles behind schedule after which the loop stops catching up and restarts its clock."""
@@ -229,7 +231,7 @@ class SimController:
 
 # -- command line --------------------------------------------------------------------------
 def configure(parser) -> None:
-    from .links import controller_interfaces
+    from firmware_bridge.links import controller_interfaces
 
     kinds = controller_interfaces()
     parser.add_argument("--interface", required=True, choices=list(kinds),
@@ -262,60 +264,6 @@ def configure(parser) -> None:
     parser.add_argument("--stats-json", metavar="FILE",
                         help="at exit, write the controller's counts (cycles, overruns, "
                              "commands, faults injected per message) as JSON")
-
-
-def fault_spec(args):
-    from .errors import BridgeConfigError
-    from .faults import FaultSpec
-
-    silence_at, silence_for = None, 0.0
-    if args.silence:
-        try:
-            a, b = args.silence.split(":")
-            silence_at, silence_for = float(a), float(b)
-        except ValueError:
-            raise BridgeConfigError(f"--silence {args.silence!r}: expected START:LENGTH in s, "
-                                    "e.g. 2.0:0.5") from None
-    return FaultSpec(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate,
-                     delay=args.delay, delay_cycles=args.delay_cycles, silence_at=silence_at,
-                     silence_for=silence_for, seed=args.fault_seed)
-
-
-def open_port(interface: str, channel: str, profile: str, faults=None,
-              record_faults: bool = False):
-    """``(port, announce)``: the controller port, and the pty path to print (or None).
-    ``interface`` is a link kind the controller serves, or ``<kind>-pty`` (see
-    :func:`firmware_bridge.links.controller_interfaces`). ``record_faults`` keeps a log of
-    every fault drawn (for tests)."""
-    from .errors import BridgeConfigError
-    from .links import LINKS, controller_interfaces
-
-    valid = controller_interfaces()
-    if interface not in valid:
-        raise BridgeConfigError(f"unknown interface {interface!r}; valid are {', '.join(valid)}")
-    kind, pty = interface.removesuffix("-pty"), interface.endswith("-pty")
-    spec = LINKS[kind]
-    if spec.bus is not None:
-        from .can_link import CanControllerPort, open_bus
-
-        if pty:
-            from .slcan_adapter import SlcanPtyAdapter
-
-            adapter = SlcanPtyAdapter()
-            return CanControllerPort(adapter, profile, faults,
-                                     record_faults=record_faults), adapter.slave_path
-        return CanControllerPort(open_bus(kind, channel, profile), profile, faults,
-                                 record_faults=record_faults), None
-    from .serial_link import SerialControllerPort, open_serial
-
-    if not pty:
-        return SerialControllerPort(open_serial(channel), faults=faults,
-                                    record_faults=record_faults), None
-    from .pty_pair import PtyPair
-
-    pty_port = PtyPair()
-    return SerialControllerPort(pty_port, faults=faults,
-                                record_faults=record_faults), pty_port.slave_path
 
 
 def run(args) -> int:

@@ -131,7 +131,7 @@ class Harness:
 
 class ControllerHarness(Harness):
     """A kind the simulated controller serves, its other end the controller's port
-    (:func:`firmware_bridge.sim_controller.open_port`) publishing ``states`` (a function
+    (:func:`firmware_bridge.controller_port.open_port`) publishing ``states`` (a function
     ``states(n, stride, start) -> [JointState]`` of cycles ``start, start + stride, ...``)
     and acknowledging every command with the load it carries.
 
@@ -147,7 +147,7 @@ class ControllerHarness(Harness):
     def __init__(self, kind: str, interface: str, states: Callable[..., Sequence[JointState]],
                  channel: str = "", profile: str = "fd",
                  bad_channel: tuple[str, type[Exception]] | None = None) -> None:
-        from .sim_controller import open_port
+        from .controller_port import open_port
 
         self.kind, self.profile, self.bad_channel = kind, profile, bad_channel
         self._states = states

@@ -4,11 +4,9 @@
   ``t0 + i/rate`` exactly (so gaps are countable), with franka_ros2's joint names; run in
   its own process with ``python -m firmware_bridge.ros2_peers publish ...`` (it prints
   ``matched`` when a reader matched, then ``done <n>``).
-- :class:`Ros2ControllerPort`: the simulated controller
-  (:class:`firmware_bridge.sim_controller.SimController`, the MuJoCo plant at 1 kHz) behind
-  ROS 2: its joint states on ``/franka/joint_states``, its loads set through a
-  :class:`SetLoadServer`; ``python -m firmware_bridge.ros2_peers controller ...`` runs it
-  in its own process.
+- :class:`Ros2ControllerPort`: a controller's port behind ROS 2: its joint states on
+  ``/franka/joint_states``, its loads set through a :class:`SetLoadServer`; the simulated
+  controller stands behind it in its own process (``python -m deploy.ros2_controller``).
 - :class:`SetLoadServer`: ``/service_server/set_load`` as rmw_cyclonedds_cpp serves it
   (request header echoed, USER_DATA ``serviceid=``), or, with ``layout="fastrtps"``, a
   replier as rmw_fastrtps_cpp's looks to a Cyclone client: no ``serviceid=`` and no header
@@ -23,7 +21,6 @@ tests and the benchmark use ``lo`` with the unicast peer 127.0.0.1 and no multic
 from __future__ import annotations
 
 import argparse
-import json
 import queue
 import sys
 import threading
@@ -302,35 +299,6 @@ class Ros2ControllerPort:
         self.server.close()
 
 
-def run_controller(args) -> int:
-    """``controller``: the simulated controller behind ROS 2 until ``--duration`` s; its
-    statistics (commands applied or refused, the load in force) to ``--stats-json``."""
-    from sim.paths import load_path_csv
-
-    from .ros2_dds import cyclone_config, participant
-    from .sim_controller import SimController
-
-    dp = participant(args.domain, cyclone_config(args.interface, tuple(args.peer)))
-    port = Ros2ControllerPort(dp, args.topic, args.service, layout=args.layout, arm=args.arm,
-                              refuse_first=args.refuse_first)
-    path = load_path_csv(args.path) if args.path else None
-    controller = SimController(port, path=path, once=args.once, seed=args.seed)
-    print("ready", flush=True)
-    try:
-        controller.run(duration=args.duration)
-    finally:
-        port.close()
-    load = controller.plant.controller_load
-    stats = {**controller.stats(),
-             "applied": [[c.load.mass if c.load else 0.0, ok] for c, ok in controller.commands],
-             "load": None if load is None else {"mass": load.mass, "com": list(load.com)}}
-    if args.stats_json:
-        with open(args.stats_json, "w") as f:
-            json.dump(stats, f)
-    print(json.dumps(stats), file=sys.stderr, flush=True)
-    return 0
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m firmware_bridge.ros2_peers")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -344,24 +312,7 @@ def main(argv=None) -> int:
     pub.add_argument("--best-effort", action="store_true")
     pub.add_argument("--unpaced", action="store_true", help="as fast as the writer takes them")
     pub.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
-    ctl = sub.add_parser("controller", help="the simulated controller behind ROS 2")
-    ctl.add_argument("--topic", default="/franka/joint_states")
-    ctl.add_argument("--service", default="/service_server/set_load")
-    ctl.add_argument("--layout", choices=["cyclonedds", "fastrtps"], default="cyclonedds")
-    ctl.add_argument("--domain", type=int, default=0)
-    ctl.add_argument("--interface", default="")
-    ctl.add_argument("--peer", action="append", default=[])
-    ctl.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
-    ctl.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
-    ctl.add_argument("--once", action="store_true", help="play the path once, then hold")
-    ctl.add_argument("--duration", type=float, default=10.0, help="s of controller time")
-    ctl.add_argument("--seed", type=int, default=0)
-    ctl.add_argument("--refuse-first", type=int, default=0, metavar="N",
-                     help="refuse the first N set_load requests (as while moving)")
-    ctl.add_argument("--stats-json", metavar="FILE")
     args = parser.parse_args(argv)
-    if args.command == "controller":
-        return run_controller(args)
     from .ros2_dds import cyclone_config
 
     publish_joint_states(args.topic, args.count, rate_hz=args.rate, domain_id=args.domain,

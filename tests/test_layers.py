@@ -26,9 +26,6 @@ FORBIDDEN = {
 KNOWN = {
     # commissioning's numerics on the arm model (Pinocchio): to move beside it
     "iem/identify.py": {"sim"},
-    # the simulated controller and ROS 2 peer: simulators, to move beside the plant
-    "firmware_bridge/sim_controller.py": {"sim"},
-    "firmware_bridge/ros2_peers.py": {"sim"},
 }
 
 

@@ -17,8 +17,9 @@ from deploy.cli import main
 from deploy.config import LINK_KINDS, load_config
 from deploy.sdnotify import Notifier
 from deploy.service import Service, link_rate
+from deploy.sim_controller import SimController
+from firmware_bridge.controller_port import open_port
 from firmware_bridge.links import LINKS, JointStateSource, PayloadSink, rate_hz
-from firmware_bridge.sim_controller import SimController, open_port
 from sim.paths import new_task_path
 from tests.firmware_bridge import franka_fake
 from tests.firmware_bridge.hil import vcan_unavailable

@@ -15,9 +15,10 @@ import pytest
 
 from deploy.cli import main
 from deploy.replay import CSV_HEADER, replay
+from deploy.sim_controller import SimController
 from firmware_bridge.can_link import open_bus
+from firmware_bridge.controller_port import open_port
 from firmware_bridge.protocol import profile as get_profile
-from firmware_bridge.sim_controller import SimController, open_port
 from iem.persistence import save_model
 from sim.family import default_test_payload
 from sim.paths import new_task_path

@@ -96,7 +96,7 @@ def test_identifies_and_writes_back_through_set_load(model_file, tmp_path, refus
     client = service.link.set_load
     rows = []
     service.on_cycle.append(lambda r: rows.append(r.smoothed.copy()))
-    proc = subprocess.Popen([sys.executable, "-m", "firmware_bridge.ros2_peers", "controller",
+    proc = subprocess.Popen([sys.executable, "-m", "deploy.ros2_controller",
                              "--domain", "99", "--interface", "lo", "--peer", "127.0.0.1",
                              "--path", str(csv), "--once", "--duration", "11", "--seed", "1",
                              "--refuse-first", str(refusals), "--stats-json", str(stats)],

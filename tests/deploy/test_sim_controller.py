@@ -1,15 +1,26 @@
 """The simulated controller: path playback, payload commands, heartbeats, CLI checks."""
 
+import itertools
+
 import numpy as np
 import pytest
 
+from deploy.sim_controller import PathPlayer, SimController, configure
 from firmware_bridge.can_link import CanControllerPort, CanLink, open_bus
+from firmware_bridge.controller_port import fault_spec
 from firmware_bridge.errors import BridgeConfigError
 from firmware_bridge.protocol import LoadCommand
-from firmware_bridge.sim_controller import PathPlayer, SimController, configure, fault_spec
 from sim.family import default_test_payload
 from sim.paths import Q0, excitation_path, linear_path
 from sim.payload import Payload
+
+_channels = itertools.count()
+
+
+@pytest.fixture
+def channel():
+    """A fresh virtual-bus channel name."""
+    return f"test-sim-controller-{next(_channels)}"
 
 
 def test_the_path_plays_forward_then_backward_smoothly():

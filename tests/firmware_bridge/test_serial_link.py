@@ -7,6 +7,7 @@ import serial
 from hypothesis import given
 from hypothesis import strategies as st
 
+from deploy.sim_controller import SimController
 from firmware_bridge.errors import ControllerSilent, DecodeError, LinkError
 from firmware_bridge.pty_pair import PtyPair
 from firmware_bridge.serial_link import (
@@ -20,7 +21,6 @@ from firmware_bridge.serial_link import (
     open_serial,
     unframe,
 )
-from firmware_bridge.sim_controller import SimController
 from sim.family import default_test_payload
 from sim.paths import excitation_path
 

@@ -175,8 +175,9 @@ def test_calibrates_from_a_live_link():
     """The simulated controller (nominal plant: no friction, no offsets) plays the
     calibration motion on the virtual bus; the live link's joint states calibrate the arm."""
     from deploy.calibrate import calibrate_sources
+    from deploy.sim_controller import SimController
+    from firmware_bridge.controller_port import open_port
     from firmware_bridge.links import open_link
-    from firmware_bridge.sim_controller import SimController, open_port
 
     channel = "iem-test-live-calibration"
     link = open_link("virtual", channel, profile="fd", silence_timeout=5.0)
