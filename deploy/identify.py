@@ -8,7 +8,7 @@ the bus, as fast as the machine goes, or a rosbag2 bag of ``sensor_msgs/msg/Join
 (directory, ``.db3``, ``.mcap``; ``--topic``, default ``/franka/joint_states``) or a
 joint-state CSV (``t,q1..q7,dq1..dq7,tau1..tau7``), read by :mod:`firmware_bridge.recordings`;
 ``--format can|rosbag2|csv`` names the format of both, else each one's is detected. The
-numerics are :func:`iem.identify.identify` (see there for the method and the refusals). The
+numerics are :func:`sim.identify.identify` (see there for the method and the refusals). The
 result is written as the project's payload TOML
 (:func:`sim.payload.save_payload`: mass, CoM in the flange frame, inertia about the CoM) and,
 with ``--json``, a summary holding ``payload {mass, com, inertia}`` and ``std {mass, com,
@@ -38,11 +38,11 @@ def read_log(path, profile: str = "fd", format: str | None = None,
              topic: str = DEFAULT_TOPIC):
     """The joint states of a recording (``format`` None: detected; ``profile``: a CAN log's
     wire profile; ``topic``: a rosbag2 bag's JointState topic) as a
-    :class:`iem.identify.Recording`."""
+    :class:`iem.recording.Recording`."""
     from firmware_bridge.errors import LogFileError
     from firmware_bridge.recordings import read_recording, recording_format
     from firmware_bridge.replay import ReplaySource
-    from iem.identify import Recording
+    from iem.recording import Recording
 
     fmt = recording_format(path, format)
     if fmt != "can":  # read whole and checked (at least 2 joint states)
@@ -101,7 +101,7 @@ def print_result(result, summary: dict, log=print) -> None:
 
 
 def run(args) -> int:
-    from iem.identify import identify
+    from sim.identify import identify
     from sim.payload import payload_to_toml
 
     if args.bare is None and args.arm is None:

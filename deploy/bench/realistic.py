@@ -186,8 +186,8 @@ def _batch(loaded, bare, arm, truth, after: int = 0) -> dict:
     :func:`iem.identify.identify` refuses the recordings, ``refused`` with its reason and
     None figures. The motion is the 6 s task path: inertia is not excited, and the
     excitation check is off, so inertia is reported as what the prior gives."""
-    from iem.identify import IdentifyError, identify
     from iem.metrics import groups_of, mae
+    from sim.identify import IdentifyError, identify
 
     def cut(r):
         return None if r is None else (r.t[after:], r.q[after:], r.dq[after:], r.tau[after:])

@@ -23,10 +23,10 @@ import pytest
 from deploy.cli import main
 from firmware_bridge.can_link import CanControllerPort
 from firmware_bridge.protocol import Heartbeat
-from iem.identify import identify
 from iem.metrics import mae_groups
 from iem.types import JointState
 from sim.family import default_test_payload
+from sim.identify import identify
 from sim.paths import excitation_path
 from sim.payload import load_payload
 from sim.plant import PandaPlant, RealityGap

@@ -235,7 +235,7 @@ def test_calibrate_and_identify_take_the_same_formats(tmp_path, monkeypatch, cap
     import deploy.calibrate
     from deploy.calibrate import calibrate_sources, read_states
     from deploy.identify import read_log
-    from iem.identify import identify
+    from sim.identify import identify
     from sim.paths import excitation_path
     from sim.plant import RealityGap
 

@@ -1,4 +1,4 @@
-"""``iem.identify``: the offline identification core, on joint-state arrays.
+"""``sim.identify``: the offline identification core, on joint-state arrays.
 
 Independent truth: the torques are Pinocchio's RNEA of the arm with the payload mounted as a
 body on link 7 (``PandaModel.rnea_with_payload``'s way: the payload's inertia added to the
@@ -15,7 +15,9 @@ import pinocchio as pin
 import pytest
 
 from iem.errors import InvalidInputError
-from iem.identify import (
+from iem.metrics import mae_groups
+from sim.family import default_test_payload, test_payloads
+from sim.identify import (
     BareLoadError,
     ExcitationError,
     Identification,
@@ -23,8 +25,6 @@ from iem.identify import (
     Recording,
     identify,
 )
-from iem.metrics import mae_groups
-from sim.family import default_test_payload, test_payloads
 from sim.paths import Q0, excitation_path, new_task_path, rest_path
 from sim.payload import Payload
 from sim.robot import PandaModel
@@ -310,12 +310,13 @@ def test_bad_arguments_are_refused_with_what_is_valid(short):
 
 
 def test_importing_the_module_loads_neither_scipy_nor_pinocchio():
-    """The ``iem`` core stays numpy-only at import; the heavy parts load when identify runs."""
+    """The package stays numpy-only at import (the cell PC's ``iem identify``); the heavy
+    parts load when identify runs."""
     import subprocess
     import sys
 
-    code = ("import sys, iem.identify; "
-            "print(sorted(m for m in ('scipy', 'pinocchio', 'sim', 'mujoco') "
+    code = ("import sys, sim.identify; "
+            "print(sorted(m for m in ('scipy', 'pinocchio', 'sim.robot', 'mujoco') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, timeout=60)
