@@ -33,7 +33,8 @@ import time
 import numpy as np
 
 from firmware_bridge.controller_port import fault_spec, open_port
-from firmware_bridge.protocol import ACK_ERRORS, PROFILES, Heartbeat, LoadAck, LoadCommand
+from firmware_bridge.messages import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
+from firmware_bridge.protocol import PROFILES
 
 MAX_LAG = 20
 """Cycles behind schedule after which the loop stops catching up and restarts its clock."""

@@ -38,22 +38,14 @@ import can
 from iem.payload import Payload
 from iem.types import JointState
 
+from .control_codecs import LoadAssembler
 from .errors import BridgeConfigError, DecodeError, LinkError
 from .faults import FaultSpec
 from .framed import FramedControllerPort, FramedLink, heartbeat_text
 from .links import LinkCounters, bus_kinds, link_kind
-from .protocol import (
-    ACK_ERRORS,
-    PROFILES,
-    Heartbeat,
-    LoadAck,
-    LoadAssembler,
-    LoadCommand,
-    WireProfile,
-)
-from .protocol import (
-    profile as get_profile,
-)
+from .messages import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
+from .protocol import PROFILES, WireProfile
+from .protocol import profile as get_profile
 from .reassembly import CycleAssembler
 
 SEND_TIMEOUT = 0.1

@@ -29,7 +29,7 @@ from iem.types import JointState
 from .errors import AckTimeout, ControllerSilent
 from .faults import MAX_EVENTS, FaultInjector, FaultSpec
 from .links import BUFFERED_CYCLES, LinkCounters
-from .protocol import Heartbeat, LoadAck
+from .messages import Heartbeat, LoadAck
 
 ACK_POLL_S = 0.01
 """Longest single wait of ``wait_ack`` on the transport, s."""

@@ -52,7 +52,7 @@ from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
 from .links import BUFFERED_CYCLES, LinkCounters
-from .protocol import LoadAck
+from .messages import LoadAck
 from .reassembly import CYCLE_MOD, Sequencer
 
 LOAD_TIMEOUT_S = 2.0

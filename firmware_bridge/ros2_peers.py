@@ -251,7 +251,7 @@ class Ros2ControllerPort:
     def _answer(self, request) -> tuple[bool, str]:
         from iem.payload import Payload
 
-        from .protocol import LoadCommand
+        from .messages import LoadCommand
 
         if self.refuse_first > 0:
             self.refuse_first -= 1

@@ -35,7 +35,7 @@ import time
 from iem.payload import Payload
 
 from .errors import AckTimeout
-from .protocol import LoadAck
+from .messages import LoadAck
 
 log = logging.getLogger("iem.ros2")
 
