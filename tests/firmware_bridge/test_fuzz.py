@@ -13,8 +13,8 @@ from firmware_bridge.can_link import CanDecoder
 from firmware_bridge.errors import DecodeError
 from firmware_bridge.links import DROP_KINDS
 from firmware_bridge.protocol import PROFILES, LoadAssembler, profile
-from firmware_bridge.serial_link import (
-    SerialDecoder,
+from firmware_bridge.serial_link import SerialDecoder
+from firmware_bridge.serial_wire import (
     cobs_decode,
     decode_message,
     encode_joint_state,

@@ -10,17 +10,8 @@ from hypothesis import strategies as st
 from deploy.sim_controller import SimController
 from firmware_bridge.errors import ControllerSilent, DecodeError, LinkError
 from firmware_bridge.pty_pair import PtyPair
-from firmware_bridge.serial_link import (
-    SerialControllerPort,
-    SerialDecoder,
-    SerialLink,
-    cobs_decode,
-    cobs_encode,
-    encode_joint_state,
-    frame,
-    open_serial,
-    unframe,
-)
+from firmware_bridge.serial_link import SerialControllerPort, SerialDecoder, SerialLink, open_serial
+from firmware_bridge.serial_wire import cobs_decode, cobs_encode, encode_joint_state, frame, unframe
 from sim.family import default_test_payload
 from sim.paths import excitation_path
 

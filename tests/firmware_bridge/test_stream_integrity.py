@@ -159,7 +159,8 @@ def test_one_bogus_frame_with_a_valid_crc_is_dropped_not_believed(name, channel)
 
 
 def test_a_bogus_serial_message_is_dropped_too():
-    from firmware_bridge.serial_link import SerialDecoder, encode_joint_state, frame
+    from firmware_bridge.serial_link import SerialDecoder
+    from firmware_bridge.serial_wire import encode_joint_state, frame
 
     states = synthetic_states(200)
     dec = SerialDecoder()
