@@ -31,20 +31,16 @@ What every link does (the protocols of :mod:`firmware_bridge.links`):
   before anything opens), and a channel that cannot be opened raises the kind's documented
   error.
 
-Two harnesses are here, for what any kind of its sort needs: :class:`ControllerHarness` (a
-kind the simulated controller's port serves: ``virtual``, ``socketcan``, ``slcan`` and
-``serial``, the last two on a pty) and :class:`RecordingHarness` (``replay`` of a CAN log,
-``recording`` of a CSV or rosbag2 bag). The others (``franka`` behind a fake pylibfranka,
-``ros2`` over loopback DDS) are the tests'.
+The harnesses (:class:`~firmware_bridge.link_harness.Harness`, and the controller's and the
+recording's) are in :mod:`firmware_bridge.link_harness`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import numpy as np
 
@@ -53,23 +49,17 @@ from iem.payload import Payload
 from iem.types import JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, EndOfStream
+from .link_harness import N_STATES, READ_TIMEOUT_S, Harness
 from .links import LINKS, JointStateSource, LinkCounters, PayloadSink, open_link, rate_hz
-from .protocol import LoadAck
+from .messages import LoadAck
 from .reassembly import CYCLE_MOD
 
-N_STATES = 20
-"""Joint states a check has the other end send (a few frames: a pty's buffer holds them)."""
-READ_TIMEOUT_S = 5.0
-"""How long a check waits for a joint state the other end has sent (a loaded machine)."""
 SILENCE_S = 0.05
 """The ``read`` timeout a check gives when nothing was sent."""
 ACK_TIMEOUT_S = 10.0
 """How long a check waits for an acknowledgement, serving the other end meanwhile."""
 TOOL = Payload("tool", 0.73, (0.01, -0.02, 0.06), (2e-3, 1e-4, -2e-4, 3e-3, 3e-4, 1.5e-3))
 """A physically consistent load for the sink checks."""
-CAN_TOLERANCE = (0.5e-5 + 1e-12, 0.5e-4 + 1e-12, 0.005 + 1e-12)
-"""Half the CAN wire's steps of q, dq and tau_J (:mod:`firmware_bridge.protocol`): how far a
-joint state read from a CAN link or log may lie from what was sent."""
 IMPOSSIBLE = Payload("impossible", -1.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 1.0, 0.0, 1.0))
 """A load no sink may send: negative mass."""
 
@@ -80,135 +70,6 @@ class CheckFailed(IemError, AssertionError):
 
 def _fail(check: str, kind: str, message: str) -> CheckFailed:
     return CheckFailed(f"{check} ({kind}): {message}")
-
-
-class Harness:
-    """A link of one kind, open on a fresh channel, and the other end of it.
-
-    Attributes:
-        kind: the link kind (a key of :data:`~firmware_bridge.links.LINKS`).
-        channel: the channel the link was opened on.
-        profile: the wire profile it was opened with.
-        link: the link under check (opened by the harness, closed by :meth:`close`).
-        recorded: joint states the recording holds, or None for a live link.
-        tolerance: absolute tolerances of ``(q, dq, tau_J)`` against what was sent (the
-            wire's resolution; zeros: exact), or None where what was sent is not known.
-        bad_channel: ``(channel, error class)``: a channel of this kind that cannot be
-            opened and the error the kind documents for it, or None.
-    """
-
-    kind: str
-    channel: str
-    profile: str = "fd"
-    link: object
-    recorded: int | None = None
-    tolerance: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
-    bad_channel: tuple[str, type[Exception]] | None = None
-
-    def publish(self, n: int) -> list[JointState] | None:
-        """The other end sends ``n`` more joint states (a recording: its next ``n``); what
-        it sent, or None where the values are not known."""
-        raise NotImplementedError
-
-    def serve(self) -> None:
-        """The other end answers the payload commands it received (if it does not by
-        itself)."""
-
-    def close(self) -> None:
-        """Close the link (again, if a check closed it) and the other end."""
-        self.link.close()
-
-    def __enter__(self) -> Harness:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc is None:
-            self.close()
-            return
-        with contextlib.suppress(Exception):  # the check's failure is the one to report
-            self.close()
-
-
-class ControllerHarness(Harness):
-    """A kind the simulated controller serves, its other end the controller's port
-    (:func:`firmware_bridge.controller_port.open_port`) publishing ``states`` (a function
-    ``states(n, stride, start) -> [JointState]`` of cycles ``start, start + stride, ...``)
-    and acknowledging every command with the load it carries.
-
-    Args:
-        kind: the link kind.
-        interface: the controller's interface (``<kind>`` or ``<kind>-pty``).
-        channel: the bus channel (not used by the ``-pty`` interfaces, which make a pty).
-        states: the joint states' generator.
-        profile: the CAN wire profile.
-        bad_channel: see :class:`Harness`.
-    """
-
-    def __init__(self, kind: str, interface: str, states: Callable[..., Sequence[JointState]],
-                 channel: str = "", profile: str = "fd",
-                 bad_channel: tuple[str, type[Exception]] | None = None) -> None:
-        from .controller_port import open_port
-
-        self.kind, self.profile, self.bad_channel = kind, profile, bad_channel
-        self._states = states
-        self.port, pty = open_port(interface, channel, profile)
-        self.channel = pty or channel
-        self.stride = getattr(self.port, "stride", 1)
-        if LINKS[kind].bus is not None:
-            self.tolerance = CAN_TOLERANCE
-        try:
-            self.link = open_link(kind, self.channel, profile=profile)
-        except BaseException:
-            self.port.close()
-            raise
-        self._next = 0
-        self._wait_open()
-
-    def _wait_open(self) -> None:
-        """An slcan adapter drops frames until the link opens its channel (``O``)."""
-        bus = getattr(self.port, "bus", None)
-        deadline = time.monotonic() + READ_TIMEOUT_S
-        while not getattr(bus, "is_open", True) and time.monotonic() < deadline:
-            self.port.poll_commands()
-            time.sleep(0.001)
-
-    def publish(self, n: int) -> list[JointState]:
-        out = list(self._states(n, self.stride, self._next))
-        for s in out:
-            self.port.tick(s.cycle, s.t)
-            self.port.publish(s)
-        self._next = out[-1].cycle + self.stride if out else self._next
-        return out
-
-    def serve(self) -> None:
-        for cmd in self.port.poll_commands():
-            self.port.send_ack(LoadAck(seq=cmd.seq, applied=True, load=cmd.load))
-
-    def close(self) -> None:
-        try:
-            self.link.close()
-        finally:
-            self.port.close()
-
-
-class RecordingHarness(Harness):
-    """A recording (``replay``: a CAN log; ``recording``: a CSV or rosbag2 bag) at ``path``
-    that holds ``states``, opened with ``options`` (e.g. ``pace``)."""
-
-    def __init__(self, kind: str, path, states: Sequence[JointState], profile: str = "fd",
-                 tolerance: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                 bad_channel: tuple[str, type[Exception]] | None = None, **options) -> None:
-        self.kind, self.channel, self.profile = kind, str(path), profile
-        self.tolerance, self.bad_channel = tolerance, bad_channel
-        self._states = list(states)
-        self.recorded = len(self._states)
-        self._next = 0
-        self.link = open_link(kind, self.channel, profile=profile, **options)
-
-    def publish(self, n: int) -> list[JointState]:
-        out = self._states[self._next:self._next + n]
-        self._next += len(out)
-        return out
 
 
 # -- helpers -------------------------------------------------------------------------------

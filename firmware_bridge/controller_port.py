@@ -5,7 +5,7 @@
 adapter, a :class:`~firmware_bridge.serial_link.SerialControllerPort` on a serial device or
 a pty), with the faults of :func:`fault_spec` injected on what it sends. The simulated
 controller (:mod:`deploy.sim_controller`) and the link check suite
-(:class:`firmware_bridge.checks.ControllerHarness`) stand behind it.
+(:class:`firmware_bridge.link_harness.ControllerHarness`) stand behind it.
 """
 
 from __future__ import annotations

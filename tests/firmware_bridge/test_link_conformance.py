@@ -26,15 +26,15 @@ import time
 import pytest
 
 from firmware_bridge import checks
-from firmware_bridge.checks import (
+from firmware_bridge.checks import CheckFailed
+from firmware_bridge.errors import BridgeConfigError, LinkError, LogFileError
+from firmware_bridge.link_harness import (
     CAN_TOLERANCE,
     N_STATES,
-    CheckFailed,
     ControllerHarness,
     Harness,
     RecordingHarness,
 )
-from firmware_bridge.errors import BridgeConfigError, LinkError, LogFileError
 from firmware_bridge.links import LINKS
 from iem.errors import IemError, PayloadError
 from iem.types import JointState
