@@ -13,7 +13,6 @@ from iem.errors import ModelFileError
 from sim.arm import ArmParams, friction_torque, load_arm, save_arm
 from sim.calibration import (
     CalibrationError,
-    _regressors,
     base_basis,
     calibrate,
     calibrate_segments,
@@ -22,6 +21,7 @@ from sim.calibration import (
     prepare,
 )
 from sim.calibration import CalibrationSettings as Settings
+from sim.calibration.excitation import regressors
 from sim.family import default_test_payload
 from sim.paths import Q0, calibration_path, excitation_path, linear_path, rest_path
 from sim.plant import PandaPlant, RealityGap
@@ -78,7 +78,7 @@ def test_recovers_the_excited_base_parameters(bare, arm):
     # prior (prior-scaled units, eigenvectors of the data's information)
     _, r = bare
     _t, q, dq, ddq, _tau = prepare(r.t, r.q, r.dq, r.tau)
-    A = _regressors(PandaModel().model, q, dq, ddq).reshape(-1, 70) @ (sd[:, None] * basis)
+    A = regressors(PandaModel().model, q, dq, ddq).reshape(-1, 70) @ (sd[:, None] * basis)
     lam, vec = np.linalg.eigh(A.T @ A / Settings().sigma_tau ** 2)
     excited = vec[:, lam > 100.0]
     assert excited.shape[1] >= 20  # of 43 (the others stay near their prior)
@@ -110,9 +110,9 @@ def test_report_and_consistency(arm):
     assert r["warnings"] == [] and r["fallback_joints"] == []
     assert r["iterations"] < Settings().iterations  # converged
     for p in arm.link_params:  # every body physically consistent
-        from sim.calibration import _pseudo_min_eig
+        from sim.calibration.consistency import pseudo_min_eig
 
-        assert _pseudo_min_eig(p) > 0
+        assert pseudo_min_eig(p) > 0
 
 
 def test_refuses_traffic_that_does_not_excite():
@@ -219,7 +219,7 @@ def test_the_guard_undoes_a_fit_that_is_worse_than_nominal(bare, arm):
     keeps the nominal bodies: no joint ends worse, and the warnings name the joints."""
     _, r = bare
     _t, q, dq, ddq, tau = prepare(r.t, r.q, r.dq, r.tau)
-    W = _regressors(PandaModel().model, q, dq, ddq)
+    W = regressors(PandaModel().model, q, dq, ddq)
     theta0 = nominal_link_params()
     nominal = np.sqrt(np.mean((tau - W @ theta0.ravel()) ** 2, axis=0))
 
