@@ -17,7 +17,7 @@ show in the measured link-side torque ``tau_J``:
 :class:`ArmParams` holds one such arm: the seven joint bodies' dynamic parameters (Pinocchio
 order ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``, in each joint's frame, inertia
 about the joint origin; joint 7 includes the hand), the friction per joint and the
-offsets. The simulated arm's departure (:meth:`sim.plant.RealityGap.realise`) and the one
+offsets. The simulated arm's departure (:meth:`sim.reality_gap.RealityGap.realise`) and the one
 identified from traffic (:mod:`sim.calibration`, ``iem calibrate``) are both an ArmParams, so
 the plant, the tandem simulators and the estimators' regression use one arm model:
 :class:`sim.robot.PandaModel` built with ``arm=`` gives

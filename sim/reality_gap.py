@@ -1,0 +1,229 @@
+"""How the simulated real arm departs from the nominal model (:class:`RealityGap`), all
+drawn from one seed: the part an arm model describes (links, friction, torque offsets:
+:meth:`RealityGap.realise`) and the part none here does (:class:`Unmodelled`: friction that
+changes with load and warm-up, position ripples, the torque sensor's gain error and drift)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from .arm import GAZ_PHI, ArmParams, full_friction
+from .mujoco_model import LINK_BODIES, build_mujoco_model
+from .robot import TAU_MAX
+
+
+@dataclass(frozen=True, eq=False)
+class Unmodelled:
+    """What the plant does that no arm model here describes, per joint, drawn by
+    :meth:`RealityGap.unmodelled`. At time ``t`` (s the plant has run, resets included),
+    joint state ``q``, ``dq`` and applied torque ``tau``, the links move under ``tau`` less::
+
+        tau_f(dq) (1 + load |tau| / TAU_MAX) (1 - warmup (1 - exp(-t / WARMUP_S)))
+        + sum_i ripple_i sin(wavenumber_i q + ripple_phase_i)
+
+    (``tau_f`` the arm's friction, :func:`sim.arm.friction_torque`; two ripples, a slow and
+    a fast one), and the torque sensor reads
+    ``(1 + gain) tau + drift sin(2 pi t / drift_period + drift_phase)`` plus the arm's
+    constant offset.
+
+    Attributes:
+        load: friction's growth with the joint's load, at the rated torque (-), ``(7,)``.
+        warmup: friction's fall as the joint warms, in the end (-; time constant
+            :data:`WARMUP_S`), ``(7,)``.
+        gain: the torque sensor's gain error (-), ``(7,)``.
+        ripple: amplitudes of the position ripples, N·m, ``(7, 2)``; wavenumber rad⁻¹ and
+            ripple_phase rad, the same shape.
+        drift: amplitude of the sensor offset's slow drift, N·m, ``(7,)``; drift_period s,
+            drift_phase rad, the same shape.
+    """
+
+    load: np.ndarray
+    warmup: np.ndarray
+    gain: np.ndarray
+    ripple: np.ndarray
+    wavenumber: np.ndarray
+    ripple_phase: np.ndarray
+    drift: np.ndarray
+    drift_period: np.ndarray
+    drift_phase: np.ndarray
+
+    @property
+    def any(self) -> bool:
+        """Whether any effect is there."""
+        return bool(np.any(self.load) or np.any(self.warmup) or np.any(self.gain)
+                    or np.any(self.ripple) or np.any(self.drift))
+
+    def friction_scale(self, t: float, tau) -> np.ndarray:
+        """The factor on the arm's friction at time ``t`` under the applied torque ``tau``."""
+        return ((1.0 + self.load * np.abs(tau) / TAU_MAX)
+                * (1.0 - self.warmup * (1.0 - np.exp(-t / WARMUP_S))))
+
+    def position_torque(self, q) -> np.ndarray:
+        """The position ripples at ``q``, N·m."""
+        return np.sum(self.ripple * np.sin(self.wavenumber * np.asarray(q)[:, None]
+                                           + self.ripple_phase), axis=1)
+
+    def sensor(self, t: float, tau) -> np.ndarray:
+        """What the torque sensor reads of the applied ``tau`` at time ``t``, less the arm's
+        constant offset."""
+        return ((1.0 + self.gain) * tau
+                + self.drift * np.sin(2.0 * np.pi * t / self.drift_period + self.drift_phase))
+
+
+WARMUP_S = 600.0
+"""Time constant of the joints' warm-up (:attr:`Unmodelled.warmup`), s."""
+LARGE_DRIVES = np.array([True, True, True, True, False, False, False])
+"""The Panda's joints 1-4 have the large drives (87 N·m), 5-7 the small ones (12 N·m)."""
+
+
+@dataclass(frozen=True)
+class RealityGap:
+    """How the plant's arm departs from the nominal model, drawn from ``seed``.
+
+    What an arm model (:class:`sim.arm.ArmParams`, :meth:`realise`) describes, and a
+    calibration can identify:
+
+    - per link body (``panda_link1..7``, each in its own frame): the mass scaled by
+      ``1 + mass_rel u``, the principal moments about the CoM by ``1 + inertia_rel u`` (each,
+      principal axes kept), the CoM moved by ``com_abs u`` per axis, ``u ~ U(-1, 1)``;
+    - per joint, friction (:func:`sim.arm.friction_torque`): Gaz's (:data:`sim.arm.GAZ_PHI`)
+      with each of ``phi1, phi2, phi3`` multiplied by a factor drawn in ``friction_factor``;
+      viscous friction ``U(0, viscous)`` N·m·s/rad, and a Stribeck excess
+      ``U(0, stribeck) phi1`` at a Stribeck velocity ``U(*stribeck_vs)``, each drawn for
+      either direction of motion;
+    - a torque-sensor offset per joint ``~ N(0, offset_std²)``.
+
+    What no arm model here describes (:class:`Unmodelled`, :meth:`unmodelled`), which a
+    calibrated arm leaves in the residual, per joint:
+
+    - friction that grows with the joint's load, by ``U(0, load_friction)`` at the rated
+      torque (:data:`sim.robot.TAU_MAX`), and falls by ``U(0, warmup)`` as the joint warms
+      (time constant :data:`WARMUP_S`, over the time the plant has run);
+    - a torque-sensor gain error ``U(-gain_rel, gain_rel)`` and a slow drift of its offset,
+      ``U(0, offset_drift)`` N·m in a sine of period ``U(*drift_period_s)`` s;
+    - two position ripples ``a sin(k q + phase)``, a slow one and a fast one (the fast one
+      passes 3-10 Hz at the motion's speeds): ``a ~ U(0.5, 1)`` times ``ripple_large``
+      (joints 1-4) or ``ripple_small`` (joints 5-7), N·m, ``k ~ U(*ripple_wavenumber[i])``
+      rad⁻¹, ``phase ~ U(0, 2 pi)``.
+
+    The defaults are tuned on gap seeds 10-12 so that the calibrated arm's held-out residual
+    has the size and the colour of a real Panda's (README, "Reality gap"). Body 7 keeps the
+    Franka Hand. Each group of draws has its own stream of ``seed``: the links, Gaz's
+    factors and the offsets of a seed are the same whatever the other bounds.
+
+    Attributes:
+        mass_rel: relative mass error bound (-, default 0.05).
+        inertia_rel: relative inertia error bound (-, default 0.10).
+        com_abs: CoM error bound per axis, m (default 0.005).
+        friction_factor: ``(low, high)`` of the factor on Gaz's values (default 0.7-1.3),
+            or None: no friction at all.
+        viscous: bound of the viscous coefficients, N·m·s/rad.
+        stribeck: bound of the Stribeck excess, relative to ``phi1``.
+        stribeck_vs: ``(low, high)`` of the Stribeck velocities, rad/s.
+        offset_std: standard deviation of the torque offsets, N·m (default 0.1).
+        load_friction, warmup, gain_rel, offset_drift, drift_period_s, ripple_large,
+            ripple_small, ripple_wavenumber: the unmodelled effects' bounds (above).
+        seed: random seed of the whole departure.
+    """
+
+    mass_rel: float = 0.05
+    inertia_rel: float = 0.10
+    com_abs: float = 0.005
+    friction_factor: tuple[float, float] | None = (0.7, 1.3)
+    viscous: float = 0.1
+    stribeck: float = 0.4
+    stribeck_vs: tuple[float, float] = (0.05, 0.3)
+    offset_std: float = 0.1
+    load_friction: float = 0.5
+    warmup: float = 0.2
+    gain_rel: float = 0.02
+    offset_drift: float = 0.1
+    drift_period_s: tuple[float, float] = (60.0, 240.0)
+    ripple_large: tuple[float, float] = (0.2, 0.2)
+    ripple_small: tuple[float, float] = (0.06, 0.06)
+    ripple_wavenumber: tuple[tuple[float, float], tuple[float, float]] = ((0.5, 3.0),
+                                                                          (25.0, 60.0))
+    seed: int = 0
+
+    def modelled_only(self) -> RealityGap:
+        """This gap without its unmodelled effects: what an arm model describes exactly
+        (the same links, friction and offsets)."""
+        return replace(self, load_friction=0.0, warmup=0.0, gain_rel=0.0, offset_drift=0.0,
+                       ripple_large=(0.0, 0.0), ripple_small=(0.0, 0.0))
+
+    @classmethod
+    def gaz_only(cls, seed: int = 0) -> RealityGap:
+        """The links, Gaz's friction and the offsets of ``seed`` alone: no viscous or
+        Stribeck friction, nothing unmodelled."""
+        return cls(seed=seed, viscous=0.0, stribeck=0.0).modelled_only()
+
+    def bodies(self, model: mujoco.MjModel) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The perturbed link bodies ``(mass, com (3,), principal moments (3,))`` in their
+        frames (principal axes unchanged), from the nominal bodies of ``model`` (a fresh
+        plant model)."""
+        rng = np.random.default_rng(self.seed)
+        out = []
+        for name in LINK_BODIES:
+            b = model.body(name)
+            mass = float(b.mass[0]) * (1.0 + self.mass_rel * rng.uniform(-1, 1))
+            moments = b.inertia * (1.0 + self.inertia_rel * rng.uniform(-1, 1, 3))
+            com = b.ipos + self.com_abs * rng.uniform(-1, 1, 3)
+            out.append((mass, com, moments))
+        return out
+
+    def joints(self) -> tuple[np.ndarray, np.ndarray]:
+        """The friction (``(7, 9)``, or ``(7, 3)`` Gaz's alone when ``viscous`` and
+        ``stribeck`` are 0) and the offsets ``(7,)`` (drawn after the bodies)."""
+        rng = np.random.default_rng([self.seed, 1])
+        if self.friction_factor is None:
+            friction = np.zeros((7, 3))
+        else:
+            lo, hi = self.friction_factor
+            friction = GAZ_PHI * rng.uniform(lo, hi, (7, 3))
+        offset = self.offset_std * rng.standard_normal(7)
+        if self.friction_factor is not None and (self.viscous or self.stribeck):
+            more = np.random.default_rng([self.seed, 2])
+            friction = full_friction(friction)
+            friction[:, 3:5] = self.viscous * more.uniform(0.0, 1.0, (7, 2))
+            friction[:, 5:7] = self.stribeck * more.uniform(0.0, 1.0, (7, 2)) * friction[:, :1]
+            friction[:, 7:9] = more.uniform(*self.stribeck_vs, (7, 2))
+        return friction, offset
+
+    def unmodelled(self) -> Unmodelled:
+        """The effects no arm model describes (:class:`Unmodelled`), from their own stream
+        of the seed (each drawn whatever the others' bounds)."""
+        rng = np.random.default_rng([self.seed, 3])
+        u = lambda lo=0.0, hi=1.0, shape=7: rng.uniform(lo, hi, shape)  # noqa: E731
+        size = np.where(LARGE_DRIVES[:, None], self.ripple_large, self.ripple_small)
+        (k0, k1), (k2, k3) = self.ripple_wavenumber
+        return Unmodelled(
+            load=self.load_friction * u(), warmup=self.warmup * u(),
+            gain=self.gain_rel * u(-1.0), ripple=size * u(0.5, 1.0, (7, 2)),
+            wavenumber=np.column_stack((u(k0, k1), u(k2, k3))),
+            ripple_phase=u(0.0, 2.0 * np.pi, (7, 2)),
+            drift=self.offset_drift * u(), drift_period=u(*self.drift_period_s),
+            drift_phase=u(0.0, 2.0 * np.pi))
+
+    def realise(self, model: mujoco.MjModel | None = None) -> ArmParams:
+        """The arm this gap describes, as the arm model uses it (Pinocchio joint bodies:
+        the nominal ones with each link's perturbation added; body 7 keeps the hand)."""
+        from .robot import nominal_link_params
+
+        model = build_mujoco_model() if model is None else model
+        params = nominal_link_params()
+        for j, (name, (mass, com, moments)) in enumerate(
+                zip(LINK_BODIES, self.bodies(model), strict=True)):
+            b = model.body(name)
+            rot = np.empty(9)
+            mujoco.mju_quat2Mat(rot, b.iquat)
+            rot = rot.reshape(3, 3)
+            nominal = pin.Inertia(float(b.mass[0]), b.ipos.copy(),
+                                  rot @ np.diag(b.inertia) @ rot.T)
+            real = pin.Inertia(mass, com, rot @ np.diag(moments) @ rot.T)
+            params[j] += real.toDynamicParameters() - nominal.toDynamicParameters()
+        friction, offset = self.joints()
+        return ArmParams(params, friction, offset, {"source": f"reality gap {self}"})
