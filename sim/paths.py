@@ -37,41 +37,28 @@ The paths of the paper (Taie et al. 2024, sections 4.1 and 5.2):
 - :func:`linear_path` is that shape between any two configurations; :func:`rest_path` stands
   still (useful before and after a motion).
 
-Path CSV files (:func:`load_path_csv`, :func:`save_path_csv`)::
-
-    t,q1,q2,q3,q4,q5,q6,q7
-    0.0,0.0,-0.3,0.0,-2.2,0.0,2.0,0.8
-    0.01,...
-
-- the header is exactly ``t,q1,q2,q3,q4,q5,q6,q7`` (spaces around the names are allowed);
-- ``t`` in s, strictly increasing, every interval at most 0.01 s (a rate of at least 100 Hz);
-- ``q1..q7`` in rad; every value a finite number; at least 4 data rows; blank lines ignored;
-  UTF-8 text (a leading byte-order mark is allowed).
-
-A loaded file is shifted to start at t = 0 and resampled to 1 kHz up to its last sample with a
-not-a-knot cubic spline per joint (``scipy.interpolate.CubicSpline``); ``dq`` and ``ddq`` are
-the spline's derivatives. Then the limits are checked. Every problem raises
-:class:`~iem.errors.PathError` naming the file, the line (1-based, the header is line 1), the
-column where relevant, and what would be valid.
+Path CSV files are read and written by :mod:`sim.path_csv` (:func:`load_path_csv`,
+:func:`save_path_csv`, importable from here too); the :class:`Path` type itself is
+:mod:`sim.joint_path`'s.
 """
 
 from __future__ import annotations
 
 import math
-import os
-from dataclasses import dataclass
-from pathlib import Path as FsPath
 
 import numpy as np
 
 from iem.errors import PathError
-from iem.types import NOMINAL_RATE_HZ
-from sim.robot import PandaModel, panda
+from sim.robot import panda
 
-RATE_HZ = NOMINAL_RATE_HZ
-"""Sample rate of every :class:`Path`, Hz."""
+from .joint_path import N_JOINTS, RATE_HZ, Path, frozen_array
+from .path_csv import CSV_HEADER, MIN_CSV_RATE_HZ, MIN_CSV_ROWS, load_path_csv, save_path_csv
 
-N_JOINTS = 7
+__all__ = ["CALIBRATION_AMPLITUDE", "CALIBRATION_SEED", "CSV_HEADER", "EXCITATION_AMPLITUDE",
+           "EXCITATION_HARMONICS", "EXCITATION_PERIOD", "LIMIT_FRACTION", "MIN_CSV_RATE_HZ",
+           "MIN_CSV_ROWS", "N_JOINTS", "Q0", "Q_END", "Q_START", "RATE_HZ", "Path",
+           "calibration_path", "excitation_path", "linear_path", "load_path_csv",
+           "new_task_path", "rest_path", "save_path_csv"]
 
 Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
 """Mid-range configuration the excitation path moves around and starts and ends at, rad."""
@@ -98,31 +85,9 @@ EXCITATION_AMPLITUDE.flags.writeable = False
 LIMIT_FRACTION = 0.75
 """Largest fraction of the velocity and acceleration limits the excitation path uses."""
 
-CSV_HEADER = ("t", "q1", "q2", "q3", "q4", "q5", "q6", "q7")
-MIN_CSV_RATE_HZ = 100.0
-"""Lowest sample rate a path file may have, Hz."""
-MIN_CSV_ROWS = 4
-
-_AT_REST_TOL = 1e-9
-_TIME_TOL = 1e-9
-
-
-def _frozen(name: str, value, shape: tuple[int | None, ...]) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise PathError(f"{name} must be an array of numbers, got {type(value).__name__}") from exc
-    ok = arr.ndim == len(shape) and all(e is None or e == s for e, s in zip(shape, arr.shape,
-                                                                              strict=True))
-    if not ok:
-        want = str(tuple("N" if e is None else e for e in shape)).replace("'", "")
-        raise PathError(f"{name} must have shape {want}, got {arr.shape}")
-    arr.flags.writeable = False
-    return arr
-
 
 def _vec7(name: str, value) -> np.ndarray:
-    arr = _frozen(name, np.asarray(value, dtype=float).reshape(-1), (N_JOINTS,))
+    arr = frozen_array(name, np.asarray(value, dtype=float).reshape(-1), (N_JOINTS,))
     if not np.all(np.isfinite(arr)):
         raise PathError(f"{name} must be 7 finite joint positions in rad, got {arr}")
     return arr
@@ -133,150 +98,6 @@ def _time_grid(duration: float, what: str) -> np.ndarray:
     if not math.isfinite(duration) or duration < 0.0:
         raise PathError(f"{what}: duration must be a finite number of s >= 0, got {duration}")
     return np.arange(round(duration * RATE_HZ) + 1) / RATE_HZ
-
-
-def _pair(value: float, limit: float) -> tuple[str, str]:
-    """Format a value and its limit with 3 decimals, or as many as the limit needs (up to 6),
-    or more if the two would look equal."""
-    digits = next((d for d in range(3, 6) if round(limit, d) == limit), 6)
-    for d in range(digits, 13):
-        a, b = f"{value:.{d}f}", f"{limit:.{d}f}"
-        if a != b:
-            return a, b
-    return repr(float(value)), repr(float(limit))
-
-
-@dataclass(frozen=True, eq=False)
-class Path:
-    """Joint path sampled at 1 kHz.
-
-    Attributes:
-        name: a label used in messages.
-        t: time stamps in s, ``(N,)``, ``t[k] = k / RATE_HZ`` (starts at 0).
-        q: joint positions in rad, ``(N, 7)``.
-        dq: joint velocities in rad/s, ``(N, 7)``.
-        ddq: joint accelerations in rad/s², ``(N, 7)``.
-
-    Arrays are copied and made read-only. Equality is identity (arrays do not compare as one).
-    """
-
-    name: str
-    t: np.ndarray
-    q: np.ndarray
-    dq: np.ndarray
-    ddq: np.ndarray
-
-    def __post_init__(self) -> None:
-        t = _frozen("t", self.t, (None,))
-        n = t.shape[0]
-        if n < 1:
-            raise PathError("t must have at least one sample, got shape (0,)")
-        for field in ("q", "dq", "ddq"):
-            object.__setattr__(self, field, _frozen(field, getattr(self, field), (n, N_JOINTS)))
-        object.__setattr__(self, "t", t)
-        for field in ("t", "q", "dq", "ddq"):
-            if not np.all(np.isfinite(getattr(self, field))):
-                raise PathError(f"path {self.name!r}: {field} must be finite (found NaN or inf)")
-        expected = np.arange(n) / RATE_HZ
-        if np.max(np.abs(t - expected)) > 1e-6:
-            k = int(np.argmax(np.abs(t - expected)))
-            raise PathError(f"path {self.name!r}: t must be k / {RATE_HZ:g} s from 0 "
-                            f"(1 kHz from t = 0), got t[{k}] = {t[k]!r} s")
-
-    # -- views -----------------------------------------------------------------------------
-    @property
-    def duration(self) -> float:
-        """Time of the last sample, s."""
-        return float(self.t[-1])
-
-    def __len__(self) -> int:
-        return int(self.t.shape[0])
-
-    # -- checks ----------------------------------------------------------------------------
-    def first_violation(self, model: PandaModel | None = None) -> tuple[int, str] | None:
-        """``(sample index, message)`` of the first limit violation in time, or None."""
-        m = model if model is not None else panda()
-        kinds = (
-            ("position", "rad", self.q, m.q_min, m.q_max),
-            ("velocity", "rad/s", self.dq, -m.dq_max, m.dq_max),
-            ("acceleration", "rad/s²", self.ddq, -m.ddq_max, m.ddq_max),
-        )
-        best: tuple[int, int, int] | None = None  # (sample, kind, joint)
-        for kind_no, (_, _, values, lo, hi) in enumerate(kinds):
-            bad = (values < lo) | (values > hi)
-            rows = np.flatnonzero(bad.any(axis=1))
-            if rows.size:
-                k = int(rows[0])
-                cand = (k, kind_no, int(np.flatnonzero(bad[k])[0]))
-                if best is None or cand[0] < best[0]:
-                    best = cand
-        if best is None:
-            return None
-        k, kind_no, j = best
-        kind, unit, values, lo, hi = kinds[kind_no]
-        v = float(values[k, j])
-        side = "" if kind_no else ("upper " if v > hi[j] else "lower ")
-        limit, verb = (float(hi[j]), "exceeds") if v > hi[j] else (float(lo[j]), "is below")
-        verb = f"{verb} the {side}limit"
-        vs, ls = _pair(v, limit)
-        rng = f"{float(lo[j]):g} .. {float(hi[j]):g}"
-        return k, (f"path {self.name!r}: joint {j + 1} {kind} {vs} {unit} {verb} {ls} {unit} "
-                   f"at t={self.t[k]:.3f} s (valid is {rng} {unit})")
-
-    def check_limits(self, model: PandaModel | None = None) -> Path:
-        """Raise :class:`PathError` at the first position, velocity or acceleration limit
-        violation in time (joint 1-based, time in s, value and limit); return self if fine.
-        Limits come from ``model`` or, if None, the nominal :func:`sim.robot.panda`."""
-        found = self.first_violation(model)
-        if found is not None:
-            raise PathError(found[1])
-        return self
-
-    # -- combinations ----------------------------------------------------------------------
-    def then(self, other: Path, name: str | None = None) -> Path:
-        """This path followed by ``other``; time continues at 1 kHz.
-
-        ``other`` must start where this path ends (q equal within 1e-9 rad) and both must be at
-        rest there (dq and ddq within 1e-9). The shared sample appears once, so the duration
-        is the sum of both durations.
-        """
-        gap = float(np.max(np.abs(other.q[0] - self.q[-1])))
-        if gap > _AT_REST_TOL:
-            raise PathError(
-                f"cannot append path {other.name!r} to {self.name!r}: it starts at "
-                f"{np.round(other.q[0], 6).tolist()} rad but {self.name!r} ends at "
-                f"{np.round(self.q[-1], 6).tolist()} rad (largest gap {gap:.3g} rad); "
-                f"the start must equal the end within {_AT_REST_TOL:g} rad")
-        for who, k, p in ((self.name, -1, self), (other.name, 0, other)):
-            moving = max(float(np.max(np.abs(p.dq[k]))), float(np.max(np.abs(p.ddq[k]))))
-            if moving > _AT_REST_TOL:
-                where = "end" if k == -1 else "start"
-                raise PathError(
-                    f"cannot join {self.name!r} and {other.name!r}: {who!r} is not at rest at "
-                    f"its {where} (largest |dq| or |ddq| is {moving:.3g}); both must be at rest "
-                    f"(within {_AT_REST_TOL:g}) where they meet")
-        n = len(self) + len(other) - 1
-        return Path(
-            name=name if name is not None else f"{self.name}+{other.name}",
-            t=np.arange(n) / RATE_HZ,
-            q=np.vstack((self.q, other.q[1:])),
-            dq=np.vstack((self.dq, other.dq[1:])),
-            ddq=np.vstack((self.ddq, other.ddq[1:])),
-        )
-
-    def slice(self, t0: float, t1: float) -> Path:
-        """The samples with ``t0 <= t <= t1`` (s), re-timed to start at 0.
-
-        Valid is ``0 <= t0 <= t1 <= duration``; times are rounded to the nearest sample.
-        """
-        t0, t1 = float(t0), float(t1)
-        if not (math.isfinite(t0) and math.isfinite(t1)) or not (
-                -_TIME_TOL <= t0 <= t1 <= self.duration + _TIME_TOL):
-            raise PathError(f"path {self.name!r}: slice({t0}, {t1}) is out of range; valid is "
-                            f"0 <= t0 <= t1 <= {self.duration:g} s")
-        i0, i1 = round(t0 * RATE_HZ), round(t1 * RATE_HZ)
-        return Path(name=f"{self.name}[{t0:g}:{t1:g}]", t=np.arange(i1 - i0 + 1) / RATE_HZ,
-                    q=self.q[i0:i1 + 1], dq=self.dq[i0:i1 + 1], ddq=self.ddq[i0:i1 + 1])
 
 
 # -- generators ----------------------------------------------------------------------------
@@ -404,118 +225,3 @@ def rest_path(q, duration: float, name: str = "rest") -> Path:
     t = _time_grid(duration, f"path {name!r}")
     zeros = np.zeros((t.shape[0], N_JOINTS))
     return Path(name=name, t=t, q=zeros + q, dq=zeros, ddq=zeros).check_limits()
-
-
-# -- files ---------------------------------------------------------------------------------
-def _read_text(file) -> tuple[str, str]:
-    """``(text, name for messages)`` of a path-like or an open text file."""
-    if hasattr(file, "read"):
-        where = str(getattr(file, "name", "<stream>"))
-        try:
-            text = file.read()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise PathError(f"{where}: cannot read path file: {exc}") from exc
-        if isinstance(text, bytes):
-            try:
-                text = text.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                raise PathError(f"{where}: path file is not UTF-8 text: {exc}") from exc
-        return text.removeprefix("\ufeff"), where
-    where = os.fspath(file)
-    try:
-        return FsPath(where).read_text(encoding="utf-8-sig"), str(where)
-    except UnicodeDecodeError as exc:
-        raise PathError(f"{where}: path file is not UTF-8 text: {exc}") from exc
-    except OSError as exc:
-        raise PathError(f"{where}: cannot read path file: {exc.strerror or exc}") from exc
-
-
-def _parse_csv(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """``(data (M, 8), line number of each row)`` of a path CSV, every problem a PathError."""
-    expected = ",".join(CSV_HEADER)
-    lines = text.splitlines()
-    if not lines or [c.strip() for c in lines[0].split(",")] != list(CSV_HEADER):
-        got = repr(lines[0]) if lines else "an empty file"
-        raise PathError(f"{where}, line 1: the header must be exactly {expected!r} "
-                        f"(t in s, q1..q7 in rad), got {got}")
-    rows, numbers = [], []
-    prev_t, prev_line = None, 1
-    max_dt = 1.0 / MIN_CSV_RATE_HZ
-    for line_no, line in enumerate(lines[1:], start=2):
-        if not line.strip():
-            continue
-        cells = line.split(",")
-        if len(cells) != len(CSV_HEADER):
-            raise PathError(f"{where}, line {line_no}: expected {len(CSV_HEADER)} columns "
-                            f"({expected}), got {len(cells)}")
-        row = []
-        for col, (cell, field) in enumerate(zip(cells, CSV_HEADER, strict=True), start=1):
-            unit = "s" if field == "t" else "rad"
-            try:
-                value = float(cell)
-            except ValueError:
-                raise PathError(f"{where}, line {line_no}, column {col} ({field}): "
-                                f"{cell.strip()!r} is not a number; expected a finite number "
-                                f"in {unit}") from None
-            if not math.isfinite(value):
-                raise PathError(f"{where}, line {line_no}, column {col} ({field}): "
-                                f"{cell.strip()!r} is not finite; expected a finite number "
-                                f"in {unit}")
-            row.append(value)
-        t = row[0]
-        if prev_t is not None:
-            dt = t - prev_t
-            if dt <= 0.0:
-                raise PathError(f"{where}, line {line_no}, column 1 (t): t = {t!r} s does not "
-                                f"increase after t = {prev_t!r} s on line {prev_line}; "
-                                "t must be strictly increasing")
-            if dt > max_dt + _TIME_TOL:
-                raise PathError(f"{where}, line {line_no}, column 1 (t): the interval "
-                                f"{dt:.6g} s since line {prev_line} is a rate of "
-                                f"{1.0 / dt:.4g} Hz; a path file needs at least "
-                                f"{MIN_CSV_RATE_HZ:g} Hz (every interval <= {max_dt:g} s)")
-        prev_t, prev_line = t, line_no
-        rows.append(row)
-        numbers.append(line_no)
-    if len(rows) < MIN_CSV_ROWS:
-        raise PathError(f"{where}, line {len(lines) + 1}: the file ends after {len(rows)} data "
-                        f"row(s); a path file needs at least {MIN_CSV_ROWS} rows after the "
-                        "header")
-    return np.array(rows), np.array(numbers)
-
-
-def load_path_csv(file, name: str | None = None) -> Path:
-    """Read a path CSV file (see the module docstring), resample it to 1 kHz and check limits.
-
-    ``file`` is a file system path or an open text file. The path is named ``name`` or the
-    file's stem. Raises :class:`PathError` naming the file, line and column of any problem.
-    """
-    from scipy.interpolate import CubicSpline
-
-    text, where = _read_text(file)
-    data, line_numbers = _parse_csv(text, where)
-    t_file = data[:, 0] - data[0, 0]
-    spline = CubicSpline(t_file, data[:, 1:], axis=0, bc_type="not-a-knot")
-    t = np.arange(math.floor(t_file[-1] * RATE_HZ + 1e-6) + 1) / RATE_HZ
-    path = Path(name=name if name is not None else FsPath(where).stem, t=t, q=spline(t),
-                dq=spline(t, 1), ddq=spline(t, 2))
-    found = path.first_violation()
-    if found is not None:
-        k, message = found
-        line = int(line_numbers[int(np.argmin(np.abs(t_file - t[k])))])
-        raise PathError(f"{where}, near line {line}: {message} (after resampling to 1 kHz)")
-    return path
-
-
-def save_path_csv(path: Path, file) -> None:
-    """Write ``t,q1..q7`` (s, rad) at full precision; :func:`load_path_csv` reads it back.
-
-    ``file`` is a file system path or an open text file."""
-    out = [",".join(CSV_HEADER)]
-    out += [",".join(repr(float(v)) for v in (t, *q)) for t, q in zip(path.t, path.q,
-                                                                      strict=True)]
-    text = "\n".join(out) + "\n"
-    if hasattr(file, "write"):
-        file.write(text)
-    else:
-        FsPath(file).write_text(text, encoding="utf-8")
