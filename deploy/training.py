@@ -68,8 +68,10 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_f
         raise InvalidInputError(f"noise {noise!r} is not valid; valid are "
                                 f"{', '.join(NOISE_SOURCES)}")
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
+        from sim.robot import PANDA_DYNAMICS
+
         arm, _ = load_arm_file(arm_file, end_effector) if arm is None else arm
-        extra = {}
+        extra = {"dynamics": PANDA_DYNAMICS}
         if arm_file is not None:
             from sim.arm import arm_spec
 

@@ -16,9 +16,8 @@ correlated over about ``rate / (2 cutoff)`` samples, so the filter updates only 
 deviation sized to the Panda's rated payload (3 kg, CoM within 0.1 m, inertia within
 0.01 kg·m²): the classical method knows the robot's rating, not the payload family.
 
-The robot model is named, not passed (see :mod:`iem.regression`): the default
-``"sim.robot:panda_dynamics"`` is the nominal Panda of :mod:`sim.robot`, imported only when
-the model first learns.
+The robot model is given by the caller, named, not passed (see :mod:`iem.regression`), and
+imported only when the model first learns.
 """
 
 from __future__ import annotations
@@ -27,7 +26,13 @@ import numpy as np
 
 from .base import BaseEstimator, Samples
 from .errors import InvalidInputError
-from .regression import PayloadRegression, impulse_response, load_dynamics, noise_gains
+from .regression import (
+    PayloadRegression,
+    impulse_response,
+    load_dynamics,
+    noise_gains,
+    required_dynamics,
+)
 from .sensor import DEFAULT_SENSOR
 from .types import NOMINAL_RATE_HZ, PayloadEstimate
 
@@ -42,7 +47,8 @@ class RecursiveLeastSquares(BaseEstimator):
     """Recursive least squares on the payload regressor.
 
     Args:
-        dynamics: ``"module:function"`` of the robot-model factory (see module docstring).
+        dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
+            (see :mod:`iem.regression`), stored in the model file.
         sigma_tau: torque noise of the measurements, N·m.
         cutoff_hz: low-pass cut-off for q, dq and tau, Hz.
         rate_hz: sample rate, Hz.
@@ -54,12 +60,12 @@ class RecursiveLeastSquares(BaseEstimator):
     tracks_payload = True
     """The estimate and its covariance carry from sample to sample."""
 
-    def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
+    def __init__(self, dynamics: str | None = None,
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
                  rate_hz: float = NOMINAL_RATE_HZ,
                  decimate: int = 0, prior_std=DEFAULT_PRIOR_STD) -> None:
-        self.dynamics = dynamics
+        self.dynamics = required_dynamics(dynamics, "RecursiveLeastSquares (LS)")
         self.sigma_tau = float(sigma_tau)
         self.sigma_dq = float(sigma_dq)
         self.cutoff_hz = float(cutoff_hz)

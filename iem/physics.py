@@ -86,7 +86,7 @@ from .innovation import MODEL_ERROR_GAIN, NIS_WINDOW, InnovationTest
 from .least_squares import DEFAULT_PRIOR_STD
 from .live_projection import SpreadProjection
 from .posterior import EquationWindow, Posterior, combine, prior_inflation
-from .regression import PayloadRegression
+from .regression import PayloadRegression, required_dynamics
 from .sensor import DEFAULT_SENSOR
 from .torque_noise import TorqueNoise
 from .types import GROUPS, NOMINAL_RATE_HZ, PayloadEstimate
@@ -114,8 +114,8 @@ class PhysicsInformedEnsemble(BaseEstimator):
 
     Args:
         ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included).
-        dynamics: ``"module:function"`` of the robot-model factory (see
-            :mod:`iem.regression`).
+        dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
+            (see :mod:`iem.regression`), stored in the model file.
         sigma_tau: torque noise of the measurements, N·m.
         sigma_dq: velocity noise of the measurements, rad/s.
         cutoff_hz: low-pass cut-off of the regression, Hz (default 4: the motion of a task
@@ -159,7 +159,7 @@ class PhysicsInformedEnsemble(BaseEstimator):
     """Its ensemble trains in a worker thread on a live link."""
 
     def __init__(self, ensemble: dict | None = None,
-                 dynamics: str = "sim.robot:panda_dynamics",
+                 dynamics: str | None = None,
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 4.0,
                  rate_hz: float = NOMINAL_RATE_HZ,
@@ -168,7 +168,7 @@ class PhysicsInformedEnsemble(BaseEstimator):
                  refresh_every: int = 5, project_budget: int = 0,
                  torque_noise: dict | None = None) -> None:
         self.ensemble = dict(ensemble or {})
-        self.dynamics = dynamics
+        self.dynamics = required_dynamics(dynamics, "PhysicsInformedEnsemble (IEM+phys)")
         self.sigma_tau = float(sigma_tau)
         self.sigma_dq = float(sigma_dq)
         self.cutoff_hz = float(cutoff_hz)

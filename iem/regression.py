@@ -22,11 +22,12 @@ Start-up: the filter starts in steady state at its first sample, so that sample'
 in the filtered signals and decays with the filter's step response. With ``settle`` the first
 equations are withheld until it has decayed (:func:`settle_samples`).
 
-The robot model is named, not passed, so that estimators stay plain data for persistence:
-``dynamics = "module:function"`` names a factory returning ``f(q, dq, ddq) -> (tau_robot (7,),
-Y (7, 10), M (7, 7))`` (optionally with a method ``payload_mass_matrix(q, phi)``, else the
-payload's share is taken from ``Y``); ``"sim.robot:panda_dynamics"`` is the nominal Panda
-(imported only when the first equation is formed).
+The robot model is given by the caller, the core names none; it is named, not passed, so
+that estimators stay plain data for persistence (a model file stores the name it was given):
+``dynamics = "module:function[@ARG]"`` names a factory returning ``f(q, dq, ddq) ->
+(tau_robot (7,), Y (7, 10), M (7, 7))`` (optionally with a method ``payload_mass_matrix(q,
+phi)``, else the payload's share is taken from ``Y``), imported only when the first equation
+is formed; the simulator's nominal Panda is ``sim.robot.PANDA_DYNAMICS``.
 """
 
 from __future__ import annotations
@@ -95,6 +96,22 @@ def correlation_weight(cutoff_hz: float, rate_hz: float, every: int = 1) -> floa
     return max(1.0, float(acf[0] + 2.0 * acf[every::every].sum()))
 
 
+def required_dynamics(dynamics, who: str):
+    """``dynamics`` if it names a robot model (a ``"module:function[@ARG]"`` spec, or the
+    dynamics callable itself); ``who`` names the estimator in the error.
+
+    Raises:
+        InvalidInputError: it is None or not such a spec.
+    """
+    if callable(dynamics) or (isinstance(dynamics, str)
+                              and dynamics.partition("@")[0].count(":") == 1):
+        return dynamics
+    raise InvalidInputError(f"{who} needs dynamics, the robot's model: the 'module:function"
+                            f"[@ARG]' spec of its factory (the simulator's nominal Panda is "
+                            f"sim.robot.PANDA_DYNAMICS) or the dynamics callable; got "
+                            f"{dynamics!r}")
+
+
 def load_dynamics(spec: str):
     """Resolve ``"module:function"`` and call the factory: the dynamics callable.
 
@@ -108,7 +125,8 @@ class PayloadRegression:
     """Equations ``r = Y phi + e``, ``e ~ N(0, R)``, from the measured signals.
 
     Args:
-        dynamics: ``"module:function"`` of the robot-model factory (see module docstring).
+        dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
+            (see module docstring), or the dynamics callable.
         sigma_tau: torque noise of the measurements, N·m.
         sigma_dq: velocity noise of the measurements, rad/s.
         cutoff_hz: low-pass cut-off for q, dq and tau, Hz.
@@ -129,7 +147,7 @@ class PayloadRegression:
             added to ``R``'s diagonal (:attr:`model_var`).
     """
 
-    def __init__(self, dynamics: str = "sim.robot:panda_dynamics",
+    def __init__(self, dynamics=None,
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
                  rate_hz: float = NOMINAL_RATE_HZ,
@@ -138,7 +156,7 @@ class PayloadRegression:
         if int(every) < 1 or int(decimate) < 1:
             raise InvalidInputError(f"every and decimate must be >= 1 sample, got {every}, "
                                     f"{decimate}")
-        self.dynamics = dynamics
+        self.dynamics = required_dynamics(dynamics, "PayloadRegression")
         self.sigma_tau = float(sigma_tau)
         self.sigma_dq = float(sigma_dq)
         self.cutoff_hz = float(cutoff_hz)

@@ -244,10 +244,14 @@ class PandaDynamics:
 
 
 def panda_dynamics() -> PandaDynamics:
-    """The robot-model factory the least-squares estimators name
-    (``"sim.robot:panda_dynamics"``); each call builds its own model, since a model owns its
-    scratch data."""
+    """The robot-model factory of :data:`PANDA_DYNAMICS`; each call builds its own model,
+    since a model owns its scratch data."""
     return PandaDynamics()
+
+
+PANDA_DYNAMICS = "sim.robot:panda_dynamics"
+"""The dynamics spec of the nominal Panda (:func:`panda_dynamics`), which callers give the
+least-squares estimators (``dynamics=``; :mod:`iem.regression`) and model files store."""
 
 
 @cache

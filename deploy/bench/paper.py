@@ -186,6 +186,8 @@ class Bench:
 
     # -- models --------------------------------------------------------------------------
     def make_models(self) -> dict:
+        from sim.robot import PANDA_DYNAMICS
+
         q = self.quick
         common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
                   "fit_stride": 20 if q else 10}
@@ -195,8 +197,8 @@ class Bench:
             "BEM": BatchEnsemble(seed=self.seed, fit_epochs=4 if q else 10,
                                  fit_stride=20 if q else 10, n_networks=3 if q else 5,
                                  n_trees=3 if q else 5),
-            "LS": RecursiveLeastSquares(),
-            "IEM+phys": PhysicsInformedEnsemble(ensemble=common),
+            "LS": RecursiveLeastSquares(PANDA_DYNAMICS),
+            "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=PANDA_DYNAMICS),
         }
 
     def trained_models(self, extra_models: dict | None = None) -> dict:

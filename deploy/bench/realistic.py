@@ -147,13 +147,14 @@ class RealisticBench(Bench):
     def make_models(self, arm_file=None) -> dict:
         from deploy.training import arm_torque_noise
         from sim.arm import arm_spec, load_arm
+        from sim.robot import PANDA_DYNAMICS
 
         q = self.quick
         common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
                   "fit_stride": 20 if q else 10}
         return {
             "IEM": IncrementalEnsemble(**common),
-            "IEM+phys": PhysicsInformedEnsemble(ensemble=common),
+            "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=PANDA_DYNAMICS),
             "IEM+cal": IncrementalEnsemble(**common),
             # the calibrated arm, with the noise iem calibrate measured on it (iem train)
             "IEM+phys+cal": PhysicsInformedEnsemble(

@@ -93,10 +93,11 @@ def test_the_estimators_report_what_they_can_say():
     from iem.ensemble import IncrementalEnsemble
     from iem.least_squares import RecursiveLeastSquares
     from iem.physics import PhysicsInformedEnsemble
+    from sim.robot import PANDA_DYNAMICS
 
     x = np.zeros(21)
-    for model, reported in ((PhysicsInformedEnsemble(), {"std"}),
-                            (RecursiveLeastSquares(), {"std"}),
+    for model, reported in ((PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS), {"std"}),
+                            (RecursiveLeastSquares(PANDA_DYNAMICS), {"std"}),
                             (IncrementalEnsemble(), set()), (BatchEnsemble(), set())):
         est = model.predict_one(x, np.zeros(3))
         assert isinstance(est, PayloadEstimate)

@@ -645,10 +645,55 @@ def test_new_model_selects_a_kind_by_name():
     from iem.physics import PhysicsInformedEnsemble
 
     assert DEFAULT_MODEL == "IEM+phys" and DEFAULT_MODEL in MODELS
-    assert isinstance(new_model(), PhysicsInformedEnsemble)
-    ls = new_model("LS", cutoff_hz=10.0)
+    from sim.robot import PANDA_DYNAMICS
+
+    assert isinstance(new_model(dynamics=PANDA_DYNAMICS), PhysicsInformedEnsemble)
+    ls = new_model("LS", dynamics=PANDA_DYNAMICS, cutoff_hz=10.0)
     assert isinstance(ls, RecursiveLeastSquares) and ls.cutoff_hz == 10.0
+    with pytest.raises(InvalidInputError, match="needs dynamics"):
+        new_model("LS", cutoff_hz=10.0)
     with pytest.raises(InvalidInputError, match=r"unknown model kind 'nope'.*IEM\+phys"):
         new_model("nope")
     with pytest.raises(InvalidInputError, match="does not take"):
-        new_model("LS", no_such_option=1)
+        new_model("LS", dynamics=PANDA_DYNAMICS, no_such_option=1)
+
+
+# -- the estimators are given their robot's dynamics; a model file stores them ----------------
+def _physics(dynamics):
+    from iem.physics import PhysicsInformedEnsemble
+
+    return PhysicsInformedEnsemble(dynamics=dynamics)
+
+
+def _least_squares(dynamics):
+    from iem.least_squares import RecursiveLeastSquares
+
+    return RecursiveLeastSquares(dynamics)
+
+
+def _regression(dynamics):
+    from iem.regression import PayloadRegression
+
+    return PayloadRegression(dynamics)
+
+
+@pytest.mark.parametrize("build", [
+    _physics, _least_squares, _regression,
+    lambda d: persistence.new_model("IEM+phys", dynamics=d),
+    lambda d: persistence.new_model("LS", dynamics=d)],
+    ids=["IEM+phys", "LS", "regression", "new_model IEM+phys", "new_model LS"])
+def test_an_estimator_without_dynamics_refuses_saying_what_it_needs(build):
+    from iem.errors import InvalidInputError
+    from sim.robot import PANDA_DYNAMICS
+
+    for missing in (None, "sim.robot.panda_dynamics", 3):
+        with pytest.raises(InvalidInputError, match=r"needs dynamics, the robot's model: the "
+                                                    r"'module:function\[@ARG\]' spec"):
+            build(missing)
+    assert build(PANDA_DYNAMICS).dynamics == PANDA_DYNAMICS
+    assert build(PANDA_DYNAMICS + "@ARG").dynamics == PANDA_DYNAMICS + "@ARG"
+
+
+def test_a_model_file_stores_the_dynamics_it_was_given():
+    model = _least_squares("sim.arm:nominal_dynamics@franka_hand")
+    assert loads(persistence.dumps(model)).dynamics == "sim.arm:nominal_dynamics@franka_hand"

@@ -21,7 +21,7 @@ from iem.physics import MODEL_ERROR_GAIN, PRIOR_FLOOR, PhysicsInformedEnsemble, 
 from iem.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
 from iem.types import JointState, PayloadEstimate
 from sim.family import test_payloads
-from sim.robot import PandaModel
+from sim.robot import PANDA_DYNAMICS, PandaModel
 
 from .test_checks import DATA
 
@@ -61,7 +61,7 @@ def test_information_form_equals_batch_weighted_least_squares():
     twin = PayloadRegression(FAKE, cutoff_hz=4.0, every=1, settle=-1, decimate=10)
     c = twin.correlation_weight
     prior_cov = np.diag(np.square(DEFAULT_PRIOR_STD) + np.square(PRIOR_FLOOR))
-    kalman = RecursiveLeastSquares(prior_std=np.sqrt(np.diag(prior_cov)))
+    kalman = RecursiveLeastSquares(PANDA_DYNAMICS, prior_std=np.sqrt(np.diag(prior_cov)))
     rows, rhs = [np.linalg.cholesky(np.linalg.inv(prior_cov)).T], [np.zeros(10)]
     checked = 0
     for k, x in enumerate(X):
@@ -110,8 +110,8 @@ def test_payload_mass_matrix_is_pinocchios():
     """``M_p``, from the regressor (generic) and from ``J^T I J`` (the Panda's fast path),
     equals CRBA with the payload minus CRBA without."""
     model = PandaModel()
-    fast = PayloadRegression()
-    generic = PayloadRegression()
+    fast = PayloadRegression(PANDA_DYNAMICS)
+    generic = PayloadRegression(PANDA_DYNAMICS)
     f = fast.model()
     generic._f = lambda q, dq, ddq: f(q, dq, ddq)  # no payload_mass_matrix method
     rng = np.random.default_rng(3)
@@ -140,7 +140,8 @@ def test_noiseless_equations_hold_on_the_task_path(new_rollout_noiseless):
     """Same lag on both sides: without noise the 4 Hz equations fit the true payload to a
     small fraction of the noise they are weighted for."""
     ro = new_rollout_noiseless
-    reg = PayloadRegression(cutoff_hz=4.0, every=10, settle=-1, payload_inertia=True)
+    reg = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0, every=10, settle=-1,
+                            payload_inertia=True)
     worst = 0.0
     for x in ro.features:
         eq = reg(x, PHI)
@@ -157,7 +158,7 @@ def test_the_curvature_is_the_second_difference_of_the_robot_torque(new_rollout_
     from sim.robot import panda_dynamics
 
     dyn = panda_dynamics()
-    reg = PayloadRegression(cutoff_hz=4.0, every=1, settle=-1, payload_inertia=True,
+    reg = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0, every=1, settle=-1, payload_inertia=True,
                             decimate=10)
     taus, seen = [], 0
     for k, x in enumerate(new_rollout_noiseless.features[:3000]):
@@ -395,9 +396,9 @@ def test_an_estimate_is_routed_by_the_samples_values_not_its_array():
 
 def test_bad_parameters_are_errors():
     with pytest.raises(InvalidInputError, match="prior_scale"):
-        PhysicsInformedEnsemble(prior_scale=0.0)
+        PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, prior_scale=0.0)
     with pytest.raises(InvalidInputError, match="21 values"):
-        PhysicsInformedEnsemble().predict_one(np.zeros(7), None)
+        PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS).predict_one(np.zeros(7), None)
 
 
 # -- the change detector -----------------------------------------------------------------
@@ -426,7 +427,8 @@ def switch_rollouts():
 
 
 def _changes(rollout) -> list[int]:
-    model = PhysicsInformedEnsemble()  # physics only: no bags, the rated-payload prior
+    # physics only: no bags, the rated-payload prior
+    model = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS)
     out = []
     for k, x in enumerate(rollout.features):
         model.observe_one(x, None)
@@ -539,8 +541,8 @@ def test_resume_keeps_the_payload_and_restarts_only_the_filter():
 
 
 def test_lowpass_state_round_trips_through_the_regression_state():
-    reg = PayloadRegression(cutoff_hz=4.0)
-    other = PayloadRegression(cutoff_hz=4.0)
+    reg = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0)
+    other = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0)
     rng = np.random.default_rng(0)
     for x in rng.normal(size=(10, 21)):
         reg._lp(x)
@@ -557,7 +559,7 @@ def test_every_output_is_physically_consistent():
 
     from .test_consistency import _payload_ok
 
-    model = _trained(dynamics="sim.robot:panda_dynamics")
+    model = _trained(dynamics=PANDA_DYNAMICS)
     rng = np.random.default_rng(8)
     junk = DATA.X[rng.integers(0, DATA.n, 3000)] + rng.normal(0.0, 1.0, (3000, 21))
     flanges = DATA.F[rng.integers(0, DATA.n, 3000)]
@@ -672,7 +674,7 @@ def test_a_live_model_spreads_its_heavy_work_one_job_per_sample(monkeypatch):
     flanges = DATA.F[rng.integers(0, DATA.n, 1500)]
     heavy = {}
     for budget in (0, 1):
-        model = _trained(dynamics="sim.robot:panda_dynamics")
+        model = _trained(dynamics=PANDA_DYNAMICS)
         model.project_budget = budget
         per_sample, made, estimates = _spread_run(model, junk, flanges, monkeypatch)
         jobs = np.array([[p["formed"], p["tested"], p["refreshed"], min(p["newton"], 1)]
@@ -701,7 +703,7 @@ def test_a_live_model_estimates_what_the_at_once_model_does(switch_rollouts):
     _, switched = switch_rollouts
     runs, changes = {}, {}
     for budget in (0, 4):
-        model = PhysicsInformedEnsemble(project_budget=budget)
+        model = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, project_budget=budget)
         phis, changes[budget] = [], []
         for k, x in enumerate(switched.features):
             model.observe_one(x, None)
@@ -715,6 +717,7 @@ def test_a_live_model_estimates_what_the_at_once_model_does(switch_rollouts):
     settled = np.r_[500:3000, changes[4][0] + 500:len(switched.features)]
     gap = np.abs(runs[4][settled, 0] - runs[0][settled, 0])
     assert 0.0 < gap.max() < 2e-3, gap.max()
-    assert PhysicsInformedEnsemble(project_budget=3).params()["project_budget"] == 3
+    budgeted = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, project_budget=3)
+    assert budgeted.params()["project_budget"] == 3
     with pytest.raises(InvalidInputError, match="project_budget"):
-        PhysicsInformedEnsemble(project_budget=-1)
+        PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, project_budget=-1)
