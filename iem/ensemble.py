@@ -614,7 +614,7 @@ class IncrementalEnsemble(BaseEstimator):
         if not -1 <= model._open < len(model._learners):
             raise InvalidInputError(f"model state's open bag {model._open} is not one of its "
                                     f"{len(model._learners)} bags (or -1)")
-        kept = state.get("kept")
+        kept = state["kept"]
         model._kept = None if kept is None else Reservoir.from_state(kept)
         if model._open >= 0:  # the jobs train their own copy; the published one stays
             model._training = model._learners[model._open].copy()

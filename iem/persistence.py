@@ -2,7 +2,7 @@
 
 A model file is one msgpack map::
 
-    {"schema": "iem-payload-model", "version": 1, "kind": "IEM",
+    {"schema": "iem-payload-model", "version": <VERSION>, "kind": "IEM",
      "crc32": <zlib.crc32 of state>, "state": <msgpack bytes of model.to_state()>}
 
 The state is packed on its own so that its CRC can be checked before anything in it is
@@ -20,6 +20,11 @@ The arm file (:mod:`sim.arm`) is written and read by the same functions under it
 ``kind`` is the estimator's ``name``, looked up in :data:`MODELS` (name -> ``"module:Class"``,
 imported only when a file of that kind is loaded, as python-can does with its interfaces);
 the class rebuilds itself with ``Class.from_state(state)``.
+
+``version`` is the schema version the file was written at; files are written at
+:data:`VERSION`. A file of an older version is loaded through the steps of
+:mod:`iem.migrations`, which bring its state to the newest layout before ``from_state`` sees
+it; a file of a newer version than this build knows is refused.
 
 Writing goes to a temporary file in the target's directory, which is flushed, fsynced and
 then renamed over the target (``os.replace``), and the directory is fsynced: a crash or an
@@ -46,13 +51,10 @@ from pathlib import Path
 import msgpack
 
 from .errors import InvalidInputError, ModelFileError
+from .migrations import VERSION, migrate
 
 SCHEMA = "iem-payload-model"
 """The ``schema`` field of every model file."""
-VERSION = 1
-"""The version this module writes."""
-SUPPORTED_VERSIONS: tuple[int, ...] = (1,)
-"""The versions this module reads."""
 
 MODELS: dict[str, str] = {
     "IEM": "iem.ensemble:IncrementalEnsemble",
@@ -117,8 +119,8 @@ def _record_crc(arm: dict | None, crc: int, family: str | None = None) -> int:
 
 
 def _family_record(model) -> str | None:
-    """The training family a model records: None for the paper's (files from before the
-    record, and every model trained on it), else its name (``trained_family``)."""
+    """The training family a model records: None for the paper's (a file without the record
+    was trained on it), else its name (``trained_family``)."""
     family = getattr(model, "trained_family", None)
     if family in (None, DEFAULT_FAMILY):
         return None
@@ -227,9 +229,12 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if head["schema"] != schema:
         raise ModelFileError(f"{where} has schema {head['schema']!r}, expected {schema!r}")
     version = head["version"]
-    if type(version) is not int or version not in SUPPORTED_VERSIONS:
-        raise ModelFileError(f"{where} has version {version!r}; this build reads versions "
-                             f"{', '.join(map(str, SUPPORTED_VERSIONS))}")
+    if type(version) is int and version > VERSION:
+        raise ModelFileError(f"{where} has schema version {version}, newer than this build's "
+                             f"{VERSION}: it was written by a newer iem; update iem to load it")
+    if type(version) is not int or version < 1:
+        raise ModelFileError(f"{where} has version {version!r}; this build reads versions 1 "
+                             f"to {VERSION}")
     for key, typ in _FIELDS.items():
         if key not in head:
             raise ModelFileError(f"{where} lacks the field {key!r} (a model file has "
@@ -255,6 +260,11 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     state = _unpack(state_bytes, f"{where}: the state is not valid msgpack")
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
+    try:
+        state = migrate(head["kind"], state, version)
+    except Exception as exc:  # any failure to bring the state up is a bad file
+        raise ModelFileError(f"{where}: the state of version {version} cannot be brought to "
+                             f"version {VERSION}: {type(exc).__name__}: {exc}") from exc
     try:
         model = cls.from_state(state)
     except Exception as exc:  # any failure to rebuild from the file is a bad file

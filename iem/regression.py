@@ -315,6 +315,7 @@ class PayloadRegression:
                 "block": [self._acc.tolist(), self._n_acc], "last": vec(self._x)}
 
     def set_state(self, state: dict) -> None:
+        """What :meth:`to_state` gave (of a file: as :mod:`iem.migrations` brings it)."""
         self.reset()
         self.count = int(state["count"])
         if state["filter"] is not None:
@@ -322,12 +323,10 @@ class PayloadRegression:
             lp.state = [np.array(v, dtype=float) for v in state["filter"]]
             lp._started = True
             for key, attr in (("input", "_x"), ("output", "_y"), ("previous", "previous")):
-                value = state.get(key)
+                value = state[key]
                 setattr(lp, attr, None if value is None else np.array(value, dtype=float))
-            if lp.previous is None and state.get("prev_dq") is not None:
-                lp._started = False  # a file from before the gap rule: start the filter again
-        if state.get("block") is not None:
-            self._acc = np.array(state["block"][0], dtype=float).reshape(21)
-            self._n_acc = int(state["block"][1])
-        if state.get("last") is not None:
+        acc, n_acc = state["block"]
+        self._acc = np.array(acc, dtype=float).reshape(21)
+        self._n_acc = int(n_acc)
+        if state["last"] is not None:
             self._x = np.array(state["last"], dtype=float).reshape(21)

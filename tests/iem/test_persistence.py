@@ -154,7 +154,7 @@ def test_file_layout(tmp_path):
     head = msgpack.unpackb((tmp_path / "m").read_bytes(), raw=False)
     assert set(head) == {"schema", "version", "kind", "crc32", "state"}
     assert head["schema"] == SCHEMA == "iem-payload-model"
-    assert head["version"] == 1
+    assert head["version"] == persistence.VERSION >= 3
     assert head["kind"] == "IEM"
     assert isinstance(head["state"], bytes)
     assert head["crc32"] == zlib.crc32(head["state"])
@@ -277,10 +277,21 @@ def test_wrong_schema(tmp_path):
         load_model(path)
 
 
-@pytest.mark.parametrize("version", [0, 2, 99, "1", 1.0, True, None])
+@pytest.mark.parametrize("version", [0, -1, "1", 1.0, True, None])
 def test_unknown_version_says_which_are_supported(tmp_path, version):
     path = _file(tmp_path, _pack(_head(version=version)))
-    with pytest.raises(ModelFileError, match=rf"version {version!r}; this build reads versions 1"):
+    with pytest.raises(ModelFileError, match=rf"version {version!r}; this build reads versions 1 "
+                                             rf"to {persistence.VERSION}"):
+        load_model(path)
+
+
+@pytest.mark.parametrize("ahead", [1, 96])
+def test_a_newer_version_is_refused_naming_both(tmp_path, ahead):
+    version = persistence.VERSION + ahead
+    path = _file(tmp_path, _pack(_head(version=version)))
+    with pytest.raises(ModelFileError, match=rf"{path} has schema version {version}, newer than "
+                                             rf"this build's {persistence.VERSION}: it was "
+                                             r"written by a newer iem"):
         load_model(path)
 
 

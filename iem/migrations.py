@@ -1,0 +1,167 @@
+"""Model-file schema versions and the steps between them.
+
+A model file records the schema ``version`` it was written at (:mod:`iem.persistence`), and
+is always written at :data:`VERSION`. Each change to what a model's state holds, or means,
+adds a version and one step here: a pure function ``step(kind, state) -> state`` from
+version ``n`` to ``n + 1`` (:data:`STEPS`), on the unpacked plain data (dicts, lists,
+numbers, str) of a model of ``kind`` (the file's ``kind``), that returns the new state and
+leaves its argument as it was. :func:`migrate` applies the steps from a file's version to
+:data:`VERSION` in order, so that a model's ``from_state`` reads the newest layout alone. A
+step writes out the values and rules that held at its version (it imports no model code,
+whose defaults may change later); a kind it does not name passes unchanged (the arm file,
+:mod:`sim.arm`, shares the versions: its state is its identity, recorded by CRC in the
+models trained for it, so no step may change it).
+
+The steps:
+
+1 -> 2  (:func:`fill_version_1`) every version-1 state in the full version-1 layout: the
+        fields that version-1 files written before them lack get the values the loaders
+        assumed for such files.
+2 -> 3  (:func:`equations_per_point`) IEM+phys: the physics takes points, each the mean of
+        ``update_every`` frames, at ``rate_hz / update_every``; a model that averaged
+        ``update_every > 1`` frames itself now takes ``rate_hz := rate_hz / update_every``,
+        ``update_every := 1`` (the same equation rate; its ``torque_noise`` is measured at
+        that rate already).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+from .errors import InvalidInputError
+
+Step = Callable[[str, dict], dict]
+
+
+# -- 1 -> 2 ------------------------------------------------------------------------------
+def _zeros(*shape: int) -> list:
+    if len(shape) == 1:
+        return [0.0] * shape[0]
+    return [_zeros(*shape[1:]) for _ in range(shape[0])]
+
+
+def _filled(state: Mapping, defaults: Mapping) -> dict:
+    """A copy of ``state`` with each key of ``defaults`` it lacks set to the default."""
+    return {**state, **{k: v for k, v in defaults.items() if k not in state}}
+
+
+def _ensemble_v1(state: dict) -> dict:
+    """An ensemble's state (IEM, old IEM, the IEM held by IEM+phys): learners without the
+    velocity precision have none; without slot generations every slot is at 0; without a
+    reservoir it keeps none; without the counters none retired, and with a budget none
+    promoted and none on probation (every bag permanent)."""
+    learners = [_filled(lr, {"dq_precision": None}) for lr in state["learners"]]
+    defaults = {"gen": [0] * len(learners), "kept": None, "retired": 0}
+    if state["params"].get("budget_bags") is not None:
+        defaults.update(on_probation=[], promoted=0)
+    return {**_filled(state, defaults), "learners": learners}
+
+
+def _regression_v1(state: dict) -> dict:
+    """A regression's state (LS, the one IEM+phys holds): a filter saved with ``prev_dq``
+    and no ``previous`` starts again at the next sample; the block being averaged, the last
+    input and the filter's own input, output and previous output are empty if absent."""
+    out = _filled(state, {"input": None, "output": None, "previous": None,
+                          "block": [_zeros(21), 0], "last": None})
+    if out.pop("prev_dq", None) is not None and out["previous"] is None:
+        out.update(filter=None, input=None, output=None)
+    return out
+
+
+def _physics_v1(state: dict) -> dict:
+    """An IEM+phys state, its ensemble and regression included (see :func:`fill_version_1`
+    for the rules)."""
+    params = state["params"]
+    out = _filled(state, {"calib_gen": [], "initial": None,
+                          "calib_bins": {"sq": _zeros(6, 10), "n": [0] * 6}})
+    out["ensemble"] = _ensemble_v1(state["ensemble"])
+    out["regression"] = _regression_v1(state["regression"])
+    if "bag_counts" not in out:  # the summed covariances, not yet per bag
+        out["bag_counts"], out["sum_c_base"] = [], out.pop("sum_c")
+    detector = dict(out["detector"])
+    detector.setdefault("level", 7.0)
+    detector.setdefault("n", 10 if params.get("torque_noise") is None else 0)
+    detector.setdefault("level_model", detector["level"])
+    out["detector"] = detector
+    if params.get("torque_noise") is not None and "offsets" not in out:
+        out["offsets"] = [_zeros(10, 7), _zeros(7, 7), _zeros(7)]
+        if out["m"]:  # its equations without their offset sums cannot be marginalised
+            out.update(info=_zeros(10, 10), eta=_zeros(10), m=0)
+    post = out["post"]
+    if post is not None and not isinstance(post, dict):
+        mean, cov, precision, inflation = post[:4]
+        out["post"] = {"mean": mean, "cov": cov, "precision": precision,
+                       "inflation": inflation, "equations": out["m"]}
+    out.setdefault("data_shown", out["m"] > 0)
+    return out
+
+
+def fill_version_1(kind: str, state: dict) -> dict:
+    """Version 1 -> 2: a version-1 state of any age in the full version-1 layout.
+
+    What a version-1 file may lack, and what it then meant:
+
+    - IEM, old IEM, and the IEM that IEM+phys holds: a learner's ``dq_precision`` (None: no
+      velocity score), ``gen`` (every slot at generation 0), ``kept`` (no reservoir),
+      ``retired`` (0), and with a budget ``promoted`` (0) and ``on_probation`` (none: every
+      bag permanent).
+    - BEM: a learner's ``dq_precision``.
+    - LS, and the regression IEM+phys holds: ``input``, ``output``, ``previous``, ``last``
+      (None), ``block`` (empty); a filter saved with ``prev_dq`` and without ``previous``
+      starts again (``filter`` None).
+    - IEM+phys: ``calib_gen`` (empty), ``calib_bins`` (an empty table of the 6 mass bins:
+      factors 1), ``bag_counts`` (none; ``sum_c`` becomes ``sum_c_base``), the detector's
+      ``level`` (7, the nominal), ``n`` (10 equations, learnt already; 0 with a torque
+      noise, whose detector has no level) and ``level_model`` (its ``level``), the window's
+      ``offsets`` when a torque noise carries them (a window of equations without them
+      starts again), ``post`` as the list ``[mean, cov, precision, inflation]`` (it holds
+      the window's equations), ``data_shown`` (the window holds equations) and
+      ``initial`` (None).
+    """
+    if kind in ("IEM", "old_IEM"):
+        return _ensemble_v1(state)
+    if kind == "BEM":
+        return {**state, "learners": [_filled(lr, {"dq_precision": None})
+                                      for lr in state["learners"]]}
+    if kind == "LS":
+        return _regression_v1(state)
+    if kind == "IEM+phys":
+        return _physics_v1(state)
+    return state
+
+
+# -- 2 -> 3 ------------------------------------------------------------------------------
+def equations_per_point(kind: str, state: dict) -> dict:
+    """Version 2 -> 3: an IEM+phys model whose physics averaged ``update_every > 1`` frames
+    at ``rate_hz`` takes points at ``rate_hz / update_every``, one frame each
+    (``update_every`` 1). Params without them had the version-2 defaults, 1000 Hz and 10.
+    Nothing else changes."""
+    if kind != "IEM+phys":
+        return state
+    params = state["params"]
+    every = int(params.get("update_every", 10))
+    rate = float(params.get("rate_hz", 1000.0))
+    if every <= 1:
+        return state
+    return {**state, "params": {**params, "rate_hz": rate / every, "update_every": 1}}
+
+
+STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point}
+"""``version -> step`` to ``version + 1``."""
+
+VERSION = 1 + len(STEPS)
+"""The schema version files are written at: the last step's."""
+
+
+def migrate(kind: str, state: dict, version: int) -> dict:
+    """The state of a file of ``version`` (1 to :data:`VERSION`) at :data:`VERSION`: every
+    step from ``version`` on, in order; ``state`` is left as it was.
+
+    Raises:
+        InvalidInputError: ``version`` is not one of 1 to :data:`VERSION`.
+    """
+    if type(version) is not int or not 1 <= version <= VERSION:
+        raise InvalidInputError(f"schema version {version!r} is not one of 1 to {VERSION}")
+    for v in range(version, VERSION):
+        state = STEPS[v](kind, state)
+    return state

@@ -1,0 +1,257 @@
+"""Model-file schema versions: every old file loads to the model it held, at the newest
+version; each step on its own.
+
+``data/v1_*.iem`` are files the version-1 code wrote (an IEM+phys at 1 kHz with blocks of
+10 samples, an LS), and ``data/v1_expected.json`` what each predicted then at a sample
+(``x``, ``flange``): the loaded model must predict the same, to the bit.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import zlib
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from iem.errors import InvalidInputError, ModelFileError
+from iem.migrations import (
+    STEPS,
+    VERSION,
+    equations_per_point,
+    fill_version_1,
+    migrate,
+)
+from iem.persistence import dumps, load_model, loads
+from sim.robot import PANDA_DYNAMICS
+
+DATA = Path(__file__).parent / "data"
+FIXTURES = sorted(DATA.glob("v*_*.iem"))
+EXPECTED = json.loads((DATA / "v1_expected.json").read_text())
+
+
+def _head(path: Path) -> tuple[dict, dict]:
+    """The file's header and its unpacked state."""
+    head = msgpack.unpackb(path.read_bytes(), raw=False)
+    return head, msgpack.unpackb(head["state"], raw=False, strict_map_key=False)
+
+
+def _file(kind: str, state: dict, version: int) -> bytes:
+    packed = msgpack.packb(state, use_bin_type=True)
+    return msgpack.packb({"schema": "iem-payload-model", "version": version, "kind": kind,
+                          "crc32": zlib.crc32(packed), "state": packed}, use_bin_type=True)
+
+
+PHYS_HEAD, PHYS_V1 = _head(DATA / "v1_iem_phys.iem")
+LS_HEAD, LS_V1 = _head(DATA / "v1_ls.iem")
+
+
+def _canonical(obj):
+    if isinstance(obj, dict):
+        return sorted((k, _canonical(v)) for k, v in obj.items())
+    if isinstance(obj, list):
+        return [_canonical(v) for v in obj]
+    return obj
+
+
+def _same_state(a: dict, b: dict) -> bool:
+    """Equal states, NaN included and key order aside (their canonical msgpack bytes)."""
+    return (msgpack.packb(_canonical(a), use_bin_type=True)
+            == msgpack.packb(_canonical(b), use_bin_type=True))
+
+
+# -- old files load to the same model, at the newest version ---------------------------------
+def test_the_fixtures_are_version_1_files():
+    assert [p.name for p in FIXTURES] == ["v1_iem_phys.iem", "v1_ls.iem"]
+    assert (PHYS_HEAD["version"], PHYS_HEAD["kind"]) == (1, "IEM+phys")
+    assert (LS_HEAD["version"], LS_HEAD["kind"]) == (1, "LS")
+    assert PHYS_V1["params"]["rate_hz"] == 1000.0 and PHYS_V1["params"]["update_every"] == 10
+
+
+@pytest.mark.parametrize("path", FIXTURES, ids=lambda p: p.stem)
+def test_an_old_file_loads_to_the_model_it_held_and_is_saved_at_the_newest_version(path):
+    model = load_model(path)
+    head, state = _head(path)
+    newest = migrate(head["kind"], state, 1)
+    assert _same_state(model.to_state(), newest)
+    saved = dumps(model)
+    expected = EXPECTED[path.stem.partition("_")[2]]
+    est = model.predict_one(np.array(expected["x"]), np.array(expected["flange"]))
+    assert est.phi.tolist() == expected["phi"]  # what the version-1 code predicted, to the bit
+    assert est.std.tolist() == expected["std"]
+    assert msgpack.unpackb(saved, raw=False)["version"] == VERSION
+    again = loads(saved)
+    assert _same_state(again.to_state(), newest)
+    assert again.dynamics == PANDA_DYNAMICS  # the spec it was given, not the caller's
+
+
+def test_the_1khz_physics_file_takes_100hz_points_after_loading():
+    model = load_model(DATA / "v1_iem_phys.iem")
+    assert (model.rate_hz, model.update_every) == (100.0, 1)
+    params = {k: v for k, v in model.params().items() if k not in ("rate_hz", "update_every")}
+    assert params == {k: v for k, v in PHYS_V1["params"].items()
+                      if k not in ("rate_hz", "update_every")}
+
+
+def test_the_oldest_version_1_state_loads_as_its_branches_read_it():
+    """Every field a version-1 file may lack, absent at once: the model loads and predicts as
+    the full file's, but for what the fill says (no reservoir, an empty calibration table)."""
+    state = copy.deepcopy(PHYS_V1)
+    for key in ("calib_gen", "calib_bins", "initial", "data_shown"):
+        del state[key]
+    state["sum_c"] = state.pop("sum_c_base")
+    del state["bag_counts"]
+    post = state["post"]
+    state["post"] = [post["mean"], post["cov"], post["precision"], post["inflation"]]
+    for key in ("level", "n", "level_model"):
+        del state["detector"][key]
+    for key in ("input", "output", "previous", "block", "last"):
+        del state["regression"][key]
+    for key in ("gen", "kept", "retired"):
+        del state["ensemble"][key]
+    for learner in state["ensemble"]["learners"]:
+        del learner["dq_precision"]
+    old = loads(_file("IEM+phys", state, 1))
+    full = load_model(DATA / "v1_iem_phys.iem")
+    assert old.n_bags == full.n_bags and old.changes == full.changes
+    assert old.ensemble_prior.calib_gen == []
+    assert old.ensemble_model.learner(0).dq_precision is None
+    x, f = np.array(EXPECTED["iem_phys"]["x"]), np.array(EXPECTED["iem_phys"]["flange"])
+    assert np.isfinite(old.predict_one(x, f).phi).all()
+
+
+def test_a_file_newer_than_the_code_is_refused_naming_both_versions(tmp_path):
+    path = tmp_path / "new.iem"
+    path.write_bytes(_file("LS", LS_V1, VERSION + 1))
+    with pytest.raises(ModelFileError, match=rf"{path} has schema version {VERSION + 1}, newer "
+                                             rf"than this build's {VERSION}"):
+        load_model(path)
+
+
+def test_a_state_no_step_can_bring_up_is_a_model_file_error():
+    state = copy.deepcopy(LS_V1)
+    del state["count"]
+    broken = {k: v for k, v in PHYS_V1.items() if k != "ensemble"}
+    with pytest.raises(ModelFileError, match=r"does not describe a valid LS"):
+        loads(_file("LS", state, 1))
+    with pytest.raises(ModelFileError, match=r"state of version 1 cannot be brought to version "
+                                             rf"{VERSION}: KeyError"):
+        loads(_file("IEM+phys", broken, 1))
+
+
+# -- the steps, each on its own -----------------------------------------------------------
+def test_the_steps_run_in_order_from_the_files_version():
+    assert sorted(STEPS) == list(range(1, VERSION))
+    assert migrate("IEM+phys", PHYS_V1, VERSION) is PHYS_V1
+    two = migrate("IEM+phys", PHYS_V1, 1)
+    assert two == equations_per_point("IEM+phys", fill_version_1("IEM+phys", PHYS_V1))
+    for bad in (0, VERSION + 1, "1", 1.0, True):
+        with pytest.raises(InvalidInputError, match=rf"not one of 1 to {VERSION}"):
+            migrate("LS", LS_V1, bad)
+
+
+@pytest.mark.parametrize("step", list(STEPS.values()), ids=lambda s: s.__name__)
+@pytest.mark.parametrize(("kind", "state"), [("IEM+phys", PHYS_V1), ("LS", LS_V1),
+                                             ("arm", {"link_params": [1.0]})])
+def test_a_step_leaves_its_argument_as_it_was(step, kind, state):
+    before = copy.deepcopy(state)
+    step(kind, state)
+    assert state == before
+
+
+def test_fill_version_1_leaves_a_full_version_1_state_as_it_is():
+    assert fill_version_1("IEM+phys", PHYS_V1) == PHYS_V1
+    assert fill_version_1("LS", LS_V1) == LS_V1
+    assert fill_version_1("arm", {"report": None}) == {"report": None}
+
+
+def test_fill_version_1_ensemble_fields():
+    ens = copy.deepcopy(PHYS_V1["ensemble"])
+    for key in ("gen", "kept", "retired"):
+        del ens[key]
+    del ens["learners"][0]["dq_precision"]
+    out = fill_version_1("IEM", ens)
+    n = len(ens["learners"])
+    assert out["gen"] == [0] * n and out["kept"] is None and out["retired"] == 0
+    assert "promoted" not in out and "on_probation" not in out  # no budget
+    assert out["learners"][0]["dq_precision"] is None
+    assert fill_version_1("old_IEM", ens) == out
+    ens["params"]["budget_bags"] = 40
+    budgeted = fill_version_1("IEM", ens)
+    assert (budgeted["retired"], budgeted["promoted"], budgeted["on_probation"]) == (0, 0, [])
+    bem = fill_version_1("BEM", {"params": {}, "learners": [{"a": [1.0]}], "trees": []})
+    assert bem["learners"] == [{"a": [1.0], "dq_precision": None}]
+
+
+def test_fill_version_1_regression_fields():
+    reg = {"count": 5, "filter": [[1.0] * 21, [2.0] * 21], "input": [0.5] * 21,
+           "output": [0.5] * 21, "prev_dq": [0.0] * 7}
+    out = fill_version_1("LS", {**reg, "params": {}})
+    # saved with prev_dq and no previous output: the filter starts again
+    assert out["filter"] is None and out["input"] is None and out["output"] is None
+    assert "prev_dq" not in out and out["previous"] is None and out["last"] is None
+    assert out["block"] == [[0.0] * 21, 0] and out["count"] == 5
+    kept = fill_version_1("LS", {**reg, "previous": [0.4] * 21, "params": {}})
+    assert kept["filter"] == reg["filter"] and kept["previous"] == [0.4] * 21
+
+
+def test_fill_version_1_physics_fields():
+    state = copy.deepcopy(PHYS_V1)
+    for key in ("calib_gen", "calib_bins", "initial", "data_shown", "bag_counts"):
+        del state[key]
+    state["sum_c"] = state.pop("sum_c_base")
+    post = state["post"]
+    state["post"] = [post["mean"], post["cov"], post["precision"], post["inflation"]]
+    for key in ("level", "n", "level_model"):
+        del state["detector"][key]
+    out = fill_version_1("IEM+phys", state)
+    assert out["calib_gen"] == [] and out["initial"] is None
+    assert out["calib_bins"] == {"sq": [[0.0] * 10] * 6, "n": [0] * 6}
+    assert out["bag_counts"] == [] and out["sum_c_base"] == PHYS_V1["sum_c_base"]
+    assert "sum_c" not in out
+    assert out["post"] == {**post, "equations": PHYS_V1["m"]}
+    assert out["data_shown"] is (PHYS_V1["m"] > 0)
+    assert out["detector"] == {**PHYS_V1["detector"], "level": 7.0, "n": 10,
+                               "level_model": 7.0}
+
+
+def test_fill_version_1_a_window_without_offset_sums_starts_again():
+    state = copy.deepcopy(PHYS_V1)
+    state["params"]["torque_noise"] = {"offset_std": [0.1] * 7}
+    del state["detector"]["n"]
+    out = fill_version_1("IEM+phys", state)
+    assert out["offsets"] == [[[0.0] * 7] * 10, [[0.0] * 7] * 7, [0.0] * 7]
+    assert out["m"] == 0 and out["info"] == [[0.0] * 10] * 10 and out["eta"] == [0.0] * 10
+    assert out["post"]["equations"] == PHYS_V1["post"]["equations"]  # a dict already
+    assert out["detector"]["n"] == 0  # a detector without a level
+    empty = fill_version_1("IEM+phys", {**state, "m": 0, "info": [[1.0] * 10] * 10})
+    assert empty["info"] == [[1.0] * 10] * 10 and empty["m"] == 0
+
+
+@pytest.mark.parametrize(("rate", "every", "after"), [
+    (1000.0, 10, (100.0, 1)), (2000.0, 20, (100.0, 1)), (500.0, 5, (100.0, 1)),
+    (100.0, 1, (100.0, 1)), (1000.0, 1, (1000.0, 1))])
+def test_equations_per_point(rate, every, after):
+    noise = {"rate_hz": 100.0, "cutoff_hz": 4.0}
+    state = {"params": {"rate_hz": rate, "update_every": every, "torque_noise": noise,
+                        "cutoff_hz": 4.0}, "regression": {"count": 3}, "holdoff": 7}
+    out = equations_per_point("IEM+phys", state)
+    assert (out["params"]["rate_hz"], out["params"]["update_every"]) == after
+    assert out["params"]["torque_noise"] == noise and out["params"]["cutoff_hz"] == 4.0
+    assert {k: v for k, v in out.items() if k != "params"} == {
+        k: v for k, v in state.items() if k != "params"}
+    if every == 1:
+        assert out is state
+
+
+def test_equations_per_point_reads_absent_params_as_the_version_2_defaults():
+    out = equations_per_point("IEM+phys", {"params": {}})
+    assert (out["params"]["rate_hz"], out["params"]["update_every"]) == (100.0, 1)
+
+
+def test_equations_per_point_leaves_other_kinds():
+    ls = {"params": {"rate_hz": 1000.0, "update_every": 10}}
+    assert equations_per_point("LS", ls) is ls
