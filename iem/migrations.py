@@ -1,4 +1,4 @@
-"""Model-file schema versions and the steps between them.
+"""Model-file schema versions, the steps between them, and the table of moved module paths.
 
 A model file records the schema ``version`` it was written at (:mod:`iem.persistence`), and
 is always written at :data:`VERSION`. Each change to what a model's state holds, or means,
@@ -22,6 +22,12 @@ The steps:
         ``update_every > 1`` frames itself now takes ``rate_hz := rate_hz / update_every``,
         ``update_every := 1`` (the same equation rate; its ``torque_noise`` is measured at
         that rate already).
+
+A file names code by module path: its kind's class (:data:`iem.persistence.MODELS`,
+``"module:Class"``) and the factories in its state (``coverage``, ``reversal``, ``dynamics``:
+``"module:function[@ARG]"``). These go through :data:`ALIASES` at load (:func:`current_path`,
+:func:`with_current_paths`): a module that moves adds one row, old -> new, and the files
+that name it keep loading (and name the new path when saved again).
 """
 
 from __future__ import annotations
@@ -31,6 +37,54 @@ from collections.abc import Callable, Mapping
 from .errors import InvalidInputError
 
 Step = Callable[[str, dict], dict]
+
+ALIASES: dict[str, str] = {}
+"""Module paths that moved: ``"old.module" -> "new.module"`` (every name in it) or
+``"old.module:name" -> "new.module:name"`` (one name). A row may name a path that moved
+again (rows chain). Add a row when a module that model files name moves."""
+
+SPEC_KEYS = ("coverage", "reversal", "dynamics")
+"""The state's keys whose str values are ``"module:function[@ARG]"`` factory specs."""
+
+
+def current_path(path: str) -> str:
+    """``path`` (``"module"``, ``"module:name"``, optionally ``@ARG``) where it lives now:
+    through :data:`ALIASES` until no row applies (the ``@ARG`` is kept).
+
+    Raises:
+        InvalidInputError: the rows form a cycle.
+    """
+    target, at, arg = path.partition("@")
+    seen = {target}
+    while True:
+        module, colon, name = target.partition(":")
+        if target in ALIASES:
+            target = ALIASES[target]
+        elif module in ALIASES:
+            target = ALIASES[module] + colon + name
+        else:
+            return target + at + arg
+        if target in seen:
+            raise InvalidInputError(f"the module aliases of {path!r} form a cycle through "
+                                    f"{target!r}")
+        seen.add(target)
+
+
+def with_current_paths(state: dict) -> dict:
+    """``state`` with the factory specs (:data:`SPEC_KEYS`) of its maps, nested maps
+    included, at their :func:`current_path`; the maps on the way are copied, the rest is
+    shared (the argument is left as it was)."""
+    out = None
+    for key, value in state.items():
+        new = value
+        if isinstance(value, dict):
+            new = with_current_paths(value)
+        elif key in SPEC_KEYS and isinstance(value, str):
+            new = current_path(value)
+        if new is not value:
+            out = dict(state) if out is None else out
+            out[key] = new
+    return state if out is None else out
 
 
 # -- 1 -> 2 ------------------------------------------------------------------------------

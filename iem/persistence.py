@@ -24,7 +24,10 @@ the class rebuilds itself with ``Class.from_state(state)``.
 ``version`` is the schema version the file was written at; files are written at
 :data:`VERSION`. A file of an older version is loaded through the steps of
 :mod:`iem.migrations`, which bring its state to the newest layout before ``from_state`` sees
-it; a file of a newer version than this build knows is refused.
+it; a file of a newer version than this build knows is refused. The module paths a file
+names (its kind's class, the factory specs ``coverage``, ``reversal``, ``dynamics`` in its
+state) go through :data:`iem.migrations.ALIASES` at load, so that a module that moves keeps
+its files loading.
 
 Writing goes to a temporary file in the target's directory, which is flushed, fsynced and
 then renamed over the target (``os.replace``), and the directory is fsynced: a crash or an
@@ -51,7 +54,7 @@ from pathlib import Path
 import msgpack
 
 from .errors import InvalidInputError, ModelFileError
-from .migrations import VERSION, migrate
+from .migrations import VERSION, current_path, migrate, with_current_paths
 
 SCHEMA = "iem-payload-model"
 """The ``schema`` field of every model file."""
@@ -261,7 +264,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
     try:
-        state = migrate(head["kind"], state, version)
+        state = with_current_paths(migrate(head["kind"], state, version))
     except Exception as exc:  # any failure to bring the state up is a bad file
         raise ModelFileError(f"{where}: the state of version {version} cannot be brought to "
                              f"version {VERSION}: {type(exc).__name__}: {exc}") from exc
@@ -284,10 +287,10 @@ def _model_class(kind: str, registry: Mapping[str, str], where: str):
         raise ModelFileError(f"{where} holds a model of unknown kind {kind!r}; known kinds: "
                              f"{', '.join(sorted(registry)) or '(none)'}")
     target = registry[kind]
-    module_name, _, class_name = str(target).partition(":")
     try:
+        module_name, _, class_name = current_path(str(target)).partition(":")
         return getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError, ValueError) as exc:
+    except (ImportError, AttributeError, ValueError, InvalidInputError) as exc:
         raise ModelFileError(f"{where} holds a model of kind {kind!r}, registered as "
                              f"{target!r}, which cannot be imported: {exc}") from exc
 

@@ -1,5 +1,5 @@
 """Model-file schema versions: every old file loads to the model it held, at the newest
-version; each step on its own.
+version; each step on its own; the module-path aliases.
 
 ``data/v1_*.iem`` are files the version-1 code wrote (an IEM+phys at 1 kHz with blocks of
 10 samples, an LS), and ``data/v1_expected.json`` what each predicted then at a sample
@@ -17,13 +17,17 @@ import msgpack
 import numpy as np
 import pytest
 
+from iem import migrations
 from iem.errors import InvalidInputError, ModelFileError
+from iem.least_squares import RecursiveLeastSquares
 from iem.migrations import (
     STEPS,
     VERSION,
+    current_path,
     equations_per_point,
     fill_version_1,
     migrate,
+    with_current_paths,
 )
 from iem.persistence import dumps, load_model, loads
 from sim.robot import PANDA_DYNAMICS
@@ -255,3 +259,51 @@ def test_equations_per_point_reads_absent_params_as_the_version_2_defaults():
 def test_equations_per_point_leaves_other_kinds():
     ls = {"params": {"rate_hz": 1000.0, "update_every": 10}}
     assert equations_per_point("LS", ls) is ls
+
+
+# -- module paths that moved ----------------------------------------------------------------
+def test_the_alias_table_names_importable_paths():
+    import importlib
+
+    for new in migrations.ALIASES.values():
+        module, _, name = current_path(new).partition(":")
+        loaded = importlib.import_module(module)
+        assert not name or hasattr(loaded, name), new
+
+
+def test_current_path_follows_rows_keeps_the_argument_and_refuses_a_cycle(monkeypatch):
+    monkeypatch.setattr(migrations, "ALIASES", {
+        "old.a": "mid.a", "mid.a": "new.a", "old.b:f": "new.b:g", "x": "y", "y": "x"})
+    assert current_path("old.a:f@/arm.msgpack") == "new.a:f@/arm.msgpack"
+    assert current_path("old.b:f") == "new.b:g" and current_path("old.b:h") == "old.b:h"
+    assert current_path("sim.robot:panda_dynamics") == "sim.robot:panda_dynamics"
+    with pytest.raises(InvalidInputError, match="cycle"):
+        current_path("x:f")
+
+
+def test_a_file_naming_a_moved_module_loads_and_is_saved_with_its_new_path(monkeypatch):
+    state = copy.deepcopy(PHYS_V1)
+    state["params"]["dynamics"] = "sim.robot_before:panda_dynamics"
+    state["params"]["ensemble"]["reversal"] = "sim.coverage_before:reversed_velocities"
+    state["ensemble"]["params"]["reversal"] = "sim.coverage_before:reversed_velocities"
+    state["ensemble"]["params"]["coverage"] = "sim.coverage_before:other_velocities"
+    with pytest.raises(ModelFileError, match=r"sim\.coverage_before"):
+        loads(_file("IEM+phys", state, 1))
+    monkeypatch.setattr(migrations, "ALIASES", {"sim.robot_before": "sim.robot",
+                                                "sim.coverage_before": "sim.coverage"})
+    model = loads(_file("IEM+phys", state, 1))
+    assert model.dynamics == PANDA_DYNAMICS
+    assert model.params()["ensemble"]["reversal"] == "sim.coverage:reversed_velocities"
+    assert model.ensemble_model.params()["coverage"] == "sim.coverage:other_velocities"
+    assert b"_before" not in dumps(model)
+    assert with_current_paths(state) is not state  # the argument is left as it was
+    assert state["params"]["dynamics"] == "sim.robot_before:panda_dynamics"
+
+
+def test_a_registered_class_at_a_moved_path_loads(monkeypatch):
+    data = (DATA / "v1_ls.iem").read_bytes()
+    registry = {"LS": "iem.ls_before:RecursiveLeastSquares"}
+    with pytest.raises(ModelFileError, match="cannot be imported"):
+        loads(data, registry=registry)
+    monkeypatch.setattr(migrations, "ALIASES", {"iem.ls_before": "iem.least_squares"})
+    assert isinstance(loads(data, registry=registry), RecursiveLeastSquares)
