@@ -3,7 +3,7 @@
 A model file is one msgpack map::
 
     {"schema": "iem-payload-model", "version": <VERSION>, "kind": "IEM",
-     "crc32": <zlib.crc32 of state>, "state": <msgpack bytes of model.to_state()>}
+     "crc32": <zlib.crc32 of state and version>, "state": <msgpack bytes of model.to_state()>}
 
 The state is packed on its own so that its CRC can be checked before anything in it is
 trusted. A model trained for a calibrated arm (``iem train --arm``) also carries
@@ -13,7 +13,9 @@ file's CRC (``crc32(arm map, crc32(state))``); it is the model's ``trained_arm``
 (None for the nominal arm), and :func:`check_arm` refuses to run the model with another arm.
 A model trained on another payload family than the paper's (``iem train --family generic``)
 records it as ``"family"`` (also covered by the CRC; its ``trained_family`` attribute), so the
-service can refuse to train new bags of it with another family's simulators.
+service can refuse to train new bags of it with another family's simulators. The CRC then
+continues over the version (its msgpack bytes; not in a version-1 file), so that a damaged
+version cannot send a state through another version's migrations.
 The arm file (:mod:`sim.arm`) is written and read by the same functions under its own schema
 (``schema=``, ``label=``).
 
@@ -111,13 +113,16 @@ def new_model(kind: str = DEFAULT_MODEL, **params):
 
 
 # -- encoding ----------------------------------------------------------------------------
-def _record_crc(arm: dict | None, crc: int, family: str | None = None) -> int:
+def _record_crc(arm: dict | None, crc: int, family: str | None = None,
+                version: int = VERSION) -> int:
     """The file CRC: the state's, continued over the arm record and the training family if
-    there are any."""
+    there are any, and over the version but in a version-1 file."""
     if arm is not None:
         crc = zlib.crc32(msgpack.packb(arm, use_bin_type=True), crc)
     if family is not None:
         crc = zlib.crc32(family.encode("utf-8"), crc)
+    if version != 1:
+        crc = zlib.crc32(msgpack.packb(version), crc)
     return crc
 
 
@@ -255,7 +260,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if family is not None and not isinstance(family, str):
         raise ModelFileError(f"{where}: field 'family' is {family!r}, expected a family name")
     state_bytes = head["state"]
-    crc = _record_crc(arm, zlib.crc32(state_bytes), family)
+    crc = _record_crc(arm, zlib.crc32(state_bytes), family, version)
     if crc != head["crc32"]:
         raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")

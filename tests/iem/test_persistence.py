@@ -85,9 +85,15 @@ def _pack(head: dict) -> bytes:
     return msgpack.packb(head, use_bin_type=True)
 
 
+def _crc(state: bytes, version: int = persistence.VERSION) -> int:
+    """A file's CRC: the state's, continued over the version (not in a version-1 file)."""
+    crc = zlib.crc32(state)
+    return crc if version == 1 else zlib.crc32(msgpack.packb(version), crc)
+
+
 def _with_state(state) -> bytes:
     packed = msgpack.packb(state, use_bin_type=True)
-    return _pack(_head(state=packed, crc32=zlib.crc32(packed)))
+    return _pack(_head(state=packed, crc32=_crc(packed)))
 
 
 class _Toy:
@@ -157,7 +163,7 @@ def test_file_layout(tmp_path):
     assert head["version"] == persistence.VERSION >= 3
     assert head["kind"] == "IEM"
     assert isinstance(head["state"], bytes)
-    assert head["crc32"] == zlib.crc32(head["state"])
+    assert head["crc32"] == _crc(head["state"])
     assert msgpack.unpackb(head["state"], raw=False) == MODEL.to_state()
 
 
@@ -285,6 +291,17 @@ def test_unknown_version_says_which_are_supported(tmp_path, version):
         load_model(path)
 
 
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_damaged_version_is_a_corrupt_file_not_another_versions_state(tmp_path, version):
+    """The CRC covers the version: a file whose version reads older is refused, not sent
+    through that version's migrations."""
+    path = _file(tmp_path, _pack(_head(version=version)))
+    with pytest.raises(ModelFileError, match=rf"{path} is corrupt: the state's CRC32"):
+        load_model(path)
+    state = _head()["state"]
+    assert loads(_pack(_head(version=version, crc32=_crc(state, version)))).n_bags == MODEL.n_bags
+
+
 @pytest.mark.parametrize("ahead", [1, 96])
 def test_a_newer_version_is_refused_naming_both(tmp_path, ahead):
     version = persistence.VERSION + ahead
@@ -327,7 +344,7 @@ def test_crc_mismatch(tmp_path):
 
 
 def test_state_not_msgpack_with_valid_crc(tmp_path):
-    path = _file(tmp_path, _pack(_head(state=b"\xc1", crc32=zlib.crc32(b"\xc1"))))
+    path = _file(tmp_path, _pack(_head(state=b"\xc1", crc32=_crc(b"\xc1"))))
     with pytest.raises(ModelFileError, match="the state is not valid msgpack"):
         load_model(path)
 
