@@ -23,3 +23,28 @@ def add_recording_options(parser, profile_help: str) -> None:
     parser.add_argument("--topic", default=DEFAULT_TOPIC, help="a rosbag2 bag's "
                         f"sensor_msgs/msg/JointState topic (default {DEFAULT_TOPIC})")
     parser.add_argument("--profile", default="fd", choices=PROFILES, help=profile_help)
+
+
+def block_frames(text: str) -> int:
+    """A ``--block-frames`` value: an integer from 1 to 100 (argparse reports the error)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 100:
+        raise argparse.ArgumentTypeError(f"{text!r}: valid is an integer from 1 to 100")
+    return value
+
+
+def add_block_frames(parser) -> None:
+    """``--block-frames N``: frames per block point (:mod:`iem.blocks`; ``[estimate]
+    block_frames``)."""
+    from iem.types import DEFAULT_BLOCK_FRAMES
+
+    parser.add_argument("--block-frames", type=block_frames, default=DEFAULT_BLOCK_FRAMES,
+                        metavar="N", help="the estimator works on the means of N "
+                        f"consecutive joint states (default {DEFAULT_BLOCK_FRAMES}: 100 "
+                        "points per second from a 1 kHz link); the model must be made for "
+                        "the same")

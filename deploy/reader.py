@@ -1,15 +1,25 @@
-"""Reading the bus never waits for estimating: the link is read in a thread of its own.
+"""What the service reads: block points of the link's frames, handed over once a block.
 
-:class:`LinkReader` calls the link's ``read`` in a loop, in its own thread, and puts what it
-gets into a bounded queue with the time it arrived: each complete controller cycle, a
+The link gives controller frames (1 kHz on a Franka); the estimator works on block points,
+the means of consecutive gap-free frames (:mod:`iem.blocks`). Both readers here form them
+with a :class:`iem.blocks.BlockFormer` and hand the service one :class:`Item` per block, a
 controller silence (:class:`~firmware_bridge.errors.ControllerSilent`), the end of a replayed
-stream, or a link failure. The service's loop takes them out at its own pace. While the
-estimator is slow (a learning step, a host under load) the link keeps being drained, so the
-adapter's and the kernel's buffers never overflow and every cycle keeps its arrival time.
+stream or a link failure; a silence or the end first closes the open block (its frames are
+the last before it).
 
-If the estimator falls so far behind that the queue is full, the oldest cycle is dropped and
-counted in ``skipped``: never lost silently. The estimator then meets a gap in the time
-stamps, which its gap rule (:mod:`iem.gaps`) bridges or restarts on.
+- :class:`LinkReader` (a live link) reads in a thread of its own, so reading never waits for
+  estimating: while the estimator is slow (a learning step, a host under load) the link keeps
+  being drained and every frame keeps its arrival time. The hand-over (a queue put, a
+  wake-up of the service's thread) happens once a block, not once a frame. If the estimator
+  falls so far behind that the queue is full, the oldest block is dropped and counted in
+  ``skipped``: never lost silently (the estimator's gap rule then bridges or restarts).
+- :class:`BatchReader` (a replay) reads in the service's thread, ``chunk`` frames at a time
+  into preallocated arrays, forms their blocks in one vectorised call
+  (:meth:`iem.blocks.BlockFormer.push_many`) and hands them over as fast as the estimator
+  takes them: the same blocks as frame by frame, to the bit, and nothing is dropped.
+
+An item's ``frame_time`` is the arrival (``time.time()``, epoch s) of the block's last frame
+and ``first_time`` that of its first (0.0 where the link has none, as a recording).
 """
 
 from __future__ import annotations
@@ -19,39 +29,49 @@ import threading
 import time
 from typing import NamedTuple
 
-CAPACITY = 500
-"""Cycles the queue holds (0.5 s at 1 kHz): more behind than that, and the oldest go."""
+import numpy as np
+
+from iem.blocks import N_COLUMNS, BlockFormer
+
+CAPACITY = 50
+"""Blocks the live queue holds (0.5 s at 100 points per second): more behind than that, and
+the oldest go."""
+CHUNK = 4096
+"""Frames a replay reads before forming their blocks at once."""
 
 
 class Item(NamedTuple):
-    """What the reader got: ``kind`` is ``"state"`` (``value`` a joint state, ``frame_time``
-    its arrival, epoch s), ``"silent"`` (``value`` the message), ``"end"`` or ``"error"``
-    (``value`` the exception). Immutable (a named tuple: one is made every cycle)."""
+    """What a reader got: ``kind`` is ``"state"`` (``value`` a block point, a
+    :class:`iem.types.JointState` of means; ``frame_time`` and ``first_time`` the arrival of
+    its last and first frames, epoch s), ``"silent"`` (``value`` the message), ``"end"`` or
+    ``"error"`` (``value`` the exception). Immutable."""
 
     kind: str
     value: object = None
     frame_time: float = 0.0
+    first_time: float = 0.0
 
 
 class LinkReader:
-    """Reads ``link`` in a daemon thread into a queue of at most ``capacity`` cycles.
+    """Reads ``link`` in a daemon thread into a queue of at most ``capacity`` blocks.
 
     Args:
         link: an open joint-state source.
         timeout: the silence timeout passed to ``link.read``, s.
-        capacity: cycles the queue holds before the oldest is dropped.
+        former: forms the frames into block points (default: 10 frames at 1 kHz).
+        capacity: blocks the queue holds before the oldest is dropped.
     """
 
-    def __init__(self, link, timeout: float, capacity: int = CAPACITY) -> None:
+    def __init__(self, link, timeout: float, former: BlockFormer | None = None,
+                 capacity: int = CAPACITY) -> None:
         self.link = link
         self.timeout = float(timeout)
+        self.former = BlockFormer() if former is None else former
         self.capacity = int(capacity)
         self.skipped = 0
-        """Cycles dropped because the queue was full."""
+        """Blocks dropped because the queue was full."""
         self.cpu_s = 0.0
         """CPU time the reader thread used, s (when it has stopped)."""
-        # the C queue: a put and a blocking get cost a fraction of a Condition's
-        # Python-level wait and notify, on both threads, every cycle
         self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -65,28 +85,48 @@ class LinkReader:
         from firmware_bridge.errors import ControllerSilent, EndOfStream
 
         cpu0 = time.thread_time()
+        link, former, put = self.link, self.former, self._put
+        first = 0.0
         try:
             while not self._stop.is_set():
                 try:
-                    state = self.link.read(self.timeout)
+                    frame = link.read(self.timeout)
                 except ControllerSilent as exc:
-                    self._put(Item("silent", str(exc)))
+                    self._flush(first)
+                    put(Item("silent", str(exc)))
                     continue
                 except EndOfStream:
-                    self._put(Item("end"))
+                    self._flush(first)
+                    put(Item("end"))
                     return
                 except Exception as exc:  # a link failure: the service ends with it
-                    self._put(Item("error", exc))
+                    put(Item("error", exc))
                     return
-                self._put(Item("state", state, getattr(self.link, "last_frame_time", 0.0)))
+                arrived = link.last_frame_time
+                if former.pending == 0:
+                    first = arrived
+                points = former.push(frame.t, frame.q, frame.dq, frame.tau_J, frame.cycle)
+                for point in points:  # this frame closed a block (after bridged lost
+                    # frames, perhaps more than one), or a restart closed one before it
+                    ends_here = former.pending == 0 and point is points[-1]
+                    put(Item("state", point, arrived if ends_here else self._last, first))
+                    first = arrived
+                self._last = arrived
         finally:
             self.cpu_s = time.thread_time() - cpu0
+
+    _last = 0.0  # arrival of the frame before this one
+
+    def _flush(self, first: float) -> None:
+        point = self.former.flush()
+        if point is not None:
+            self._put(Item("state", point, self._last, first))
 
     def _put(self, item: Item) -> None:
         q = self._queue
         if item.kind == "state" and q.qsize() >= self.capacity:
             try:  # only this thread puts, so the queue is at most full
-                dropped = q.get_nowait()  # the oldest: a cycle, or old news of a silence
+                dropped = q.get_nowait()  # the oldest: a block, or old news of a silence
             except queue.Empty:  # the consumer took the last ones meanwhile
                 dropped = None
             self.skipped += dropped is not None and dropped.kind == "state"
@@ -105,3 +145,71 @@ class LinkReader:
         if self._thread is not None:
             self._thread.join(self.timeout + 1.0 if timeout is None else timeout)
             self._thread = None
+
+
+class BatchReader:
+    """Reads a replayed ``link`` in the caller's thread, ``chunk`` frames at a time, and
+    hands over their blocks (see the module docstring). Same interface as
+    :class:`LinkReader` (``get``, ``stop``, ``skipped``, ``cpu_s``: the reading is the
+    caller's own CPU)."""
+
+    def __init__(self, link, timeout: float, former: BlockFormer | None = None,
+                 chunk: int = CHUNK) -> None:
+        self.link = link
+        self.timeout = float(timeout)
+        self.former = BlockFormer() if former is None else former
+        self.chunk = int(chunk)
+        self.skipped = 0
+        self.cpu_s = 0.0
+        self._T = np.empty(self.chunk)
+        self._X = np.empty((self.chunk, N_COLUMNS))
+        self._cycles = np.empty(self.chunk, dtype=np.int64)
+        self._ready: list[Item] = []
+        self._next = 0
+
+    def start(self) -> BatchReader:
+        return self
+
+    def stop(self, timeout: float | None = None) -> None:
+        """Nothing runs between calls."""
+
+    def get(self, timeout: float | None = None) -> Item:
+        """The next item (reads the next chunk when the last one's are handed over)."""
+        while self._next >= len(self._ready):
+            self._ready, self._next = self._read_chunk(), 0
+        item = self._ready[self._next]
+        self._next += 1
+        return item
+
+    def _read_chunk(self) -> list[Item]:
+        from firmware_bridge.errors import ControllerSilent, EndOfStream
+
+        link, T, X, cycles = self.link, self._T, self._X, self._cycles
+        n, tail = 0, None
+        while n < self.chunk:
+            try:
+                frame = link.read(self.timeout)
+            except ControllerSilent as exc:
+                tail = Item("silent", str(exc))
+                break
+            except EndOfStream:
+                tail = Item("end")
+                break
+            except Exception as exc:  # a link failure: the service ends with it
+                tail = Item("error", exc)
+                break
+            T[n] = frame.t
+            X[n, :7] = frame.q
+            X[n, 7:14] = frame.dq
+            X[n, 14:] = frame.tau_J
+            cycles[n] = frame.cycle
+            n += 1
+        blocks = self.former.push_many(T[:n], X[:n], cycles[:n])
+        items = [Item("state", blocks.state(i)) for i in range(len(blocks))]
+        if tail is not None:
+            if tail.kind != "error":  # the open block's frames end before the silence
+                point = self.former.flush()
+                if point is not None:
+                    items.append(Item("state", point))
+            items.append(tail)
+        return items

@@ -1,28 +1,33 @@
 """The plug-in service: joint states in, identified payload out (``iem run``).
 
-One loop, one thread: the link's ``read`` gives the next controller cycle;
-:class:`iem.online.OnlineIdentifier` learns from it (new bags are trained with the tandem
-simulators of the configured payload family) and estimates; the smoothed estimate goes to
-the :class:`deploy.gate.SafetyGate` (with the raw estimate, for its uncertainty, and the
-link's wire range check, :func:`wire_check_of`), and a load it lets through goes to the
-link's ``send`` (libfranka ``setLoad`` semantics); a load the link still cannot encode
-(``EncodeError``) is counted and logged, never fatal. Acknowledgements come back through the
-link: an applied one to the gate's ``acknowledged``, a refusal (``applied=False``, with the
-controller's ``error`` text where the link has one) to its ``refused``, which retries later.
+A pipeline of small parts, in one loop:
+
+1. a reader (:mod:`deploy.reader`) forms the link's frames into block points, the means of
+   ``[estimate] block_frames`` consecutive gap-free frames (100 points per second from a
+   1 kHz controller), and hands them over once a block: in a thread of its own on a live
+   link (reading never waits for estimating), in bulk for a replay;
+2. the estimate step (:meth:`Service.step`, no thread of its own):
+   :class:`iem.online.OnlineIdentifier` learns from the point (new bags are trained with the
+   tandem simulators of the configured payload family) and estimates; the estimate is
+   published where the link has a topic for it, and watched for a wrong arm model;
+3. the load writer (:class:`deploy.load_writer.LoadWriter`): the smoothed estimate goes to
+   the :class:`deploy.gate.SafetyGate` (with the raw estimate, for its uncertainty, and the
+   link's wire range check, :func:`wire_check_of`), a load it lets through to the link's
+   ``send`` (libfranka ``setLoad`` semantics), acknowledgements back to the gate;
+4. the checkpointer (:class:`deploy.checkpointer.Checkpointer`): the model saved every
+   ``checkpoint_period_s`` (a copy, written in a background thread) and at exit, atomically:
+   a failed save leaves the last good file.
 
 Around the loop: temporary files of an interrupted save are removed at start
 (:func:`iem.persistence.remove_stale_temporaries`); the model is loaded (or trained if there
-is none and ``train_if_missing``), saved every ``checkpoint_period_s`` and at exit
-(atomically: a failed save leaves the last good file; the periodic save runs in a background
-thread on a copy); a silent controller stops the writes until it returns; link failures end
-the run with the error (exit status 2: under systemd, the unit restarts it; configuration
-errors exit 78 and are not restarted, see :mod:`deploy.cli`). ``Service.stop()`` (SIGTERM,
-SIGINT) ends the loop after the current cycle.
+is none and ``train_if_missing``); a silent controller stops the writes until it returns;
+link failures end the run with the error (exit status 2: under systemd, the unit restarts
+it; configuration errors exit 78 and are not restarted, see :mod:`deploy.cli`).
+``Service.stop()`` (SIGTERM, SIGINT) ends the loop after the current block.
 """
 
 from __future__ import annotations
 
-import copy
 import functools
 import logging
 import math
@@ -35,37 +40,40 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from iem.blocks import BlockFormer
 from iem.filters import StateFilter
 from iem.online import OnlineIdentifier
 from iem.persistence import load_model, remove_stale_temporaries, save_model
 from iem.smoothing import ExponentialSmoother
 
 from .arm_watch import ArmWatch
+from .checkpointer import Checkpointer
 from .config import CellConfig
 from .gate import SafetyGate
 from .latency import LatencyWindow
+from .load_writer import LoadWriter
 from .sdnotify import Notifier
 from .status import StatusLine
 
 log = logging.getLogger("iem.service")
 
-GATE_DEFER = 3
-"""Cycles a due gate decision may wait for one in which the model did no heavy work (about
-0.2 ms of a decision then does not land on top of a refresh or an equation: the latency's
-p99 is the cycles that do both)."""
 SKIP_LAG_S = 2.0
-"""A cycle older than this when read is dropped (counted in ``skipped``): even estimating
-without learning has fallen hopelessly behind."""
+"""A block point older than this when read is dropped (counted in ``skipped``): even
+estimating without learning has fallen hopelessly behind."""
 
 
 @dataclass
 class CycleRecord:
-    """What the service made of one cycle (given to ``on_cycle`` observers)."""
+    """What the service made of one block point (given to ``on_cycle`` observers):
+    ``state`` the point (means of its frames), ``latency_s`` the time from its last frame's
+    arrival to its estimate, ``age_s`` the age of its frames' mean arrival then (NaN for a
+    replay: no arrival times)."""
 
     state: object
     raw: object
     smoothed: np.ndarray
     latency_s: float
+    age_s: float = math.nan
 
 
 def link_rate(config: CellConfig) -> float:
@@ -74,6 +82,12 @@ def link_rate(config: CellConfig) -> float:
     from firmware_bridge.links import rate_hz
 
     return rate_hz(config.link.kind, config.link.profile)
+
+
+def point_rate(config: CellConfig) -> float:
+    """Block points per second the estimator works at: the link's rate over ``[estimate]
+    block_frames``."""
+    return link_rate(config) / config.estimate.block_frames
 
 
 def wire_check_of(link):
@@ -95,17 +109,19 @@ def load_or_train_model(config: CellConfig):
     for stale in remove_stale_temporaries(path):  # left by a save that was killed
         log.info("removed %s, the temporary file of an interrupted save", stale,
                  extra={"event": "stale_temporary_removed", "path": str(stale)})
-    rate = link_rate(config)
+    rate, frames = link_rate(config), config.estimate.block_frames
     if path.exists():
         model = load_model(path)
-        made_for = getattr(model, "rate_hz", rate)
-        if made_for != rate:
+        made_for = getattr(model, "rate_hz", rate / frames)  # IEM+phys's filters have one
+        if not math.isclose(made_for, rate / frames):
             from .config import ConfigError
 
             raise ConfigError(
-                f"model file {path} was made for {made_for:g} joint states per second, the "
-                f"[link] profile {config.link.profile!r} delivers {rate:g}; make one for this "
-                f"link with 'iem train --out {path} --rate {rate:g}'")
+                f"model file {path} was made for {made_for:g} block points per second; the "
+                f"[link] profile {config.link.profile!r} delivers {rate:g} joint states per "
+                f"second, in blocks of [estimate] block_frames = {frames}: "
+                f"{rate / frames:g}; make one for this link with 'iem train --out {path} "
+                f"--rate {rate:g} --block-frames {frames}'")
         log.info("loaded model %s: %s with %d bags", path, model.name, model.n_bags,
                  extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
         if model.name != mc.kind:
@@ -122,7 +138,7 @@ def load_or_train_model(config: CellConfig):
 
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
                                 log=lambda msg: log.info(msg, extra={"event": "trained"}),
-                                rate_hz=rate, arm_file=mc.arm or None,
+                                rate_hz=rate, block_frames=frames, arm_file=mc.arm or None,
                                 end_effector=config.arm.end_effector, noise=config.arm.noise)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, path)
@@ -155,7 +171,7 @@ def start_from_file(model, path: str) -> None:
 
 
 class Service:
-    """The running plug-in.
+    """The running plug-in (see the module docstring for its parts).
 
     Args:
         config: the cell configuration.
@@ -168,10 +184,11 @@ class Service:
         gate_clock: ``"monotonic"``: the gate's times are this PC's monotonic clock;
             ``"controller"``: the joint states' own time stamps (a replay as fast as
             possible then decides as the cell did at recorded pace).
-        threaded_reader: read the link in a thread of its own (:mod:`deploy.reader`), so
-            reading never waits for estimating; None: for a live link (``gate_clock``
-            monotonic), not for a replay, which must lose nothing and run as fast as the
-            estimator goes.
+        threaded_reader: read the link in a thread of its own (:class:`deploy.reader.
+            LinkReader`), so reading never waits for estimating; else in bulk in the loop's
+            thread (:class:`deploy.reader.BatchReader`). None: threaded for a live link
+            (``gate_clock`` monotonic), not for a replay, which must lose nothing and run as
+            fast as the estimator goes.
     """
 
     def __init__(self, config: CellConfig, link=None, model=None,
@@ -192,26 +209,34 @@ class Service:
         self.gate = SafetyGate(config.gate)
         self.arm_watch = ArmWatch()
         """Says once when the mass stays clearly below zero (a wrong arm model)."""
+        self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s)
+        self.writer: LoadWriter | None = None
         self.on_cycle: list[Callable[[CycleRecord], None]] = []
         self._stop = threading.Event()
-        self._saver: threading.Thread | None = None
         self.latencies = LatencyWindow()
+        """Block-to-estimate latencies: from a block's last frame's arrival to its estimate."""
+        self.ages = LatencyWindow()
+        """Age of a block's frames (their mean arrival) when its estimate is out."""
         self.cycles = 0
+        """Block points estimated."""
         self.silent = False
         self.silences = 0
         self.skipped = 0
         self.reader_skipped = 0
         self.unlearnt = 0
         self._behind = False
-        self.checkpoints = 0
         self.cpu_s = 0.0
         self.cpu_parts = {"cycle": 0.0, "reader": 0.0, "learning": 0.0, "checkpoint": 0.0}
-        """CPU s of the last run by thread: the cycle's, the link reader's, the learning
-        worker's and the checkpoints' (``cpu_s`` is their sum)."""
-        self._checkpoint_cpu_s = 0.0
+        """CPU s of the last run by thread: the estimating loop's, the link reader's, the
+        learning worker's and the checkpoints' (``cpu_s`` is their sum)."""
         self.wall_s = 0.0
         self.cpu_latency = None
         """The held CPU wake-up latency limit (``[host] cpu_dma_latency_us``), or None."""
+
+    @property
+    def checkpoints(self) -> int:
+        """Saves of the model so far."""
+        return self.checkpointer.count
 
     # -- set-up ----------------------------------------------------------------------------
     def open(self) -> Service:
@@ -250,19 +275,25 @@ class Service:
                                   **self.config.link_options())  # [ros2] for kind ros2
         est = self.config.estimate
         self.rate_hz = link_rate(self.config)
+        self.point_rate_hz = self.rate_hz / est.block_frames
         self.kinematics = PandaModel()
         self.tandem = tandem_for(self.config.model.family, arm)
         self.online = OnlineIdentifier(
             self.model, self.kinematics.flange_position, self.tandem.samples,
             learn=est.learn,
-            state_filter=StateFilter(cutoff_hz=min(est.filter_cutoff_hz, 0.45 * self.rate_hz),
-                                     rate_hz=self.rate_hz),
-            smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s, dt=1.0 / self.rate_hz))
+            state_filter=StateFilter(min(est.filter_cutoff_hz, 0.45 * self.point_rate_hz),
+                                     self.point_rate_hz),
+            smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s,
+                                         dt=1.0 / self.point_rate_hz),
+            former=self._former())
         self.gate.wire_check = wire_check_of(self.link)  # out_of_wire_range before send
         return self
 
+    def _former(self) -> BlockFormer:
+        return BlockFormer(self.config.estimate.block_frames, self.rate_hz)
+
     def stop(self) -> None:
-        """Ask the loop to end after the current cycle (safe from a signal handler)."""
+        """Ask the loop to end after the current block (safe from a signal handler)."""
         self._stop.set()
 
     @property
@@ -273,47 +304,28 @@ class Service:
     def run(self, duration: float | None = None,
             until: Callable[[], bool] | None = None) -> dict:
         """Run until stopped, ``duration`` s passed, ``until()`` is true or a replay ends."""
-        from firmware_bridge.errors import ControllerSilent, EncodeError, EndOfStream
-
-        from .reader import Item, LinkReader
+        from .reader import BatchReader, LinkReader
 
         if self.link is None or self.model is None:
             self.open()
-        cfg = self.config
-        link, online, gate = self.link, self.online, self.gate
-        sink = self.write and hasattr(link, "send")
-        publish = getattr(link, "publish_estimate", None)
+        cfg, model = self.config, self.model
+        self.writer = LoadWriter(self.gate, self.link, self.write)  # the link as it is now
         started = time.monotonic()
         cpu0 = time.thread_time()
-        model = self.model
         learn0 = model.learning_cpu_s
-        save0 = self._checkpoint_cpu_s
-        next_checkpoint = started + cfg.model.checkpoint_period_s
+        save0 = self.checkpointer.cpu_s
+        self.checkpointer.start(started)
         watchdog = self.notifier.watchdog_period()
         next_watchdog = started
-        last_ack = None
-        last_smoothed = None
-        controller_clock = self.gate_clock == "controller"
-        max_lag = cfg.estimate.max_lag_s if self.gate_clock == "monotonic" else 0.0
-        self.notifier.ready(f"identifying the payload; {self.model.n_bags} bags")
-        log.info("running: link %s, model %s (%d bags), writes %s", getattr(link, "name", link),
-                 self.model.name, self.model.n_bags, "on" if sink else "off",
+        self.notifier.ready(f"identifying the payload; {model.n_bags} bags")
+        log.info("running: link %s, model %s (%d bags), writes %s, %g block points per s",
+                 getattr(self.link, "name", self.link), model.name, model.n_bags,
+                 "on" if self.writer.sink is not None else "off", self.point_rate_hz,
                  extra={"event": "started"})
-        reader = (LinkReader(link, cfg.link.silence_timeout_s).start() if self.threaded_reader
-                  else None)
-        deferred = 0
-
-        def next_item() -> Item | None:
-            if reader is not None:
-                return reader.get(cfg.link.silence_timeout_s + 0.5)
-            try:
-                state = link.read(cfg.link.silence_timeout_s)
-            except ControllerSilent as exc:
-                return Item("silent", str(exc))
-            except EndOfStream:
-                return Item("end")
-            return Item("state", state, getattr(link, "last_frame_time", 0.0))
-
+        timeout = cfg.link.silence_timeout_s
+        reader = (LinkReader if self.threaded_reader else BatchReader)(
+            self.link, timeout, self._former()).start()
+        smoothed = None
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -324,80 +336,72 @@ class Service:
                 if watchdog is not None and now >= next_watchdog:
                     self.notifier.watchdog()
                     next_watchdog = now + watchdog
-                item = next_item()
+                item = reader.get(timeout + 0.5)
                 if item is None:
                     continue
                 if item.kind == "silent":
                     self._controller_silent(item.value)
-                    if last_smoothed is not None:  # the gate decides (and counts) on
-                        gate.decide(time.monotonic(), last_smoothed)  # no write
+                    if smoothed is not None:  # the gate decides (and counts) on no write
+                        self.gate.decide(time.monotonic(), smoothed)
                     continue
                 if item.kind == "end":
                     break
                 if item.kind == "error":
                     raise item.value
-                state = item.value
-                if self.silent:
-                    self._controller_back()
-                frame_t = item.frame_time  # its receive time (epoch s)
-                if max_lag:
-                    lag = time.time() - frame_t if frame_t > 0 else 0.0
-                    if lag > SKIP_LAG_S:
-                        self.skipped += 1  # hopelessly behind: drop the cycle
-                        continue
-                    self._pace(lag, max_lag)
-                raw, smoothed = online.step(state)
-                last_smoothed = smoothed
-                if publish is not None:  # the ros2 link: the estimate on its topics,
-                    publish(raw, smoothed)  # at its own rate
-                latency = time.time() - frame_t if frame_t > 0 else math.nan
-                self.latencies.add(latency)
-                self.cycles += 1
-                if self.on_cycle:
-                    record = CycleRecord(state, raw, smoothed, latency)
-                    for observer in self.on_cycle:
-                        observer(record)
+                out = self.step(item)
+                if out is None:
+                    continue
+                smoothed = out.smoothed
                 now = time.monotonic()
-                t_gate = state.t if controller_clock else now
-                ack = getattr(link, "last_ack", None)
-                if ack is not None and ack is not last_ack:
-                    last_ack = ack
-                    self._acknowledged(ack, t_gate)
-                gate.observe(t_gate, smoothed, raw)
-                self.arm_watch.observe(state.t, smoothed, raw)
-                due = gate.due(t_gate)
-                if due and model.busy and deferred < GATE_DEFER:
-                    deferred += 1  # the model did its heavy job this cycle: decide in the
-                elif due:  # next one (the cycles' work stays level)
-                    deferred = 0
-                    decision = gate.decide(t_gate, smoothed)
-                    if decision.send and sink:
-                        try:
-                            seq = link.send(decision.payload)
-                        except EncodeError as exc:  # the gate's wire check should have
-                            gate.send_failed(str(exc))  # caught it: counted, logged, go on
-                        else:
-                            gate.sent_command(seq, t_gate)
-                            log.info("load sent (command %d): %s", seq, decision.detail,
-                                     extra={"event": "load_sent", "seq": seq})
-                if now >= next_checkpoint:
-                    self._checkpoint_async()
-                    next_checkpoint = now + cfg.model.checkpoint_period_s
+                t_gate = out.state.t if self.gate_clock == "controller" else now
+                self.writer.observe(t_gate, smoothed, out.raw, model.busy)
+                self.checkpointer.tick(now, model)
                 if self.status.due(now):
                     self.status.show(self._status_text(now - started, smoothed))
         finally:
             self.wall_s = time.monotonic() - started
-            parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0, "reader": 0.0,
+            reader.stop()
+            self.reader_skipped += reader.skipped
+            parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0,
+                                      "reader": reader.cpu_s if self.threaded_reader else 0.0,
                                       "learning": model.learning_cpu_s - learn0,
-                                      "checkpoint": self._checkpoint_cpu_s - save0}
-            if reader is not None:
-                reader.stop()
-                self.reader_skipped += reader.skipped
-                parts["reader"] = reader.cpu_s
+                                      "checkpoint": self.checkpointer.cpu_s - save0}
             self.cpu_s = sum(parts.values())
             self.status.clear()
             self.notifier.stopping()
         return self.summary()
+
+    def step(self, item) -> CycleRecord | None:
+        """One block point through the estimator (no thread of its own): pace against the
+        controller on a live link, learn and estimate, publish, record the latency, watch
+        the arm model, tell the observers. None: the point was dropped (hopelessly late)."""
+        state = item.value
+        if self.silent:
+            self._controller_back()
+        arrived = item.frame_time  # the block's last frame's arrival (epoch s)
+        max_lag = self.config.estimate.max_lag_s if self.gate_clock == "monotonic" else 0.0
+        if max_lag:
+            lag = time.time() - arrived if arrived > 0 else 0.0
+            if lag > SKIP_LAG_S:
+                self.skipped += 1  # hopelessly behind: drop the point
+                return None
+            self._pace(lag, max_lag)
+        raw, smoothed = self.online.step_block(state)
+        publish = getattr(self.link, "publish_estimate", None)
+        if publish is not None:  # the ros2 link: the estimate on its topics, at its own rate
+            publish(raw, smoothed)
+        done = time.time()
+        latency = done - arrived if arrived > 0 else math.nan
+        age = (done - 0.5 * (arrived + item.first_time) if arrived > 0 and item.first_time > 0
+               else math.nan)
+        self.latencies.add(latency)
+        self.ages.add(age)
+        self.cycles += 1
+        self.arm_watch.observe(state.t, smoothed, raw)
+        record = CycleRecord(state, raw, smoothed, latency, age)
+        for observer in self.on_cycle:
+            observer(record)
+        return record
 
     def close(self) -> None:
         """Final checkpoint (synchronous: the learning worker's pending work lands first),
@@ -415,6 +419,10 @@ class Service:
                 self.link.close()
             self.notifier.close()
 
+    def checkpoint(self) -> None:
+        """Save the model now (atomic), waiting for a background save first."""
+        self.checkpointer.save_now(self.model)
+
     # -- events ----------------------------------------------------------------------------
     def _controller_silent(self, why: str) -> None:
         if not self.silent:
@@ -428,7 +436,7 @@ class Service:
 
     def _pace(self, lag: float, max_lag: float) -> None:
         """Behind the controller by more than ``max_lag`` s (a slow learning step), the
-        service still estimates every cycle but skips the learning steps until it is
+        service still estimates every point but skips the learning steps until it is
         current again (below half of ``max_lag``), so estimates and writes stay fresh;
         counted in ``unlearnt``, logged once per episode."""
         behind = lag > (max_lag / 2.0 if self._behind else max_lag)  # hysteresis
@@ -442,7 +450,7 @@ class Service:
                             "until current", lag * 1e3, extra={"event": "behind",
                                                                "lag_ms": lag * 1e3})
             else:
-                log.info("current again (%d cycles estimated without learning so far)",
+                log.info("current again (%d points estimated without learning so far)",
                          self.unlearnt, extra={"event": "current",
                                                "unlearnt": self.unlearnt})
 
@@ -452,47 +460,6 @@ class Service:
         self.online.resume()  # the signal was interrupted; the payload estimate stays
         log.info("controller back: writes resume", extra={"event": "controller_back"})
         self.notifier.status("identifying the payload")
-
-    def _acknowledged(self, ack, t: float) -> None:
-        """An answer to a load command: applied, or refused (the gate counts and logs the
-        refusal with the controller's error text and retries later)."""
-        if ack.applied:
-            self.gate.acknowledged(ack.seq)
-            log.info("controller acknowledged load command %d", ack.seq,
-                     extra={"event": "load_acked", "seq": ack.seq})
-        else:
-            self.gate.refused(ack.seq, t, str(getattr(ack, "error", "") or ""))
-
-    # -- checkpoints ---------------------------------------------------------------------
-    def checkpoint(self) -> None:
-        """Save the model now (atomic), waiting for a background save first."""
-        if self._saver is not None:
-            self._saver.join()
-        save_model(self.model, self.config.model.path)
-        self.checkpoints += 1
-        log.info("model saved to %s (%d bags)", self.config.model.path, self.model.n_bags,
-                 extra={"event": "checkpoint", "bags": self.model.n_bags})
-
-    def _checkpoint_async(self) -> None:
-        if self._saver is not None and self._saver.is_alive():
-            return  # the previous save is still writing; the next period catches up
-        snapshot = copy.deepcopy(self.model)
-        path = self.config.model.path
-
-        def save() -> None:
-            cpu0 = time.thread_time()
-            try:
-                save_model(snapshot, path)
-                self.checkpoints += 1
-                log.info("checkpoint: model saved to %s (%d bags)", path, snapshot.n_bags,
-                         extra={"event": "checkpoint", "bags": snapshot.n_bags})
-            except Exception:  # a failed save keeps the last good file; say so and go on
-                log.exception("checkpoint to %s failed; the previous file is kept", path)
-            finally:
-                self._checkpoint_cpu_s += time.thread_time() - cpu0
-
-        self._saver = threading.Thread(target=save, name="iem-checkpoint", daemon=True)
-        self._saver.start()
 
     # -- reporting -----------------------------------------------------------------------
     def _status_text(self, elapsed: float, phi: np.ndarray) -> str:
@@ -516,8 +483,11 @@ class Service:
             "estimates": self.cycles,
             "bags": self.model.n_bags,
             "model": self.model.name,
+            "block_frames": self.config.estimate.block_frames,
             "latency_us": dict(zip(("p50", "p99"), self.latencies.percentiles_us(50, 99),
                                    strict=True)),
+            "age_us": dict(zip(("p50", "p99"), self.ages.percentiles_us(50, 99),
+                               strict=True)),
             "writes": {"sent": gate["sent"], "acked": gate["acked"],
                        "rejected": gate["rejected"], "refused_by_controller": self.gate.refusals,
                        "send_errors": self.gate.send_errors},

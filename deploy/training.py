@@ -20,10 +20,10 @@ import time
 from iem.budget import DEFAULT_BUDGET_BAGS
 from iem.errors import InvalidInputError
 from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
-from iem.types import NOMINAL_RATE_HZ
+from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY, FAMILIES
 
-from .options import add_end_effector
+from .options import add_block_frames, add_end_effector
 
 TRAINABLE = ("IEM", "IEM+phys")
 
@@ -52,8 +52,11 @@ conservative default, for an arm that was not calibrated), the right choice on a
 
 
 def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
-               end_effector=None, noise: str = "arm", arm=None, **params):
-    """A fresh model of ``kind`` for joint states at ``rate_hz``; ``params`` go to its IEM;
+               end_effector=None, noise: str = "arm", arm=None,
+               block_frames: int = DEFAULT_BLOCK_FRAMES, **params):
+    """A fresh model of ``kind`` for joint states at ``rate_hz`` formed into block points of
+    ``block_frames`` (:mod:`iem.blocks`: the model works at ``rate_hz / block_frames``
+    points per second); ``params`` go to its IEM;
     ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
     ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`;
     ``arm``: :func:`load_arm_file`'s result for them, if the caller has it already."""
@@ -80,9 +83,11 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_f
             from sim.arm import nominal_spec
 
             extra["dynamics"] = nominal_spec(end_effector)
+        point_rate = rate_hz / block_frames
         if noise == "arm":
-            extra["torque_noise"] = arm_torque_noise(arm, rate_hz)
-        return new_model(kind, ensemble={"seed": seed, **params}, rate_hz=rate_hz, **extra)
+            extra["torque_noise"] = arm_torque_noise(arm, point_rate)
+        return new_model(kind, ensemble={"seed": seed, **params}, rate_hz=point_rate,
+                         **extra)
     return new_model(kind, seed=seed, **params)
 
 
@@ -150,17 +155,18 @@ def load_arm_file(arm_file, end_effector=None):
     return arm, arm_record(arm, arm_file)
 
 
-def arm_torque_noise(arm, rate_hz: float = NOMINAL_RATE_HZ, update_every: int = 10) -> dict:
+def arm_torque_noise(arm, point_rate_hz: float = NOMINAL_POINT_RATE_HZ) -> dict:
     """What IEM+phys takes as its equations' error on ``arm`` (None: the nominal arm): the
     noise ``iem calibrate`` measured into the arm file, or the nominal arm's conservative
-    default (:data:`iem.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate."""
+    default (:data:`iem.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate (one
+    equation per block point)."""
     from dataclasses import replace
 
     from iem.torque_noise import NOMINAL_ARM_NOISE
 
     if arm is not None and arm.noise is not None:
         return dict(arm.noise)
-    return replace(NOMINAL_ARM_NOISE, rate_hz=rate_hz / update_every).to_dict()
+    return replace(NOMINAL_ARM_NOISE, rate_hz=point_rate_hz).to_dict()
 
 
 def excitation(spec: str = "builtin"):
@@ -183,16 +189,18 @@ def tandem_for(family: str, arm=None):
 def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
                         excitation_spec="builtin",
                         seed: int = 0, log=print, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
-                        end_effector=None, noise: str = "arm", **params):
+                        end_effector=None, noise: str = "arm",
+                        block_frames: int = DEFAULT_BLOCK_FRAMES, **params):
     """A new model of ``kind`` trained on the excitation path with ``family``'s payloads,
-    for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic), on
+    for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic) in
+    block points of ``block_frames``, on
     the arm of ``arm_file`` (None: the nominal arm carrying ``end_effector``), with the
     equations' error of ``noise`` (:data:`NOISE_SOURCES`)."""
     from sim.robot import PandaModel
 
     arm, record = loaded = load_arm_file(arm_file, end_effector)
     model = make_model(kind, seed, rate_hz, arm_file=arm_file, end_effector=end_effector,
-                       noise=noise, arm=loaded, **params)
+                       noise=noise, arm=loaded, block_frames=block_frames, **params)
     model.trained_arm = record
     model.trained_family = family
     path = excitation(excitation_spec)
@@ -232,6 +240,7 @@ def configure(parser) -> None:
                         help="seed of the learners (an integer from 0 to 2**63-1)")
     parser.add_argument("--rate", type=float, default=NOMINAL_RATE_HZ, metavar="HZ",
                         help="joint states per second the link delivers (fd 1000, classic 500)")
+    add_block_frames(parser)
     parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
                         "the nominal arm)")
     add_end_effector(parser)
@@ -246,7 +255,8 @@ def run(args) -> int:
     kind = args.kind or best_model_kind()
     model = train_initial_model(kind, args.family, args.excitation, args.seed,
                                 rate_hz=args.rate, arm_file=args.arm,
-                                end_effector=args.end_effector, noise=args.noise)
+                                end_effector=args.end_effector, noise=args.noise,
+                                block_frames=args.block_frames)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

@@ -18,14 +18,14 @@ import math
 
 import numpy as np
 
-from . import kernels
 from .errors import InvalidInputError
 from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
-from .types import NOMINAL_RATE_HZ
+from .types import NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 
-DEFAULT_CUTOFF_HZ = 50.0
+DEFAULT_CUTOFF_HZ = 25.0
 """Default cut-off of :class:`StateFilter`'s low-pass on ``dq``, Hz (the plug-in's
-``[estimate] filter_cutoff_hz``)."""
+``[estimate] filter_cutoff_hz``): a quarter of the 100 Hz block-point rate (the block mean
+is itself a low-pass, with its first zero at 100 Hz)."""
 
 
 def butterworth2(cutoff_hz: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -84,11 +84,9 @@ class LowPass2:
         self._s[1], self._s[2] = value
 
     def _step(self, x: np.ndarray) -> np.ndarray:
-        if x.shape != (self.channels,):  # (the kernel reads them unchecked)
+        if x.shape != (self.channels,):
             raise InvalidInputError(f"the filter takes {self.channels} channels, got "
                                     f"{x.shape}")
-        if kernels.active:  # compiled (iem.kernels): the same products
-            return kernels.lowpass2_step(self._m, self._s, x)
         s = self._s
         s[0] = x
         out = self._m @ s
@@ -127,12 +125,14 @@ class StateFilter:
     gap, or time going back, restarts the filter (``restarted``).
 
     Args:
-        cutoff_hz: low-pass cut-off for ``dq``, Hz (default 50).
-        rate_hz: nominal sample rate, Hz (default 1000, the controller's cycle).
+        cutoff_hz: low-pass cut-off for ``dq``, Hz (default 25).
+        rate_hz: nominal sample rate, Hz (default 100, the block points of a 1 kHz
+            controller).
         max_gap_s: the longest gap bridged; a longer one restarts the filter, s.
     """
 
-    def __init__(self, cutoff_hz: float = DEFAULT_CUTOFF_HZ, rate_hz: float = NOMINAL_RATE_HZ,
+    def __init__(self, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+                 rate_hz: float = NOMINAL_POINT_RATE_HZ,
                  max_gap_s: float = DEFAULT_MAX_BRIDGE_S) -> None:
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)

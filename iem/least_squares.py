@@ -34,7 +34,7 @@ from .regression import (
     required_dynamics,
 )
 from .sensor import DEFAULT_SENSOR
-from .types import NOMINAL_RATE_HZ, PayloadEstimate
+from .types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, PayloadEstimate
 
 __all__ = ["DEFAULT_PRIOR_STD", "RecursiveLeastSquares", "impulse_response", "load_dynamics",
            "noise_gains"]
@@ -49,11 +49,13 @@ class RecursiveLeastSquares(BaseEstimator):
     Args:
         dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
             (see :mod:`iem.regression`), stored in the model file.
-        sigma_tau: torque noise of the measurements, N·m.
+        sigma_tau: torque noise of one measured frame, N·m.
         cutoff_hz: low-pass cut-off for q, dq and tau, Hz.
-        rate_hz: sample rate, Hz.
+        rate_hz: sample rate, Hz (the block points', :mod:`iem.blocks`: 100 Hz).
         decimate: update every this many samples (0: the noise correlation length).
         prior_std: prior standard deviation per parameter (10 values).
+        point_frames: frames averaged into each sample (a block point's; 1: samples are
+            frames): a sample's noise is a frame's over its square root.
     """
 
     name = "LS"
@@ -63,26 +65,31 @@ class RecursiveLeastSquares(BaseEstimator):
     def __init__(self, dynamics: str | None = None,
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
-                 rate_hz: float = NOMINAL_RATE_HZ,
-                 decimate: int = 0, prior_std=DEFAULT_PRIOR_STD) -> None:
+                 rate_hz: float = NOMINAL_POINT_RATE_HZ,
+                 decimate: int = 0, prior_std=DEFAULT_PRIOR_STD,
+                 point_frames: int = DEFAULT_BLOCK_FRAMES) -> None:
         self.dynamics = required_dynamics(dynamics, "RecursiveLeastSquares (LS)")
         self.sigma_tau = float(sigma_tau)
         self.sigma_dq = float(sigma_dq)
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)
         self.decimate = int(decimate)
+        self.point_frames = int(point_frames)
         self.prior_std = tuple(float(v) for v in prior_std)
         if len(self.prior_std) != 10:
             raise InvalidInputError(f"prior_std needs 10 values, got {len(self.prior_std)}")
         every = self.decimate or max(1, round(rate_hz / (2.0 * cutoff_hz)))
-        self._regression = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq,
-                                             self.cutoff_hz, self.rate_hz, every=every)
+        root = np.sqrt(self.point_frames)  # a block point's mean: 1/n of the noise variance
+        self._regression = PayloadRegression(dynamics, self.sigma_tau / root,
+                                             self.sigma_dq / root, self.cutoff_hz,
+                                             self.rate_hz, every=every)
         self.reset()
 
     def params(self) -> dict:
         return {"dynamics": self.dynamics, "sigma_tau": self.sigma_tau, "sigma_dq": self.sigma_dq,
                 "cutoff_hz": self.cutoff_hz, "rate_hz": self.rate_hz,
-                "decimate": self.decimate, "prior_std": list(self.prior_std)}
+                "decimate": self.decimate, "prior_std": list(self.prior_std),
+                "point_frames": self.point_frames}
 
     def clone(self):
         return type(self)(**self.params())

@@ -17,11 +17,16 @@ The steps:
 1 -> 2  (:func:`fill_version_1`) every version-1 state in the full version-1 layout: the
         fields that version-1 files written before them lack get the values the loaders
         assumed for such files.
-2 -> 3  (:func:`equations_per_point`) IEM+phys: the physics takes points, each the mean of
-        ``update_every`` frames, at ``rate_hz / update_every``; a model that averaged
-        ``update_every > 1`` frames itself now takes ``rate_hz := rate_hz / update_every``,
-        ``update_every := 1`` (the same equation rate; its ``torque_noise`` is measured at
-        that rate already).
+2 -> 3  (:func:`equations_per_point`) the estimators take block points (:mod:`iem.blocks`),
+        each the mean of some frames, instead of frames: IEM+phys, whose physics averaged
+        ``update_every > 1`` frames itself, now takes ``rate_hz := rate_hz /
+        update_every``, ``update_every := 1`` and ``point_frames := update_every`` (the same
+        equations and noise; its ``torque_noise`` is measured at that rate already), and
+        saves when its posterior is refreshed next (``stale``, ``since_refresh``,
+        ``undetermined``: as version-2 code loaded a file, fresh, nothing counted, every
+        group undetermined until the next refresh); LS,
+        which filtered frames, takes the default block of 10 frames: ``rate_hz := rate_hz
+        / 10``, ``point_frames := 10`` (its filter state restarts).
 
 A file names code by module path: its kind's class (:data:`iem.persistence.MODELS`,
 ``"module:Class"``) and the factories in its state (``coverage``, ``reversal``, ``dynamics``:
@@ -186,18 +191,31 @@ def fill_version_1(kind: str, state: dict) -> dict:
 
 # -- 2 -> 3 ------------------------------------------------------------------------------
 def equations_per_point(kind: str, state: dict) -> dict:
-    """Version 2 -> 3: an IEM+phys model whose physics averaged ``update_every > 1`` frames
-    at ``rate_hz`` takes points at ``rate_hz / update_every``, one frame each
-    (``update_every`` 1). Params without them had the version-2 defaults, 1000 Hz and 10.
-    Nothing else changes."""
-    if kind != "IEM+phys":
+    """Version 2 -> 3: block points instead of frames (see the module docstring). Params
+    without them had the version-2 defaults: 1000 Hz, and 10 frames per equation for
+    IEM+phys."""
+    if kind not in ("IEM+phys", "LS"):
         return state
     params = state["params"]
-    every = int(params.get("update_every", 10))
     rate = float(params.get("rate_hz", 1000.0))
-    if every <= 1:
-        return state
-    return {**state, "params": {**params, "rate_hz": rate / every, "update_every": 1}}
+    if kind == "IEM+phys":
+        every = int(params.get("update_every", 10))
+        # the refresh schedule is saved from now on; version-2 code loaded a file as not
+        # stale, nothing counted, every group undetermined until its next refresh
+        state = {**state, "stale": False, "since_refresh": 0,
+                 "undetermined": ["mass", "com", "inertia"]}
+        if every <= 1:
+            return {**state, "params": {**params, "point_frames": 1}}
+        return {**state, "params": {**params, "rate_hz": rate / every, "update_every": 1,
+                                    "point_frames": every}}
+    if kind == "LS":
+        frames = 10  # the block of the service's default (iem.types.DEFAULT_BLOCK_FRAMES)
+        return {**state, "params": {**params, "rate_hz": rate / frames,
+                                    "point_frames": frames},
+                # a filter of frames: it starts again at the first point
+                "filter": None, "input": None, "output": None, "previous": None,
+                "block": [[0.0] * 21, 0], "last": None}
+    return state
 
 
 STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point}

@@ -1,7 +1,13 @@
-"""One controller cycle through an estimator: the online loop shared by the plug-in and the
-benchmarks.
+"""The online loop shared by the plug-in and the benchmarks: controller frames in, block
+points through an estimator, estimates out.
 
-Per :class:`iem.types.JointState`: the causal :class:`iem.filters.StateFilter` gives the
+Frames go through a :class:`iem.blocks.BlockFormer` (:meth:`OnlineIdentifier.step`), or come
+already formed into block points (:meth:`OnlineIdentifier.step_block`: the link reader's
+thread and a replay form them): the estimator works once per block point, the means of
+``q, dq, tau`` over 10 frames by default (100 points per second from a 1 kHz controller).
+Every filter below runs at that point rate.
+
+Per block point: the causal :class:`iem.filters.StateFilter` gives the
 state ``(q, dq, ddq)`` the tandem simulators run at (they move in tandem with the real arm,
 at its measured state); the flange position comes from forward kinematics of the measured
 ``q``; the estimator learns from the point (the tandem samples are computed only if it asks
@@ -39,12 +45,13 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
-from . import kernels
 from .base import Estimator
-from .filters import StateFilter
+from .blocks import BlockFormer
+from .filters import DEFAULT_CUTOFF_HZ, StateFilter
 from .gaps import RESTART, SKIP
 from .smoothing import ExponentialSmoother
 from .types import JointState, PayloadEstimate
@@ -58,8 +65,11 @@ class OnlineIdentifier:
         flange_position: forward kinematics, ``q -> flange position (3,)`` in m.
         tandem: ``(q, dq, ddq) -> (X (K, 21), Y (K, 10))``, the tandem simulators.
         learn: if False the estimator only predicts (evaluation of a frozen model).
-        state_filter: the causal filter giving the tandem state (default 50 Hz).
-        smoother: the output smoothing (default: EMA with 0.2 s).
+        state_filter: the causal filter giving the tandem state, at the point rate
+            (default: :class:`iem.filters.StateFilter` at ``former``'s point rate).
+        smoother: the output smoothing (default: EMA with 0.2 s at the point rate).
+        former: what forms frames into block points for :meth:`step` (default: 10 frames of
+            a 1 kHz controller).
         timed: record the time of every ``learn_one`` and ``predict_one`` call (s) in
             ``learn_times``/``predict_times``, and whether the point was learnt from
             (asked for tandem samples) in ``learnt``.
@@ -68,18 +78,21 @@ class OnlineIdentifier:
     def __init__(self, estimator: Estimator, flange_position: Callable,
                  tandem: Callable | None, learn: bool = True,
                  state_filter: StateFilter | None = None,
-                 smoother: ExponentialSmoother | None = None, timed: bool = False) -> None:
-        if kernels.active:
-            kernels.load()  # compiled now, so the first cycle does not wait for it
+                 smoother: ExponentialSmoother | None = None, timed: bool = False,
+                 former: BlockFormer | None = None) -> None:
+        self.former = BlockFormer() if former is None else former
+        rate = self.former.point_rate_hz
         self.estimator = estimator
         self.flange_position = flange_position
         self.tandem = tandem
         self.learn = learn
-        self.state_filter = StateFilter() if state_filter is None else state_filter
-        self.smoother = ExponentialSmoother() if smoother is None else smoother
+        self.state_filter = (StateFilter(min(DEFAULT_CUTOFF_HZ, 0.4 * rate), rate)
+                             if state_filter is None else state_filter)
+        self.smoother = ExponentialSmoother(dt=1.0 / rate) if smoother is None else smoother
         self.raw: PayloadEstimate | None = None
         self._smoothed: np.ndarray | None = None
         self._steps = 1
+        self._held: PayloadEstimate | None = None
         self._learned = 0
         self._learned_lock = threading.Lock()
         self.timed = timed
@@ -99,23 +112,51 @@ class OnlineIdentifier:
 
     @property
     def skipped(self) -> int:
-        """Samples not used: not newer than the last one used (the gap rule's count)."""
-        return self.state_filter.gaps.skipped
+        """Frames and block points not used: not newer than the last one used (the gap
+        rule's counts, at the frame and at the point rate)."""
+        return self.former.skipped + self.state_filter.gaps.skipped
 
     def reset(self) -> None:
         """Start a new task: filters and smoother restart (the model is kept)."""
         self.resume()
         self.smoother.reset()
-        self.raw = self._smoothed = None
+        self.raw = self._smoothed = self._held = None
 
     def resume(self) -> None:
         """The signal stream restarted: from the next sample the state filter and the
         estimator's own signal filters (its ``resume()``) start again; the estimate is
-        kept."""
+        kept. An open block is dropped."""
+        self.former.reset()
         self.state_filter.reset()
+        self._held = None
 
-    def step(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
-        """Learn from and estimate at one cycle; returns the raw estimate and the smoothed phi."""
+    def step(self, frame: JointState) -> tuple[PayloadEstimate, np.ndarray] | None:
+        """Add one controller frame: a block it closes is learnt from and estimated at
+        (:meth:`step_block`); returns that block's raw estimate and smoothed phi (the last
+        block's, if bridged lost frames closed more than one), or, for a
+        frame that closes no block, the last ones again, with neither ``"change"`` nor
+        ``"reset"`` (they are said once, with the block they belong to); None before the
+        first block."""
+        points = self.former.push(frame.t, frame.q, frame.dq, frame.tau_J, frame.cycle)
+        if points:
+            flags = {}
+            for point in points:  # more than one: lost frames bridged across a block's end
+                out = self.step_block(point)
+                flags.update({k: True for k in ("change", "reset") if out[0].extra.get(k)})
+            self._held = None
+            if flags.keys() - out[0].extra.keys():  # said by an earlier one: said here
+                out = (replace(out[0], extra={**out[0].extra, **flags}), out[1])
+            return out
+        if self.raw is None:
+            return None
+        if self._held is None:
+            extra = {k: v for k, v in self.raw.extra.items() if k not in ("change", "reset")}
+            self._held = replace(self.raw, extra=extra)
+        return self._held, self._smoothed.copy()
+
+    def step_block(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
+        """Learn from and estimate at one block point (:mod:`iem.blocks`); returns the raw
+        estimate and the smoothed phi."""
         x = state.features()
         q, dq, ddq = self.state_filter(state.q, state.dq, state.t)
         steps = self.state_filter.steps  # its gap rule decides for the estimator too

@@ -89,7 +89,7 @@ from .posterior import EquationWindow, Posterior, combine, prior_inflation
 from .regression import PayloadRegression, required_dynamics
 from .sensor import DEFAULT_SENSOR
 from .torque_noise import TorqueNoise
-from .types import GROUPS, NOMINAL_RATE_HZ, PayloadEstimate
+from .types import DEFAULT_BLOCK_FRAMES, GROUPS, NOMINAL_POINT_RATE_HZ, PayloadEstimate
 
 __all__ = ["DETECT_AFTER", "LIVE_PROJECT_BUDGET", "MODEL_ERROR_GAIN", "NIS_WINDOW",
            "PRIOR_FLOOR", "SPREAD_WAIT", "PhysicsInformedEnsemble", "prior_inflation"]
@@ -99,12 +99,11 @@ PRIOR_FLOOR = (1e-4, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
 invertible where the learners happen to agree with every training payload."""
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
-LIVE_PROJECT_BUDGET = 4
-"""Newton steps of the consistency projection per sample on a live link (``project_budget``,
-set by :meth:`PhysicsInformedEnsemble.go_live`):
-about 0.15 ms here; the longest projection (200 steps) is then spread over about 70 samples
-(those of each 10 that form, test or refresh do no steps), instead of stalling one cycle for
-up to 4 ms."""
+LIVE_PROJECT_BUDGET = 20
+"""Newton steps of the consistency projection per block point on a live link
+(``project_budget``, set by :meth:`PhysicsInformedEnsemble.go_live`): well under a
+millisecond; the longest projection (200 steps) is then spread over about 10 points (0.1 s),
+instead of stalling one point for several milliseconds."""
 SPREAD_WAIT = 3
 """Samples a due posterior refresh may wait for one without other heavy work (spread)."""
 
@@ -116,12 +115,16 @@ class PhysicsInformedEnsemble(BaseEstimator):
         ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included).
         dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
             (see :mod:`iem.regression`), stored in the model file.
-        sigma_tau: torque noise of the measurements, N·m.
-        sigma_dq: velocity noise of the measurements, rad/s.
+        sigma_tau: torque noise of one measured frame, N·m.
+        sigma_dq: velocity noise of one measured frame, rad/s.
+        point_frames: frames averaged into each sample the model is given (a block point's,
+            :mod:`iem.blocks`; 1: samples are frames): a sample's noise is a frame's over
+            its square root.
         cutoff_hz: low-pass cut-off of the regression, Hz (default 4: the motion of a task
             path is below 1 Hz, and the ddq noise grows with the cut-off cubed).
-        rate_hz: sample rate, Hz.
-        update_every: samples per regression block: one equation every this many samples.
+        rate_hz: sample rate, Hz (the block points' rate, :mod:`iem.blocks`: 100 Hz).
+        update_every: samples per regression block: one equation every this many samples
+            (1: each block point is already the mean of a block of frames).
         prior_scale: factor on the calibrated prior standard deviations.
         drift, threshold: the change detector's CUSUM (see :mod:`iem.change`).
         holdoff_s: equations skipped after a change, s (-1: the filter's settling time).
@@ -137,17 +140,17 @@ class PhysicsInformedEnsemble(BaseEstimator):
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
             budget (:attr:`spread`, a live link: :meth:`go_live` sets
-            :data:`LIVE_PROJECT_BUDGET`), each sample does at most one heavy job, the rest
-            waits for the next samples: form an equation (every ``update_every`` samples),
-            test and add the one formed the sample before, refresh the posterior (at most
-            :data:`SPREAD_WAIT` samples late), or ``project_budget`` Newton steps of the
-            oldest projection in progress. Estimates meanwhile show the last projected
-            posterior (phi and std of the same posterior, the same arithmetic as at once:
+            :data:`LIVE_PROJECT_BUDGET`), a projection in progress takes at most this many
+            steps per sample, and estimates meanwhile show the last finished one (phi and
+            std of the same posterior, the same arithmetic as at once:
             :func:`iem.consistency.project_steps`), so they lag the at-once model's by a
-            few samples; a payload change is detected one sample later. The first estimate
-            after a start or a detected change is made at once. Measured on the recorded
-            excitation path (deployed model, learning on): per-sample CPU p99 347-356 ->
-            230-245 µs, mean 61-63 µs either way.
+            few samples. At the block points' rate (``update_every == 1``) every point still
+            forms, tests and adds its equation and refreshes at once; fed frames
+            (``update_every > 1``) each sample does at most one heavy job (form an
+            equation, test and add the one formed the sample before, refresh at most
+            :data:`SPREAD_WAIT` samples late, or the Newton steps), and a payload change is
+            detected one sample later. The first estimate after a start or a detected change
+            is made at once.
     """
 
     name = "IEM+phys"
@@ -162,15 +165,19 @@ class PhysicsInformedEnsemble(BaseEstimator):
                  dynamics: str | None = None,
                  sigma_tau: float = DEFAULT_SENSOR.sigma_tau,
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 4.0,
-                 rate_hz: float = NOMINAL_RATE_HZ,
-                 update_every: int = 10, prior_scale: float = 1.0, drift: float = 21.0,
+                 rate_hz: float = NOMINAL_POINT_RATE_HZ,
+                 update_every: int = 1, prior_scale: float = 1.0, drift: float = 21.0,
                  threshold: float = 300.0, holdoff_s: float = -1.0, eps: float = EPS,
                  refresh_every: int = 5, project_budget: int = 0,
-                 torque_noise: dict | None = None) -> None:
+                 torque_noise: dict | None = None,
+                 point_frames: int = DEFAULT_BLOCK_FRAMES) -> None:
         self.ensemble = dict(ensemble or {})
         self.dynamics = required_dynamics(dynamics, "PhysicsInformedEnsemble (IEM+phys)")
         self.sigma_tau = float(sigma_tau)
         self.sigma_dq = float(sigma_dq)
+        self.point_frames = int(point_frames)
+        if self.point_frames < 1:
+            raise InvalidInputError(f"point_frames must be >= 1 frame, got {point_frames}")
         self.cutoff_hz = float(cutoff_hz)
         self.rate_hz = float(rate_hz)
         self.update_every = int(update_every)
@@ -201,7 +208,9 @@ class PhysicsInformedEnsemble(BaseEstimator):
         # the velocity score serves only the IEM's own hold and the gate: not scored here
         self._ens = IncrementalEnsemble(**{"velocity_threshold": None, **self.ensemble})
         self._ens.report_errors = True  # the prior's calibration: every learnt point
-        self._reg = PayloadRegression(dynamics, self.sigma_tau, self.sigma_dq, self.cutoff_hz,
+        root = math.sqrt(self.point_frames)  # a block point's mean has 1/n of the variance
+        self._reg = PayloadRegression(dynamics, self.sigma_tau / root, self.sigma_dq / root,
+                                      self.cutoff_hz,
                                       self.rate_hz, every=1, settle=-1, payload_inertia=True,
                                       decimate=self.update_every,
                                       model_error_std=None if noise is None else noise.std)
@@ -233,7 +242,8 @@ class PhysicsInformedEnsemble(BaseEstimator):
                 "update_every": self.update_every, "prior_scale": self.prior_scale,
                 "drift": self.drift, "threshold": self.threshold, "holdoff_s": self.holdoff_s,
                 "eps": self.eps, "refresh_every": self.refresh_every,
-                "project_budget": self.project_budget, "torque_noise": self.torque_noise}
+                "project_budget": self.project_budget, "torque_noise": self.torque_noise,
+                "point_frames": self.point_frames}
 
     def prepare(self) -> None:
         """Load now what the first equations and refreshes would load (the robot model,
@@ -418,7 +428,7 @@ class PhysicsInformedEnsemble(BaseEstimator):
             equation = (*equation, self._reg.curvature)  # for the test's model error
             self._busy = True  # forming it was this sample's work
             if self._holdoff <= 0:
-                if self.spread:
+                if self._one_job:
                     self._queued = equation
                 else:
                     self._take(equation)
@@ -525,12 +535,21 @@ class PhysicsInformedEnsemble(BaseEstimator):
     def busy(self) -> bool:
         """The last sample did its heavy job (spread): a caller with periodic work of its
         own (the safety gate's decision) may put it in the next sample instead."""
-        return self._busy and self.spread
+        return self._busy and self._one_job
 
     @property
     def spread(self) -> bool:
         """The heavy work is spread over samples (a live link): with a ``project_budget``."""
         return self.project_budget > 0
+
+    @property
+    def _one_job(self) -> bool:
+        """Spread, one heavy job per sample: forming an equation, testing and adding it, a
+        refresh, or Newton steps, each in a sample of its own (``update_every > 1``: samples
+        at the frame rate). At the block points' rate (``update_every == 1``) every point
+        forms, tests and adds its equation and refreshes when due, at once; only the
+        projection's Newton steps are spread, ``project_budget`` per point."""
+        return self.spread and self.update_every > 1
 
     def _posterior(self) -> Posterior | None:
         """The posterior of the state (cached: refreshed every ``refresh_every`` equations
@@ -538,7 +557,7 @@ class PhysicsInformedEnsemble(BaseEstimator):
         :attr:`spread`, in the next sample that has no other heavy work, at most
         :data:`SPREAD_WAIT` samples late)."""
         if self._post is None or (self._stale and not (
-                self._busy and self.spread and self._stale_for <= SPREAD_WAIT)):
+                self._busy and self._one_job and self._stale_for <= SPREAD_WAIT)):
             if (self.ensemble_prior.summary.n == 0 and self._ens.n_bags
                     and self._initial is None):
                 return None  # nothing seen yet: predict_one uses the ensemble at its x
@@ -591,7 +610,7 @@ class PhysicsInformedEnsemble(BaseEstimator):
         SpreadProjection`: the last finished projection is shown meanwhile)."""
         if self.project_budget <= 0:
             return post, post.phi
-        return self._spread.show(post, self.project_budget, self._busy and self.spread)
+        return self._spread.show(post, self.project_budget, self._busy and self._one_job)
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)
@@ -640,6 +659,9 @@ class PhysicsInformedEnsemble(BaseEstimator):
                 "post": None if self._post is None else self._post.to_state(),
                 "data_shown": self._data_shown,
                 "holdoff": self._holdoff, "changes": self.changes,
+                # when the cached posterior is refreshed next, and what it does not determine
+                "stale": self._stale, "since_refresh": self._since_refresh,
+                "undetermined": list(self._undetermined),
                 "initial": None if self._initial is None else [
                     self._initial[0].tolist(), self._initial[1].tolist()]}
 
@@ -664,6 +686,9 @@ class PhysicsInformedEnsemble(BaseEstimator):
         model._data_shown = bool(state.get("data_shown", model._window.m > 0))
         model._holdoff = int(state["holdoff"])
         model.changes = int(state["changes"])
+        model._stale = bool(state["stale"])
+        model._since_refresh = int(state["since_refresh"])
+        model._undetermined = tuple(str(g) for g in state["undetermined"])
         initial = state.get("initial")  # files from before start_from have none
         if initial is not None:
             model._initial = (np.array(initial[0], dtype=float).reshape(10),

@@ -1,4 +1,4 @@
-"""Recorded joint states as arrays, and the offline signal chain of :mod:`iem.identify`.
+"""Recorded joint states as arrays, and the offline signal chain of :mod:`sim.identify`.
 
 :class:`Recording` holds ``t, q, dq, tau`` of a recording. :func:`filtered` puts it on a
 uniform grid at its own median rate (linear interpolation over the time stamps it has, so lost

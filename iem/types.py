@@ -30,8 +30,16 @@ N_JOINTS = 7
 NOMINAL_RATE_HZ = 1000.0
 """The controller's nominal joint-state rate, Hz: a Franka's 1 kHz cycle (libfranka's
 RobotState, franka_ros2's ``/franka/joint_states``, the ``fd`` wire profile of
-``protocol.dbc``). The default rate of every filter and estimator; what a link really
-delivers is ``firmware_bridge.links.rate_hz`` (the ``classic`` profile's is 500 Hz)."""
+``protocol.dbc``). What a link really delivers is ``firmware_bridge.links.rate_hz`` (the
+``classic`` profile's is 500 Hz)."""
+
+DEFAULT_BLOCK_FRAMES = 10
+"""Frames per block point (:mod:`iem.blocks`): the estimator works on the means of this many
+consecutive frames (the plug-in's ``[estimate] block_frames``)."""
+
+NOMINAL_POINT_RATE_HZ = NOMINAL_RATE_HZ / DEFAULT_BLOCK_FRAMES
+"""Block points per second from a 1 kHz controller: the default rate of every filter and
+estimator of the estimation path (100 Hz)."""
 
 
 def _vec7(name: str, value) -> np.ndarray:

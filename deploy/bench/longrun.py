@@ -61,6 +61,8 @@ from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
 from iem.types import JointState
 
+from .paper import rollout_blocks
+
 MODELS = ("IEM", "IEM+phys")
 WINDOW_S = 30.0
 MARGIN = 0.1
@@ -168,7 +170,12 @@ class _Feed:
         return self.ensemble.router
 
     def step(self, state: JointState, k: int) -> None:
-        est, smoothed = self.online.step(state)
+        """One 1 kHz frame: formed into block points by the online loop (an estimate only
+        when a block closes; the frames between hold it, as the plug-in's output does)."""
+        out = self.online.step(state)
+        if out is None:
+            return  # before the first block point
+        est, smoothed = out
         self.smoothed.append(smoothed)
         if est.extra.get("change"):
             self.changes += 1
@@ -325,11 +332,10 @@ def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tande
     for name, m in models.items():
         m.reset()
         online = OnlineIdentifier(m, kin.flange_position, tandem.samples, learn=False)
-        out = np.empty((len(rollout), 10))
-        for i in range(len(rollout)):
-            state = JointState(t=float(rollout.t[i]), q=rollout.q[i], dq=rollout.dq[i],
-                               tau_J=rollout.tau[i], cycle=i)
-            out[i] = online.step(state)[1]
+        blocks = rollout_blocks(rollout)
+        out = np.empty((len(blocks), 10))
+        for i in range(len(blocks)):
+            out[i] = online.step_block(blocks.state(i))[1]
         reverse_mae[name] = groups_of(mae(out, phi))
         log(f"reverse {name:8s} " + _fmt(reverse_mae[name]))
     return reverse_mae, reverse.duration

@@ -64,18 +64,23 @@ Timing: bag routing (median µs per query among 1 ... 10,000 bags), IEM estimate
 per ``predict_one``) and IEM learning (median ms per ``learn_one`` of a point that trained a
 learner, tandem samples included). IEM+phys on the new task path:
 ``phys_us_per_sample_median`` is the median of ``learn_one`` plus ``predict_one`` per
-sample with the ensemble training inline, as the benchmark runs it (every point of a forming
-bag pays its SGD steps, and a new bag its warm-up); ``phys_cycle_us_median`` and
-``phys_cycle_us_p99`` time the whole :meth:`iem.online.OnlineIdentifier.step` (state filter,
-kinematics, routing, estimate, physics update, smoothing) the way the plug-in runs it on a
-live link (``go_live()``: the training in the learning worker, the heavy work spread over
-samples), from the model as it was before the new path
-(:func:`cycle_timing`). That is the code's own cost, back to back;
-``phys_cycle_paced_us_median`` / ``_p99`` time the same steps fed one per millisecond, the
-thread idle between them, as a 1 kHz cell feeds them, and ``phys_cycle_cpu_us_mean`` /
-``phys_cycle_paced_cpu_us_mean`` are the step thread's mean CPU either way (per ms, paced: the
-share of one core the estimate path takes, without the link reader and the gate). On a
-shared 2-vCPU VM the paced steps cost about three times the back-to-back ones.
+block point with the ensemble training inline, as the benchmark runs it (every point of a
+forming bag pays its SGD steps, and a new bag its warm-up); ``phys_cycle_us_median`` and
+``phys_cycle_us_p99`` time the whole :meth:`iem.online.OnlineIdentifier.step_block` (state
+filter, kinematics, routing, estimate, physics update, smoothing) the way the plug-in runs it
+on a live link (``go_live()``: the training in the learning worker), from the model as it
+was before the new path (:func:`cycle_timing`). That is the code's own cost, back to back;
+``phys_cycle_paced_us_median`` / ``_p99`` time the same steps fed one per block period (10
+ms), the thread idle between them, as a 1 kHz cell's blocks come, and
+``phys_cycle_cpu_us_mean`` / ``phys_cycle_paced_cpu_us_mean`` are the step thread's mean CPU
+per block point either way (times 100 per second, paced: the share of one core the estimate
+path takes, without the link reader and the gate).
+
+Every model works on block points (:mod:`iem.blocks`): each rollout's 1 kHz frames are formed
+into the means of 10 consecutive frames, as the plug-in's reader forms them, and the run's
+arrays hold one row per block point; a scenario's switch at a frame counts from the first
+block that holds a frame after it, and a detection is timed at the detecting block's last
+frame (when its estimate can exist).
 """
 
 from __future__ import annotations
@@ -91,6 +96,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.bem import BatchEnsemble
+from iem.blocks import BlockFormer, Blocks
 from iem.consistency import min_eigenvalue
 from iem.ensemble import IncrementalEnsemble
 from iem.least_squares import RecursiveLeastSquares
@@ -102,7 +108,7 @@ from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
 from iem.sensor import SensorModel
 from iem.smoothing import DEFAULT_TAU_S
-from iem.types import GROUPS, NOMINAL_RATE_HZ, PARAMS, JointState
+from iem.types import GROUPS, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ, PARAMS
 
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged
 from .report import paper_forgetting
@@ -111,8 +117,17 @@ MODEL_ORDER = ("IEM", "old_IEM", "BEM", "LS", "IEM+phys")
 CHANGE_TO = "test-4w"
 """The payload the ``payload_change`` scenario switches to at mid-path."""
 ROUTE_SIZES = (1, 10, 100, 1000, 10000)
-PACED_RATE_HZ = NOMINAL_RATE_HZ
-"""The rate at which :func:`cycle_timing`'s paced run feeds the cycle: the Panda's."""
+PACED_RATE_HZ = NOMINAL_POINT_RATE_HZ
+"""The rate at which :func:`cycle_timing`'s paced run feeds block points: a Panda's 1 kHz in
+blocks of 10 frames."""
+
+
+def rollout_blocks(rollout) -> Blocks:
+    """A rollout's frames formed into block points as the plug-in's reader forms them (the
+    last, incomplete block is left out)."""
+    X = np.hstack((rollout.q, rollout.dq, rollout.tau))
+    return BlockFormer(rate_hz=NOMINAL_RATE_HZ).push_many(rollout.t, X,
+                                                          np.arange(len(rollout)))
 
 
 @dataclass
@@ -129,7 +144,12 @@ class Run:
     std: np.ndarray
     """Reported standard deviations ``(N, 10)``, NaN where the model reports none."""
     changes: np.ndarray
-    """True at the samples whose estimate reported a payload change."""
+    """True at the block points whose estimate reported a payload change."""
+    last: np.ndarray
+    """Index in the rollout of each block point's last frame."""
+    t_end: np.ndarray
+    """Time of each block point's last frame (s from the rollout's start): when its
+    estimate can exist."""
 
 
 class Bench:
@@ -239,16 +259,15 @@ class Bench:
         tandem = self.tandem if tandem is None else tandem
         online = OnlineIdentifier(model, self.kin.flange_position, tandem.samples,
                                   learn=learn, timed=True)
-        n = len(rollout)
+        blocks = rollout_blocks(rollout)
+        n = len(blocks)
         smoothed = np.empty((n, 10))
         raw = np.empty((n, 10))
         std = np.full((n, 10), math.nan)
         changes = np.zeros(n, dtype=bool)
         bags = np.empty(n, dtype=np.int64)
         for k in range(n):
-            state = JointState(t=float(rollout.t[k]), q=rollout.q[k], dq=rollout.dq[k],
-                               tau_J=rollout.tau[k], cycle=k)
-            est, smoothed[k] = online.step(state)
+            est, smoothed[k] = online.step_block(blocks.state(k))
             raw[k] = est.phi
             bags[k] = est.bag
             if est.std is not None:
@@ -256,9 +275,10 @@ class Bench:
             changes[k] = bool(est.extra.get("change"))
         if learn:
             model.close()
-        return Run(t=rollout.t - rollout.t[0], smoothed=smoothed, raw=raw, bags=bags,
+        return Run(t=blocks.t - rollout.t[0], smoothed=smoothed, raw=raw, bags=bags,
                    learn_s=np.array(online.learn_times), learnt=np.array(online.learnt),
-                   predict_s=np.array(online.predict_times), std=std, changes=changes)
+                   predict_s=np.array(online.predict_times), std=std, changes=changes,
+                   last=blocks.last, t_end=rollout.t[blocks.last] - rollout.t[0])
 
     def scores(self, run: Run, phi, convergence: bool = False, model=None) -> dict:
         """MAE (per parameter and group); with ``convergence`` also the convergence times,
@@ -290,8 +310,9 @@ class Bench:
 
     def change_scores(self, run: Run, model) -> dict:
         """The ``payload_change`` figures of one run (see the module docstring)."""
-        k = self.change_at
+        k = int(np.searchsorted(run.last, self.change_at))  # the first block after it
         after = slice(k, None)
+        at = self.change_at / NOMINAL_RATE_HZ  # s from the rollout's start
         phi = self.change_payload.to_phi()
         per = mae(run.smoothed[after], phi)
         out = {"detect_s": None, "false_alarms": None, "mae": per,
@@ -299,45 +320,42 @@ class Bench:
                "mae_groups_raw": groups_of(mae(run.raw[after], phi))}
         if model.detects_changes:
             fired = np.flatnonzero(run.changes[k:])
-            out["detect_s"] = None if fired.size == 0 else float(run.t[k + fired[0]] - run.t[k])
+            out["detect_s"] = None if fired.size == 0 else float(run.t_end[k + fired[0]] - at)
             out["false_alarms"] = int(run.changes[:k].sum())
         return out
 
 
 def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> dict:
-    """µs per :meth:`iem.online.OnlineIdentifier.step` of ``model`` along ``rollout`` (a new
-    task, learning on) with its ensemble's training in the learning worker, as the plug-in
-    runs it on a live link (:meth:`iem.base.Estimator.go_live`: its heavy work spread over
-    samples):
+    """µs per :meth:`iem.online.OnlineIdentifier.step_block` of ``model`` along ``rollout``'s
+    block points (a new task, learning on) with its ensemble's training in the learning
+    worker, as the plug-in runs it on a live link (:meth:`iem.base.Estimator.go_live`):
     ``{"median", "p99", "cpu_mean"}`` (``cpu_mean``: the step thread's CPU). The worker's own
-    time is not counted (it competes for the interpreter, so it shows in the cycle's time as
+    time is not counted (it competes for the interpreter, so it shows in the step's time as
     it would there).
 
     ``rate_hz``: one step per period of that rate, the thread idle between them, as on a live
-    link; None: back to back. Paced, the same steps cost this machine about three times as
-    much (a 2-vCPU VM, 2026-11-23: mean CPU 76 -> 207 µs, the same with a busy-wait instead
-    of the sleep): each cycle is a short burst of interpreter and NumPy code that starts with
-    cold caches and predictors. The paced figure is the one a 1 kHz cell meets; the back-to-
-    back one is the code's own cost."""
+    link; None: back to back. Paced, the same steps cost more: each is a short burst of
+    interpreter and NumPy code that starts with cold caches and predictors. The paced figure
+    is the one a cell meets; the back-to-back one is the code's own cost."""
     model.reset()
     model.go_live()  # the live link's set-up, as deploy.service makes it
     online = OnlineIdentifier(model, bench.kin.flange_position, bench.tandem.samples,
                               learn=True)
-    times = np.empty(len(rollout))
-    cpu = np.empty(len(rollout))
+    blocks = rollout_blocks(rollout)
+    times = np.empty(len(blocks))
+    cpu = np.empty(len(blocks))
     period = None if rate_hz is None else 1.0 / float(rate_hz)
     try:
         due = time.perf_counter()
-        for k in range(len(rollout)):
-            state = JointState(t=float(rollout.t[k]), q=rollout.q[k], dq=rollout.dq[k],
-                               tau_J=rollout.tau[k], cycle=k)
-            if period is not None:  # the next frame arrives one period after the last
+        for k in range(len(blocks)):
+            state = blocks.state(k)
+            if period is not None:  # the next block comes one period after the last
                 due += period
                 wait = due - time.perf_counter()
                 if wait > 0.0:
                     time.sleep(wait)
             c0, t0 = time.thread_time(), time.perf_counter()
-            online.step(state)
+            online.step_block(state)
             times[k] = time.perf_counter() - t0
             cpu[k] = time.thread_time() - c0
     finally:

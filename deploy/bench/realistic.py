@@ -19,7 +19,7 @@ Set-up (seed ``S``; the paper benchmark's machinery, :class:`deploy.bench.paper.
   calibrated arm, the physics' dynamics spec ``sim.arm:arm_dynamics@DIR/arm.msgpack``).
 - **Batch models** (issue 16): ``batch+bare`` identifies each scenario's recording offline
   with a bare recording of the same motion (noise seed ``seed + BARE_NOISE``), ``batch+arm``
-  with the calibrated arm instead (:func:`iem.identify.identify`); one estimate per run.
+  with the calibrated arm instead (:func:`sim.identify.identify`); one estimate per run.
 - **Scenarios**, each on the paper's new task path (6 s), each model from its trained state,
   learning as it goes, its payload forgotten first (a new task): ``new_path`` (the default
   test payload), ``bare_arm`` (nothing mounted: truth zero), ``light_tool`` (0.4 kg),
@@ -48,13 +48,13 @@ import numpy as np
 from iem.ensemble import IncrementalEnsemble
 from iem.physics import PhysicsInformedEnsemble
 from iem.sensor import DEFAULT_SENSOR
-from iem.types import GROUPS
+from iem.types import GROUPS, NOMINAL_RATE_HZ
 
 from .paper import CHANGE_TO, Bench
 
 MODEL_ORDER = ("IEM", "IEM+phys", "IEM+cal", "IEM+phys+cal")
 BATCH_MODELS = ("batch+bare", "batch+arm")
-"""Offline commissioning identification (:func:`iem.identify.identify`) of each scenario's
+"""Offline commissioning identification (:func:`sim.identify.identify`) of each scenario's
 whole recording: with a bare recording of the same motion, or with the calibrated arm."""
 BARE_NOISE = 90
 """The bare recording of the batch models has noise seed ``seed + BARE_NOISE``."""
@@ -184,7 +184,7 @@ def _batch(loaded, bare, arm, truth, after: int = 0) -> dict:
     """``batch+bare`` (``bare`` given) or ``batch+arm``: one offline identification of the
     recording (from sample ``after`` on); the same keys as the online models' scores (the
     estimate is one value, raw and smoothed alike), plus ``time_s`` and, when
-    :func:`iem.identify.identify` refuses the recordings, ``refused`` with its reason and
+    :func:`sim.identify.identify` refuses the recordings, ``refused`` with its reason and
     None figures. The motion is the 6 s task path: inertia is not excited, and the
     excitation check is off, so inertia is reported as what the prior gives."""
     from iem.metrics import groups_of, mae
@@ -253,11 +253,12 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
         for model_name in MODEL_ORDER:
             model = copy.deepcopy(models[model_name])
             r = bench.run(model, rollout, learn=True, tandem=tandems.get(model_name))
-            s = _score(r, truth, model, after)
+            first = int(np.searchsorted(r.last, after))  # the first block point after it
+            s = _score(r, truth, model, first)
             if name == "payload_change" and model.detects_changes:
-                fired = np.flatnonzero(r.changes[after:])
-                s["detect_s"] = (None if fired.size == 0
-                                 else float(r.t[after + fired[0]] - r.t[after]))
+                fired = np.flatnonzero(r.changes[first:])
+                s["detect_s"] = (None if fired.size == 0 else
+                                 float(r.t_end[first + fired[0]] - after / NOMINAL_RATE_HZ))
             scen[name][model_name] = s
             g = s["mae_groups"]
             log(f"{name:14s} {model_name:13s} mass {g['mass']:.4f} com {g['com']:.4f} "

@@ -358,8 +358,8 @@ def _figures(out_dir, results, runs, bench, models) -> list[tuple[str, str]]:
     ax = fig.add_subplot(projection="3d")
     for _label, ro, run in (("excitation", bench.exc_rollout, runs["excitation"]["IEM"]),
                            ("new path", bench.new_rollout, runs["new_path"]["IEM"])):
-        pts = bench.kin.flange_positions(ro.q[::20])
-        ax.scatter(*pts.T, c=run.bags[::20], cmap="tab10", s=2, vmin=0, vmax=9)
+        pts = bench.kin.flange_positions(ro.q[run.last[::2]])  # block points' last frames
+        ax.scatter(*pts.T, c=run.bags[::2], cmap="tab10", s=2, vmin=0, vmax=9)
     centres = iem.router.flange_means
     ax.scatter(*centres.T, c="k", marker="x", s=60, label="bag centres")
     ax.set_xlabel("x (m)")
@@ -375,10 +375,10 @@ def _figures(out_dir, results, runs, bench, models) -> list[tuple[str, str]]:
     # payload change: mass error against time
     if runs.get("payload_change"):
         fig, ax = plt.subplots(figsize=(8, 3.6))
-        k = bench.change_at
-        truth = np.where(np.arange(len(bench.change_rollout)) < k, bench.phi[0],
-                         bench.change_payload.to_phi()[0])
         for name, run in runs["payload_change"].items():
+            k = int(np.searchsorted(run.last, bench.change_at))  # block points from here on
+            truth = np.where(np.arange(len(run.t)) < k, bench.phi[0],
+                             bench.change_payload.to_phi()[0])
             line, = ax.semilogy(run.t, np.abs(run.smoothed[:, 0] - truth) + 1e-9, lw=1,
                                 label=name)
             for i in np.flatnonzero(run.changes):

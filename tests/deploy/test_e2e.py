@@ -107,9 +107,10 @@ def test_identifies_and_writes_back_over_slcan_on_a_pty(model_file, tmp_path):
         finally:
             service.close()
         _, err = stop_process(proc)
-    # python-can's slcan reads a byte per call: with the estimator learning, the service
-    # reads fewer than the 500 states per second the controller publishes (see README)
-    assert summary["cycles"] > 1000, summary
+    # python-can's slcan reads a byte per call: the service reads fewer than the 500 states
+    # per second the controller publishes (see README); block points of 10 of them
+    assert summary["cycles"] > 100, summary
+    assert summary["frames"]["received"] >= 10 * (summary["cycles"] - 1)
     parts = summary["cpu_parts"]  # the plug-in's CPU, by thread
     assert parts["cycle"] > 0 and parts["reader"] > 0
     assert summary["cpu_s"] == pytest.approx(sum(parts.values()))

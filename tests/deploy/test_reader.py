@@ -1,12 +1,16 @@
-"""The service's link reader (deploy.reader): the bus is drained while the estimator is busy,
-what overflows is counted, silences and the end of a stream come through in order."""
+"""The service's readers (deploy.reader): the bus is drained while the estimator is busy,
+block points are handed over once a block, what overflows is counted, silences and the end
+of a stream come through in order (a silence first closes the open block), and a replay's
+bulk reading gives the blocks the live reader gives."""
 
 from __future__ import annotations
 
 import itertools
 import time
 
-from deploy.reader import LinkReader
+import numpy as np
+
+from deploy.reader import BatchReader, LinkReader
 from firmware_bridge.can_link import CanControllerPort, CanLink, open_bus
 from tests.firmware_bridge.conftest import synthetic_states
 
@@ -35,9 +39,9 @@ def _drain(reader, timeout=0.5):
     return items
 
 
-def test_a_busy_estimator_loses_only_the_oldest_cycles_and_counts_them():
+def test_a_busy_estimator_loses_only_the_oldest_blocks_and_counts_them():
     port, link = _pair()
-    reader = LinkReader(link, timeout=0.05, capacity=100).start()
+    reader = LinkReader(link, timeout=0.05, capacity=10).start()
     try:
         states = synthetic_states(1000)
         _publish(port, states)  # the consumer is busy: it reads nothing meanwhile
@@ -50,10 +54,10 @@ def test_a_busy_estimator_loses_only_the_oldest_cycles_and_counts_them():
         link.close()
         port.close()
     cycles = [i.value.cycle for i in items if i.kind == "state"]
-    assert cycles == [s.cycle for s in states[-100:]]  # the newest, in order
+    assert cycles == [s.cycle for s in states[-91::10]]  # the newest blocks' last, in order
     # (a silence reported before the first cycle may have been dropped as old news too)
-    assert reader.skipped == 900 and items[-1].kind == "silent"
-    assert all(i.frame_time > 0 for i in items if i.kind == "state")
+    assert reader.skipped == 90 and items[-1].kind == "silent"
+    assert all(i.frame_time >= i.first_time > 0 for i in items if i.kind == "state")
 
 
 def test_a_silence_is_reported_and_the_reader_goes_on():
@@ -69,8 +73,8 @@ def test_a_silence_is_reported_and_the_reader_goes_on():
         reader.stop()
         link.close()
         port.close()
-    assert [i.kind for i in first] == ["state"] * 100 + ["silent"]
-    assert [i.value.cycle for i in second if i.kind == "state"] == list(range(100, 200))
+    assert [i.kind for i in first] == ["state"] * 10 + ["silent"]
+    assert [i.value.cycle for i in second if i.kind == "state"] == list(range(109, 200, 10))
     assert reader.skipped == 0
 
 
@@ -85,3 +89,58 @@ def test_a_link_failure_reaches_the_consumer():
         reader.stop()
         port.close()
     assert item is not None and item.kind == "error"
+
+
+def test_a_silence_closes_the_open_block_first():
+    port, link = _pair()
+    reader = LinkReader(link, timeout=0.05).start()
+    try:
+        states = synthetic_states(25)
+        _publish(port, states)
+        items = _drain(reader)
+    finally:
+        reader.stop()
+        link.close()
+        port.close()
+    assert [i.kind for i in items] == ["state"] * 3 + ["silent"]
+    last = items[2].value  # the last 5 frames' means, before the silence
+    np.testing.assert_allclose(last.q, np.mean([s.q for s in states[20:]], axis=0),
+                               rtol=0, atol=1e-5)  # the wire quantises q
+    assert last.cycle == 24
+
+
+class _Frames:
+    """A replayed stream of given frames (a link without a bus)."""
+
+    last_frame_time = 1.0
+
+    def __init__(self, states):
+        self.it = iter(states)
+
+    def read(self, timeout):
+        from firmware_bridge.errors import EndOfStream
+
+        try:
+            return next(self.it)
+        except StopIteration:
+            raise EndOfStream() from None
+
+
+def test_a_replay_reads_in_bulk_the_blocks_the_live_reader_forms():
+    states = synthetic_states(95)
+    live = LinkReader(_Frames(states), timeout=0.05).start()
+    try:
+        items = []
+        while (item := live.get(2.0)).kind == "state":
+            items.append(item)
+    finally:
+        live.stop()
+    batch = BatchReader(_Frames(states), 0.05, chunk=32)
+    got = []
+    while (item := batch.get()).kind == "state":
+        got.append(item)
+    assert item.kind == "end"
+    assert len(got) == len(items) == 10  # the last 5 frames close a block at the end
+    for a, b in zip(got, items, strict=True):
+        assert a.value.t == b.value.t and a.value.cycle == b.value.cycle
+        np.testing.assert_array_equal(a.value.features(), b.value.features())

@@ -92,7 +92,7 @@ def test_a_load_beyond_the_wire_is_refused_by_the_gate_and_the_service_runs_on(t
     assert "send" not in summary["gate"] and summary["writes"]["sent"] == 0
     assert summary["writes"]["rejected"] == summary["gate"]["out_of_wire_range"]
     assert controller.commands == [] and controller.plant.controller_load is None
-    assert summary["cycles"] > 1000  # ran to the end
+    assert summary["cycles"] > 100  # ran to the end (block points: 100 per second)
     logged = [r for r in caplog.records if getattr(r, "reason", "") == "out_of_wire_range"]
     assert len(logged) == 1 and "signal Ixx" in logged[0].getMessage()
 
@@ -110,7 +110,7 @@ def test_an_encode_error_in_send_is_counted_logged_and_survived(tmp_path, caplog
     errors = summary["writes"]["send_errors"]
     assert errors >= 2  # tried again after the rate limit: the loop went on after the first
     assert errors == summary["gate"]["send"] and summary["writes"]["sent"] == 0
-    assert controller.commands == [] and summary["cycles"] > 1500
+    assert controller.commands == [] and summary["cycles"] > 150
     failed = [r for r in caplog.records if getattr(r, "event", "") == "load_send_failed"]
     assert len(failed) == errors and all(r.levelno == logging.ERROR for r in failed)
     assert "does not fit signal Ixx" in failed[0].getMessage()

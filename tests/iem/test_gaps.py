@@ -65,7 +65,7 @@ def test_state_filter_ddq_is_right_across_lost_cycles():
     t = np.arange(3000) * 1e-3
     keep = rng.random(t.size) > 0.05
     keep[:10] = True
-    whole, broken = StateFilter(), StateFilter()
+    whole, broken = StateFilter(50.0, 1000.0), StateFilter(50.0, 1000.0)  # per frame
     ddq_whole = {}
     for k, tk in enumerate(t):
         q, dq, _ = _sine_state(tk)
@@ -81,10 +81,10 @@ def test_state_filter_ddq_is_right_across_lost_cycles():
 
 
 def test_state_filter_skips_a_sample_that_is_not_newer():
-    f = StateFilter()
+    f = StateFilter()  # at the 100 Hz of block points
     first = f(np.zeros(7), np.ones(7), 0.0)
-    second = f(np.zeros(7), 2 * np.ones(7), 0.001)
-    again = f(np.full(7, 9.0), np.full(7, 99.0), 0.0005)  # late: older than the last used
+    second = f(np.zeros(7), 2 * np.ones(7), 0.01)
+    again = f(np.full(7, 9.0), np.full(7, 99.0), 0.005)  # late: older than the last used
     assert f.steps == SKIP
     for a, b in zip(again, second, strict=True):
         np.testing.assert_array_equal(a, b)
@@ -168,12 +168,12 @@ def test_online_loop_bridges_skips_and_restarts_by_one_rule():
     toy = _Recorder()
     online = OnlineIdentifier(toy, lambda q: np.zeros(3), None)
     outs = []
-    for t in (0.0, 0.001, 0.004, 0.004, 0.002, 0.005, 0.5):
-        raw, _ = online.step(JointState(t=t, q=np.zeros(7), dq=np.zeros(7),
-                                        tau_J=np.zeros(7)))
+    for t in (0.0, 0.01, 0.03, 0.03, 0.02, 0.04, 0.5):  # block points, 100 per second
+        raw, _ = online.step_block(JointState(t=t, q=np.zeros(7), dq=np.zeros(7),
+                                              tau_J=np.zeros(7)))
         outs.append(raw.t)
-    assert toy.events == ["resume", "learn", "learn", 3, "learn", "learn", "resume", "learn"]
-    assert outs == [0.0, 0.001, 0.004, 0.004, 0.004, 0.005, 0.5]  # skipped: the last again
+    assert toy.events == ["resume", "learn", "learn", 2, "learn", "learn", "resume", "learn"]
+    assert outs == [0.0, 0.01, 0.03, 0.03, 0.03, 0.04, 0.5]  # skipped: the last again
     assert online.skipped == 2
 
 
@@ -206,9 +206,11 @@ def _mae(excitation_run, order):
     model = copy.deepcopy(model)
     online = OnlineIdentifier(model, kin.flange_position, tandem.samples)
     err = []
-    for k in order:
-        _, smoothed = online.step(JointState(t=ro.t[k], q=ro.q[k], dq=ro.dq[k],
-                                             tau_J=ro.tau[k]))
+    for k in order:  # frames: the online loop forms them into block points
+        out = online.step(JointState(t=ro.t[k], q=ro.q[k], dq=ro.dq[k], tau_J=ro.tau[k]))
+        if out is None:
+            continue  # before the first block point
+        smoothed = out[1]
         if ro.t[k] > 1.0:
             err.append(abs(smoothed[0] - truth[0]))
     return float(np.mean(err)), model.changes

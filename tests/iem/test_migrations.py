@@ -94,10 +94,10 @@ def test_an_old_file_loads_to_the_model_it_held_and_is_saved_at_the_newest_versi
 
 def test_the_1khz_physics_file_takes_100hz_points_after_loading():
     model = load_model(DATA / "v1_iem_phys.iem")
-    assert (model.rate_hz, model.update_every) == (100.0, 1)
-    params = {k: v for k, v in model.params().items() if k not in ("rate_hz", "update_every")}
-    assert params == {k: v for k, v in PHYS_V1["params"].items()
-                      if k not in ("rate_hz", "update_every")}
+    assert (model.rate_hz, model.update_every, model.point_frames) == (100.0, 1, 10)
+    moved = ("rate_hz", "update_every", "point_frames")
+    params = {k: v for k, v in model.params().items() if k not in moved}
+    assert params == {k: v for k, v in PHYS_V1["params"].items() if k not in moved}
 
 
 def test_the_oldest_version_1_state_loads_as_its_branches_read_it():
@@ -244,11 +244,11 @@ def test_equations_per_point(rate, every, after):
                         "cutoff_hz": 4.0}, "regression": {"count": 3}, "holdoff": 7}
     out = equations_per_point("IEM+phys", state)
     assert (out["params"]["rate_hz"], out["params"]["update_every"]) == after
+    assert out["params"]["point_frames"] == every  # the same noise per equation
     assert out["params"]["torque_noise"] == noise and out["params"]["cutoff_hz"] == 4.0
     assert {k: v for k, v in out.items() if k != "params"} == {
-        k: v for k, v in state.items() if k != "params"}
-    if every == 1:
-        assert out is state
+        **{k: v for k, v in state.items() if k != "params"},
+        "stale": False, "since_refresh": 0, "undetermined": ["mass", "com", "inertia"]}
 
 
 def test_equations_per_point_reads_absent_params_as_the_version_2_defaults():
@@ -256,9 +256,16 @@ def test_equations_per_point_reads_absent_params_as_the_version_2_defaults():
     assert (out["params"]["rate_hz"], out["params"]["update_every"]) == (100.0, 1)
 
 
+def test_equations_per_point_gives_ls_the_default_block_and_restarts_its_filter():
+    ls = {"params": {"rate_hz": 1000.0}, "filter": [[0.5] * 21] * 2, "last": [1.0] * 21}
+    out = equations_per_point("LS", ls)
+    assert out["params"] == {"rate_hz": 100.0, "point_frames": 10}
+    assert out["filter"] is None and out["last"] is None
+
+
 def test_equations_per_point_leaves_other_kinds():
-    ls = {"params": {"rate_hz": 1000.0, "update_every": 10}}
-    assert equations_per_point("LS", ls) is ls
+    iem = {"params": {"seed": 0}}
+    assert equations_per_point("IEM", iem) is iem
 
 
 # -- module paths that moved ----------------------------------------------------------------
