@@ -9,20 +9,23 @@ bag's means move to include it. A point that fits no bag starts a new bag with i
 The router also reports the nearest bag in joint space, qualifying or not: a new bag's learner
 is a copy of that bag's.
 
-Routing is vectorised over the bags, not a Python loop. The bag means live in preallocated
-float64 arrays (the truth, updated as points join). Up to 64 bags a query computes the exact
-distances to all of them; beyond, the joint-space means are mirrored in a float32 array laid
-out one coordinate per row, with their squared norms cached, and a query scans it with one
-small matrix-vector product (``|m - q|² = |m|² - 2 m·q + |q|²``): only the few bags within δ
-in joint space can qualify, and float64 distances to those decide both spheres, so float32
-rounding never changes a decision. Above :data:`INDEX_ABOVE` bags a spatial index over the
-joint-space means (:class:`iem.spatial.CentreIndex`, a k-d tree) names the few bags that can
-be within δ of the point, or within the distance of a bag near it, and the same exact float64
-distances decide among them: the scan's decision (ties go to the lowest bag index), at a cost
-that grows with the log of the bags rather than with the bags. The index is derived state:
-never saved; a router loaded above the threshold builds it at load, one that grows past it at
-its next route (importing scipy.spatial then), and it is rebuilt, on the thread that routes,
-when more than 128 bags moved or were added since (5-14 ms at 20,000 bags here).
+One method decides (:meth:`BagRouter._decide`): from exact float64 distances to a set of
+candidate bags it names the nearest bag in joint space and the nearest that qualifies, ties
+to the lowest bag index. Every way of routing only proposes the candidates:
+
+- up to 64 bags, every bag;
+- beyond, a float32 scan of the joint-space means, mirrored one coordinate per row with
+  their squared norms cached: one small matrix-vector product (``|m - q|² = |m|² - 2 m·q +
+  |q|²``) names the bags within δ in joint space and those within rounding of the nearest,
+  with a margin far above float32's rounding, so the scan never changes a decision;
+- :meth:`BagRouter.route_many`, for many points at once, the bags within both thresholds
+  (with the same margin) of each point, by one expanded-form product per threshold.
+
+The scan is linear in the bags: about 22 µs a route at 10,000 bags and 29 µs at 20,000 on
+the project's 2-core machine. A k-d tree over the means is faster than that only on points
+inside a bag (about 15 µs), slower on points outside every bag (41-48 µs), and costs 30 MB of
+scipy and a rebuild of milliseconds on the routing thread; at the 2,000-bag budget and 100
+block points a second it does not pay (README, "Bounded growth").
 """
 
 from __future__ import annotations
@@ -31,9 +34,7 @@ import math
 
 import numpy as np
 
-from . import kernels
 from .errors import InvalidInputError
-from .spatial import CentreIndex
 
 DEFAULT_DELTA = math.radians(30.0)
 """Joint-space threshold δ of the paper, rad (30°)."""
@@ -41,15 +42,11 @@ DEFAULT_RHO = 0.2
 """Cartesian threshold ρ of the paper, m."""
 
 _SMALL = 64
-"""Up to this many bags a query computes the exact distances to all of them directly."""
+"""Up to this many bags every bag is a candidate (exact distances to all of them)."""
 
 _SCAN_MARGIN = 1e-4
-"""Slack on the squared thresholds (rad², m²) of the float32 scan; float64 decides."""
-
-INDEX_ABOVE = 5_000
-"""Above this many bags the spatial index routes instead of the scan: where it became the
-faster on points inside a bag (what the cycle routes almost always), measured with
-``iem bench longrun --routing-only`` on the project's 2-core machine (README)."""
+"""Slack on the squared thresholds (rad², m²) of the scans' candidates; float64 decides."""
+_MARGIN32 = np.float32(_SCAN_MARGIN)
 
 
 class BagRouter:
@@ -59,9 +56,6 @@ class BagRouter:
         delta: joint-space radius of a bag, rad (paper: 30° = 0.524 rad).
         rho: flange-position radius of a bag, m (paper: 0.2 m).
         capacity: initial number of bag slots (grows by doubling).
-
-    ``index_above`` (attribute): above this many bags :class:`~iem.spatial.CentreIndex`
-    routes (None: the scan always); the decisions are the same either way.
     """
 
     def __init__(self, delta: float = DEFAULT_DELTA, rho: float = DEFAULT_RHO,
@@ -73,14 +67,7 @@ class BagRouter:
         self._delta2 = self.delta ** 2
         self._rho2 = self.rho ** 2
         self._n = 0
-        self.index_above: int | None = INDEX_ABOVE
-        self._index: CentreIndex | None = None  # derived: built when first needed
         self._allocate(max(1, int(capacity)))
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_index"] = None  # derived state: a copy builds its own
-        return state
 
     def _allocate(self, cap: int) -> None:
         n = self._n
@@ -90,7 +77,9 @@ class BagRouter:
             means[:n] = self._means[:n]
             counts[:n] = self._counts[:n]
         self._means, self._counts = means, counts
-        self._qT = np.zeros((7, cap), dtype=np.float32)  # scan mirror, one row per coordinate
+        # the scan's mirror: -2 q, one row per coordinate (exactly -2 times the float32
+        # means: a power of two), and |q|²
+        self._qTm2 = np.zeros((7, cap), dtype=np.float32)
         self._sqq = np.zeros(cap, dtype=np.float32)
         for i in range(n):
             self._mirror(i)
@@ -99,7 +88,7 @@ class BagRouter:
         if self._n <= _SMALL and i < _SMALL:
             return  # a small map is routed from the float64 means; mirrored when it grows
         row = self._means[i]
-        self._qT[:, i] = row[:7]
+        self._qTm2[:, i] = -2.0 * row[:7]
         self._sqq[i] = row[:7] @ row[:7]
 
     # -- views ---------------------------------------------------------------------------
@@ -121,19 +110,48 @@ class BagRouter:
         """Number of points that joined each bag (a copy)."""
         return self._counts[: self._n].copy()
 
+    # -- the decision --------------------------------------------------------------------
+    def _decide(self, cand: np.ndarray | None, q: np.ndarray, x: np.ndarray
+                ) -> tuple[int, int]:
+        """Algorithm 1's decision among the bags ``cand`` (ascending bag indices, or None:
+        every bag), by exact float64 distances of ``q``/``x`` to their means.
+
+        Returns ``(bag, nearest)``: the nearest candidate in joint space whose spheres both
+        hold the point (strictly), or -1, and the nearest candidate in joint space; ties go
+        to the lowest index (and a NaN distance is the nearest, as NumPy's argmin). ``bag``
+        is Algorithm 1's if ``cand`` holds every bag that qualifies, ``nearest`` if it holds
+        the nearest bag and its equals.
+        """
+        m = self._means[: self._n] if cand is None else self._means[cand]
+        d = m - np.concatenate((q, x))
+        d *= d
+        eq = d[:, :7].sum(axis=1)
+        ex = d[:, 7:].sum(axis=1)
+        near = int(eq.argmin())
+        if eq[near] < self._delta2 and ex[near] < self._rho2:
+            bag = near  # the usual case: the nearest qualifies, so it is the nearest that does
+        elif eq.shape[0] == 1:
+            bag = -1  # the other usual case: the one candidate does not
+        else:
+            inside = (eq < self._delta2) & (ex < self._rho2)
+            bag = int(np.where(inside, eq, np.inf).argmin()) if inside.any() else -1
+        if cand is None:
+            return bag, near
+        return (int(cand[bag]) if bag >= 0 else -1), int(cand[near])
+
+    def _scan(self, q: np.ndarray) -> np.ndarray | None:
+        """Candidates by the float32 scan (more than :data:`_SMALL` bags): the bags within δ
+        of ``q`` in joint space and those within rounding of the nearest, ascending (None,
+        every bag, where it rules out none: a point that is not finite)."""
+        n = self._n
+        # |m|² - 2 m·q, the squared distance less the constant |q|²
+        d2q = self._sqq[:n] + q.astype(np.float32) @ self._qTm2[:, :n]
+        near = d2q[d2q.argmin()] + _MARGIN32  # (argmin: the first NaN, if any)
+        reach = np.float32(self._delta2 + _SCAN_MARGIN - float(q @ q))
+        cand = np.flatnonzero(d2q < reach) if reach > near else np.flatnonzero(d2q <= near)
+        return cand if cand.size else None
+
     # -- queries -------------------------------------------------------------------------
-    def _exact2(self, i, q: np.ndarray, x: np.ndarray):
-        """Exact squared distances (float64) of ``q``/``x`` to bag(s) ``i``."""
-        m = self._means[i]
-        dq = m[..., :7] - q
-        dx = m[..., 7:] - x
-        return (dq * dq).sum(axis=-1), (dx * dx).sum(axis=-1)
-
-    def _exact_q2(self, i: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """:meth:`_exact2`'s joint-space half alone (the same arithmetic)."""
-        dq = self._means[i, :7] - q
-        return (dq * dq).sum(axis=-1)
-
     def route(self, q, flange) -> tuple[int, int]:
         """Where a point belongs, without changing anything.
 
@@ -141,130 +159,34 @@ class BagRouter:
         both contain the point, or -1 if none does; ``nearest`` is the nearest bag in joint
         space whatever the thresholds, or -1 if there are no bags.
         """
-        n = self._n
-        if n == 0:
+        if self._n == 0:
             return -1, -1
-        q = np.asarray(q, dtype=float)
-        x = np.asarray(flange, dtype=float)
-        if self.index_above is not None and n > self.index_above:
-            return self._route_indexed(q, x)
-        if n <= _SMALL:
-            return self._route_small(q, x)
-        q32 = q.astype(np.float32)
-        # |m|² - 2 m·q, i.e. the squared distance minus the constant |q|²
-        d2q = self._sqq[:n] - 2.0 * (q32 @ self._qT[:, :n])
-        nearest = int(d2q.argmin())
-        near = np.flatnonzero(d2q <= d2q[nearest] + _SCAN_MARGIN)
-        if near.size > 1:  # a near tie in float32: the exact distances order them
-            nearest = int(near[np.argmin(self._exact2(near, q, x)[0])])
-        qq = float(q @ q)
-        eq, ex = self._exact2(nearest, q, x)
-        if eq < self._delta2 and ex < self._rho2:
-            return nearest, nearest  # the nearest bag qualifies, so it is the nearest that does
-        # only bags within delta in joint space can qualify: they are few, and the exact
-        # float64 check decides both spheres for them
-        cand = np.flatnonzero(d2q < self._delta2 + _SCAN_MARGIN - qq)
-        if cand.size == 0:
-            return -1, nearest
-        eq, ex = self._exact2(cand, q, x)
-        ok = (eq < self._delta2) & (ex < self._rho2)
-        if not ok.any():
-            return -1, nearest
-        return int(cand[np.flatnonzero(ok)[np.argmin(eq[ok])]]), nearest
+        q, x = _point(q, flange)
+        return self._decide(self._scan(q) if self._n > _SMALL else None, q, x)
+
+    def route_exact(self, q, flange) -> tuple[int, int]:
+        """:meth:`route` with every bag a candidate (what :meth:`route` does up to 64 bags):
+        the reference the scan is held to, at any size."""
+        if self._n == 0:
+            return -1, -1
+        q, x = _point(q, flange)
+        return self._decide(None, q, x)
 
     def route_join(self, q, flange) -> tuple[int, int]:
         """:meth:`route`, then, if the point is inside a bag, :meth:`join` it: Algorithm 1
         without the new bag (the caller decides what a point outside every bag starts).
-        Returns :meth:`route`'s ``(bag, nearest)``. One pass over the bags for both on a
-        small map (the online cycle's case)."""
-        n = self._n
-        if n > _SMALL or n == 0:
-            bag, nearest = self.route(q, flange)
-            if bag >= 0:
-                self.join(bag, q, flange)
-            return bag, nearest
-        q, flange = _floats(q), _floats(flange)
-        if q.shape != (7,) or flange.shape != (3,):  # (the kernel reads 7 and 3 unchecked)
-            raise InvalidInputError(f"a point is q (7) and flange (3), got {q.shape} and "
-                                    f"{flange.shape}")
-        if kernels.active:  # compiled (iem.kernels): the same decision and means
-            bag, nearest = kernels.route_join_small(self._means, self._counts, n, q, flange,
-                                                    self._delta2, self._rho2)
-            return bag, nearest  # (a small map is never mirrored)
-        p = np.concatenate((q, flange))
-        d = self._means[:n] - p
-        d *= d
-        d2q = d[:, :7].sum(axis=1)  # the same arithmetic as _route_small
-        nearest = int(d2q.argmin())
-        if d2q[nearest] < self._delta2 and d[nearest, 7:].sum() < self._rho2:
-            bag = nearest  # the usual case: the nearest bag qualifies
-        else:
-            inside = (d2q < self._delta2) & (d[:, 7:].sum(axis=1) < self._rho2)
-            if not inside.any():
-                return -1, nearest
-            bag = int(np.where(inside, d2q, np.inf).argmin())
-        k = self._counts[bag] + 1
-        row = self._means[bag]
-        row += (p - row) / k  # as join: both means move toward the point
-        self._counts[bag] = k
+        Returns :meth:`route`'s ``(bag, nearest)``."""
+        bag, nearest = self.route(q, flange)
+        if bag >= 0:
+            self.join(bag, q, flange)
         return bag, nearest
-
-    def _route_small(self, q: np.ndarray, x: np.ndarray) -> tuple[int, int]:
-        """:meth:`route` for a few bags: exact float64 distances to every bag directly."""
-        m = self._means[: self._n]
-        dq = m[:, :7] - q
-        dx = m[:, 7:] - x
-        d2q = (dq * dq).sum(axis=1)  # the same arithmetic as _exact2 and route_many
-        d2x = (dx * dx).sum(axis=1)
-        nearest = int(d2q.argmin())
-        inside = (d2q < self._delta2) & (d2x < self._rho2)
-        if inside[nearest]:
-            return nearest, nearest
-        if not inside.any():
-            return -1, nearest
-        return int(np.where(inside, d2q, np.inf).argmin()), nearest
-
-    def _route_indexed(self, q: np.ndarray, x: np.ndarray) -> tuple[int, int]:
-        """:meth:`route` through the spatial index: the same exact decision among the few
-        bags the index cannot rule out."""
-        n = self._n
-        index = self._index
-        if index is None:
-            index = self._index = CentreIndex(self._means[:n, :7])
-        elif index.loose(n) > index.loose_max:
-            index.rebuild(self._means[:n, :7])
-        cand = index.within(q, self.delta, n)  # every bag within δ is among them
-        if cand.size:
-            eq, ex = self._exact2(cand, q, x)
-            if cand.size == 1:
-                if eq[0] < self._delta2:
-                    bag = int(cand[0])
-                    return (bag if ex[0] < self._rho2 else -1), bag
-            else:
-                best = eq.min()
-                if best < self._delta2:  # so the nearest bag is among them too
-                    nearest = _lowest(cand, eq, best)
-                    ok = (eq < self._delta2) & (ex < self._rho2)
-                    if not ok.any():
-                        return -1, nearest
-                    eq_ok = eq[ok]
-                    return _lowest(cand[ok], eq_ok, eq_ok.min()), nearest
-        # no bag within δ, so none qualifies; the nearest is among the snapshot's nearest and
-        # the loose bags if it is closer than what they cover, else in the ball of its distance
-        cand, covered = index.nearest(q, n)
-        eq = self._exact_q2(cand, q)
-        best = eq.min()
-        if not math.sqrt(best) < covered:
-            cand = index.within(q, math.sqrt(best), n)
-            eq = self._exact_q2(cand, q)
-            best = eq.min()
-        return -1, _lowest(cand, eq, best)
 
     def route_many(self, Q, F) -> np.ndarray:
         """:meth:`route`'s bag for many points at once, ``(N,)`` (-1: outside every bag).
 
-        The same decision as :meth:`route` row by row: an expanded-form scan with a margin
-        picks the candidates, exact float64 distances decide.
+        The candidates of every point at once, by one expanded-form product per threshold
+        with a margin: the bags within both; :meth:`_decide` decides for each point that has
+        any.
         """
         Q = np.asarray(Q, dtype=float).reshape(-1, 7)
         F = np.asarray(F, dtype=float).reshape(-1, 3)
@@ -279,21 +201,15 @@ class BagRouter:
                                 & (d2x < self._rho2 + _SCAN_MARGIN))
         if rows.size == 0:
             return out
-        eq = ((m[cols, :7] - Q[rows]) ** 2).sum(1)
-        ex = ((m[cols, 7:] - F[rows]) ** 2).sum(1)
-        ok = (eq < self._delta2) & (ex < self._rho2)
-        rows, cols, eq = rows[ok], cols[ok], eq[ok]
-        order = np.lexsort((cols, eq, rows))  # per row: smallest distance first
-        rows, cols = rows[order], cols[order]
-        first = np.ones(rows.size, dtype=bool)
-        first[1:] = rows[1:] != rows[:-1]
-        out[rows[first]] = cols[first]
+        starts = np.flatnonzero(np.diff(rows, prepend=-1)).tolist()  # each row's first pair
+        for a, b in zip(starts, [*starts[1:], rows.size], strict=True):
+            r = rows[a]
+            out[r] = self._decide(cols[a:b], Q[r], F[r])[0]
         return out
 
     def nbytes(self) -> int:
         """Bytes held for the bags (the preallocated slots included)."""
-        index = 0 if self._index is None else self._index.nbytes()
-        return sum(a.nbytes for a in (self._means, self._counts, self._qT, self._sqq)) + index
+        return sum(a.nbytes for a in (self._means, self._counts, self._qTm2, self._sqq))
 
     # -- Algorithm 1 ---------------------------------------------------------------------
     def add(self, q, flange) -> tuple[int, bool, int]:
@@ -315,12 +231,9 @@ class BagRouter:
         """The point joins ``bag``: its means move to include it (Algorithm 1)."""
         k = self._counts[bag] + 1
         row = self._means[bag]
-        row[:7] += (np.asarray(q, dtype=float) - row[:7]) / k
-        row[7:] += (np.asarray(flange, dtype=float) - row[7:]) / k
+        row += (np.concatenate(_point(q, flange)) - row) / k
         self._counts[bag] = k
         self._mirror(bag)
-        if self._index is not None:
-            self._index.moved(bag, row[:7])
 
     def new_bag(self, q, flange) -> int:
         """A new bag with the point as its mean; returns its index."""
@@ -334,8 +247,6 @@ class BagRouter:
         self._means[bag, 7:] = np.asarray(flange, dtype=float)
         self._counts[bag] = 1
         self._mirror(bag)
-        if self._index is not None:
-            self._index.moved(bag, self._means[bag, :7])
 
     def _new_bag(self, q: np.ndarray, x: np.ndarray) -> int:
         if self._n == self._means.shape[0]:
@@ -385,16 +296,19 @@ class BagRouter:
         router._n = n
         for i in range(n):
             router._mirror(i)
-        if router.index_above is not None and n > router.index_above:
-            router._index = CentreIndex(means[:, :7])  # at load, not at the first route
         return router
 
 
+def _point(q, flange) -> tuple[np.ndarray, np.ndarray]:
+    """A point's ``q`` (7) and flange position (3) as float64 arrays (themselves if they
+    are already: the cycle's case)."""
+    q, x = _floats(q), _floats(flange)
+    if q.shape != (7,) or x.shape != (3,):
+        raise InvalidInputError(f"a point is q (7) and flange (3), got {q.shape} and "
+                                f"{x.shape}")
+    return q, x
+
+
 def _floats(v) -> np.ndarray:
-    """``v`` as a float64 array (itself if it is one already: the cycle's case)."""
+    """``v`` as a float64 array (itself if it is one already)."""
     return v if type(v) is np.ndarray and v.dtype == np.float64 else np.asarray(v, dtype=float)
-
-
-def _lowest(bags: np.ndarray, d2: np.ndarray, best) -> int:
-    """The lowest bag index among ``bags`` whose distance ``d2`` equals ``best``."""
-    return int(bags[d2 == best].min())

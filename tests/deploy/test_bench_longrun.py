@@ -76,7 +76,7 @@ def test_results_have_the_keys_of_the_issue(tmp_path):
     assert [r["bags"] for r in res["route_sizes"]] == [70, 150]
     for row in res["route_sizes"]:
         assert row["same"] is True and row["inside"]["inside_share"] > 0.5
-        assert {"scan", "index"} <= set(row["random"]) and row["random"]["index"]["p99"] > 0
+        assert {"scan", "exact"} <= set(row["random"]) and row["random"]["exact"]["p99"] > 0
     (tmp_path / "r.json").write_text(json.dumps(res))  # plain JSON
 
 
