@@ -1,5 +1,4 @@
 """The learning core: bag router, weak learners, the incremental ensemble and its baselines.
 
-numpy only: nothing here imports hardware, MuJoCo or Pinocchio. Opt-in, ``IEM_KERNELS=numba``:
-the per-sample numerics as compiled kernels (:mod:`iem.kernels`).
+numpy only: nothing here imports hardware, MuJoCo or Pinocchio.
 """

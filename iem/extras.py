@@ -6,8 +6,7 @@ installs the core; the simulated Panda and the figures are extras (``pyproject.t
 - ``sim``: MuJoCo, the plant that stands in for the robot (:mod:`sim.plant`): ``iem demo``,
   ``iem sim-controller`` and the benchmarks that simulate;
 - ``plots``: matplotlib, the figures of ``iem demo`` and ``iem bench paper``;
-- ``ros2``, ``franka``, ``fast``: the ros2 and franka links and the compiled kernels, which
-  name their extra themselves.
+- ``ros2``, ``franka``: the ros2 and franka links, which name their extra themselves.
 
 :func:`require` imports a module of an extra or raises :class:`~iem.errors.MissingExtraError`
 saying what needs it and what to install; :func:`missing_extra` turns an import error that
@@ -26,7 +25,6 @@ EXTRAS: dict[str, str] = {
     "matplotlib": "plots",
     "cyclonedds": "ros2",
     "pylibfranka": "franka",
-    "numba": "fast",
 }
 """Top-level module -> the extra of ``iem-payload`` that installs it."""
 

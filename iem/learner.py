@@ -35,7 +35,6 @@ import math
 
 import numpy as np
 
-from . import kernels
 from .errors import InvalidInputError
 
 N_IN = 21
@@ -44,7 +43,6 @@ OUTPUT_MARGIN = 0.25
 """Widening of the training range on each side for the output scaling (fraction of range)."""
 SCALE_FLOOR = np.repeat([1e-3, 1e-3, 1e-3], 7)
 """Smallest input scale per feature (rad, rad/s, N·m): guards features constant in a batch."""
-_NO_PRECISION = np.zeros((7, 7))
 
 
 def _gradient(a: np.ndarray, b: np.ndarray, x: np.ndarray, t: np.ndarray):
@@ -152,14 +150,12 @@ class WeakLearner:
     def predict_one(self, X) -> np.ndarray:
         """phi (10) for one input ``X = [q, dq, tau]`` (21): :meth:`estimate`'s phi."""
         X = np.asarray(X, dtype=float)
-        if kernels.active:
-            return self.estimate(X, False)[0]
         if X.shape != (N_IN,):
             raise InvalidInputError(f"X must be [q, dq, tau] with {N_IN} values, got {X.shape}")
         return self._phi((X - self.center) * self._inv_scale)  # (no score: nobody asked)
 
     def _phi(self, x: np.ndarray) -> np.ndarray:
-        """phi of an input already scaled, ``x = (X - center) / scale`` (NumPy)."""
+        """phi of an input already scaled, ``x = (X - center) / scale``."""
         y = self.a @ x + self.b
         np.maximum(y, 0.0, out=y)
         return self.lo + y * self._span
@@ -168,18 +164,9 @@ class WeakLearner:
         """The cycle's one call: ``(phi, score, velocity_score)`` at input ``X`` (21 floats):
         ``phi = lo + ReLU(a x + b) * (hi - lo)`` with ``x = (X - center) / scale``, the
         largest ``|x|`` (the out-of-distribution score) and, if ``velocity``,
-        :meth:`velocity_score` (else 0.0). Compiled with :mod:`iem.kernels` (one pass; the
-        tests hold it to this NumPy)."""
-        if X.shape != (N_IN,):  # (the kernel reads 21 unchecked)
+        :meth:`velocity_score` (else 0.0)."""
+        if X.shape != (N_IN,):
             raise InvalidInputError(f"X must be [q, dq, tau] with {N_IN} values, got {X.shape}")
-        prec = self.dq_precision
-        if kernels.active:
-            phi = np.empty(N_OUT)
-            score, vscore = kernels.learner_estimate(
-                self.a, self.b, self.center, self._inv_scale, self.lo, self._span,
-                _NO_PRECISION if prec is None else prec, velocity and prec is not None, X,
-                phi)
-            return phi, score, vscore
         x = (X - self.center) * self._inv_scale
         score = max(float(x.max()), -float(x.min()))  # the largest |x|
         return self._phi(x), score, self.velocity_score(X) if velocity else 0.0
@@ -207,7 +194,7 @@ class WeakLearner:
         x0 = (np.asarray(X, dtype=float) - self.center) * self._inv_scale
         t = (np.asarray(Y, dtype=float) - self.lo) / self._span
         n = x0.shape[0]
-        if x0.shape != (n, N_IN) or t.shape != (n, N_OUT):  # (the kernel reads them unchecked)
+        if x0.shape != (n, N_IN) or t.shape != (n, N_OUT):
             raise InvalidInputError(f"learn needs X (N, {N_IN}) and Y (N, {N_OUT}), got "
                                     f"{x0.shape} and {t.shape}")
         iters = int(iters)
@@ -219,10 +206,6 @@ class WeakLearner:
             x = x0 + noise
             norm2 += float(self._noise_scaled @ self._noise_scaled)
         step = 2.0 * self.lr / ((norm2 + 1.0) * n)  # alpha times the MSE's 2/N
-        if kernels.active and iters > 0:  # compiled (iem.kernels): the same steps, whose
-            # NumPy calls cost more than their arithmetic
-            return kernels.sgd_steps(self._own(), self.b, np.ascontiguousarray(x), t, step,
-                                     iters)
         a, b = self.a, self.b
         loss = float("nan")
         for i in range(iters):
@@ -241,12 +224,6 @@ class WeakLearner:
             a -= step * (z.T @ x)
             b -= step * z.sum(axis=0)
         return loss
-
-    def _own(self) -> np.ndarray:
-        """The weights ``a`` as the SGD kernel takes them (float64, C order), in place."""
-        if not self.a.flags.c_contiguous:
-            self.a = np.ascontiguousarray(self.a)
-        return self.a
 
     # -- offline batch training ----------------------------------------------------------
     @classmethod

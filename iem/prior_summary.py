@@ -29,7 +29,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import kernels
 from .errors import InvalidInputError
 
 NOISE_PSEUDO_COUNT = 10
@@ -40,7 +39,6 @@ BLOCK = 64
 MASS_BINS = (0.5, 1.0, 1.5, 2.0, 2.5)
 """Edges (kg) between the mass bins of the calibration's error table: 0-0.5, ..., 2.5 and
 above (the families' payloads reach 3 kg)."""
-_EDGES = np.array(MASS_BINS)
 MIN_BIN_SAMPLES = 100
 """Labelled samples a mass bin needs before its error ratio is used (else the factor is 1)."""
 SCALE_RANGE = (1.0, 4.0)
@@ -77,12 +75,9 @@ class BagCalibration:
         self._cov.pop(bag, None)
         if truth is not None:
             mass = np.asarray(truth, dtype=float)[:, 0]
-            if mass.shape[0] != errors.shape[0]:  # (the kernel reads them unchecked)
+            if mass.shape[0] != errors.shape[0]:
                 raise InvalidInputError(f"errors {errors.shape} and truth "
                                         f"{np.shape(truth)} differ in samples")
-            if kernels.active:  # compiled (iem.kernels): the same sums
-                kernels.mass_bin_add(self._bin_sq, self._bin_n, _EDGES, mass, errors)
-                return
             k = np.searchsorted(MASS_BINS, mass, side="right")
             np.add.at(self._bin_sq, k, np.square(errors))
             self._bin_n += np.bincount(k, minlength=self._bin_n.size)

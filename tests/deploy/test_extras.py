@@ -134,7 +134,7 @@ def test_require_and_missing_extra(monkeypatch):
                           "iem demo")
     assert isinstance(error, MissingExtraError) and "iem-payload[sim]" in str(error)
     assert missing_extra(ModuleNotFoundError("No module named 'foo'", name="foo")) is None
-    assert set(EXTRAS.values()) == {"sim", "plots", "ros2", "franka", "fast"}
+    assert set(EXTRAS.values()) == {"sim", "plots", "ros2", "franka"}
 
 
 def test_the_extras_are_declared_in_pyproject():
