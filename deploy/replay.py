@@ -158,13 +158,9 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     from firmware_bridge.links import open_link
     from firmware_bridge.recordings import recording_link
     from iem.metrics import mae_groups
-    from iem.persistence import DEFAULT_FAMILY, save_model
+    from iem.persistence import save_model
     from sim.family import DEPLOY_FAMILY
 
-    from .config import config_from_dict
-    from .sdnotify import Notifier
-    from .service import Service
-    from .status import StatusLine
     from .training import train_initial_model
 
     fmt, kind, options = recording_link(log_file, format, topic)
@@ -175,22 +171,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
                                         arm_file=arm_file, end_effector=end_effector)
         else:
             model = copy.deepcopy(model)
-        config = config_from_dict({
-            "link": {"kind": kind, "channel": str(log_file), "profile": profile},
-            # the model path is only written by --save-model; no periodic checkpoints
-            "model": {"path": str(save_model_to or "replay-model.msgpack"),
-                      "train_if_missing": False, "checkpoint_period_s": 86400.0,
-                      "arm": str(arm_file or ""),
-                      # the model's own family: new bags learn from the simulators it knew
-                      "family": getattr(model, "trained_family", None) or DEFAULT_FAMILY},
-            "arm": {"end_effector": str(end_effector or "franka_hand")},
-            "estimate": {} if block_frames is None else {"block_frames": int(block_frames)},
-            "log": {"status_line": "on" if status else "off"},
-        }, where="iem replay")
-        # the gate decides on the recorded clock, so a fast replay decides as the cell did
-        service = Service(config, link=link, model=model, notifier=Notifier(environ={}),
-                          status=StatusLine.from_config(config.log), write=False,
-                          gate_clock="controller")
+        service = _replay_service(link, kind, str(log_file), profile, model, save_model_to,
+                                  arm_file, end_effector, block_frames, status)
         estimates = Estimates()
         service.on_cycle.append(estimates)
         service.open()
@@ -202,43 +184,10 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         link.close()
 
     if not estimates.t:  # nothing to report on: say why rather than print zeros
-        from firmware_bridge.errors import LogFileError
-
-        c = link.counters
-        if not c.received and getattr(link, "bad_lines", 0):
-            raise LogFileError(f"{log_file}: no line python-can can read as a CAN frame "
-                               f"({link.bad_lines} bad lines; last: {link.last_bad_line})")
-        if not c.received:
-            raise LogFileError(f"{log_file}: no CAN frames in it; is it a CAN log written by "
-                               "'iem record' or python-can?")
-        other = next(p for p in PROFILES if p != profile)
-        raise LogFileError(f"{log_file}: {c.received} frames but no complete joint-state "
-                           f"cycle of the {profile} profile ({c.summary()}; {c.foreign} "
-                           f"frames of other IDs); recorded with --profile {other}?")
-    decisions = service.gate.summary()
-    truncated = bool(getattr(link, "truncated", False))  # the link warned (iem.bridge)
-    summary["frames"]["malformed"] = link.counters.malformed
-    summary["frames"]["implausible"] = link.counters.implausible
-    summary["frames"]["timing"] = link.counters.timing
-    for key in ("latency_us", "checkpoints"):  # no wall-clock latency, no checkpoints here
-        summary.pop(key, None)
-    summary.update({
-        "log_file": str(log_file),
-        "format": fmt,
-        "profile": profile if fmt == "can" else None,
-        "truncated": truncated,
-        "recorded_s": estimates.t[-1] - estimates.t[0],
-        "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
-                   "rejected": decisions["rejected"],
-                   "would_send_loads": [_load_record(t, load, prior)
-                                        for t, load, prior in service.gate.sent_loads]},
-        "estimates_per_s": summary["estimates"] / summary["wall_s"]
-        if summary["wall_s"] > 0 else None,
-        "speed": (estimates.t[-1] - estimates.t[0]) / summary["wall_s"]
-        if summary["wall_s"] > 0 else None,
-        # payload changes the model detected (None: a model without a detector)
-        "payload_changes": getattr(service.model, "changes", None),
-    })
+        _nothing_estimated(log_file, link, profile)
+    _add_replay_figures(summary, service, link, estimates,
+                        {"log_file": str(log_file), "format": fmt,
+                         "profile": profile if fmt == "can" else None})
     if truth is not None:
         sm = estimates.smoothed_array()
         summary["payload"] = truth.name
@@ -246,6 +195,76 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         summary["coverage_2sigma"] = estimates.coverage_2sigma(truth.to_phi())
         summary["final_estimate"] = {"phi": sm[-1].tolist(), "truth": truth.to_phi().tolist()}
     return summary, estimates
+
+
+def _replay_service(link, kind: str, channel: str, profile: str, model, save_model_to,
+                    arm_file, end_effector, block_frames, status: bool):
+    """The service over an open recording ``link``, writes off, deciding on the recorded
+    clock (a fast replay decides as the cell did)."""
+    from iem.persistence import DEFAULT_FAMILY
+
+    from .config import config_from_dict
+    from .sdnotify import Notifier
+    from .service import Service
+    from .status import StatusLine
+
+    config = config_from_dict({
+        "link": {"kind": kind, "channel": channel, "profile": profile},
+        # the model path is only written by --save-model; no periodic checkpoints
+        "model": {"path": str(save_model_to or "replay-model.msgpack"),
+                  "train_if_missing": False, "checkpoint_period_s": 86400.0,
+                  "arm": str(arm_file or ""),
+                  # the model's own family: new bags learn from the simulators it knew
+                  "family": getattr(model, "trained_family", None) or DEFAULT_FAMILY},
+        "arm": {"end_effector": str(end_effector or "franka_hand")},
+        "estimate": {} if block_frames is None else {"block_frames": int(block_frames)},
+        "log": {"status_line": "on" if status else "off"}}, where="iem replay")
+    return Service(config, link=link, model=model, notifier=Notifier(environ={}),
+                   status=StatusLine.from_config(config.log), write=False,
+                   gate_clock="controller")
+
+
+def _nothing_estimated(log_file, link, profile: str) -> None:
+    """Raise the error that says why a recording gave no estimate."""
+    from firmware_bridge.errors import LogFileError
+
+    c = link.counters
+    if not c.received and getattr(link, "bad_lines", 0):
+        raise LogFileError(f"{log_file}: no line python-can can read as a CAN frame "
+                           f"({link.bad_lines} bad lines; last: {link.last_bad_line})")
+    if not c.received:
+        raise LogFileError(f"{log_file}: no CAN frames in it; is it a CAN log written by "
+                           "'iem record' or python-can?")
+    other = next(p for p in PROFILES if p != profile)
+    raise LogFileError(f"{log_file}: {c.received} frames but no complete joint-state "
+                       f"cycle of the {profile} profile ({c.summary()}; {c.foreign} "
+                       f"frames of other IDs); recorded with --profile {other}?")
+
+
+def _add_replay_figures(summary: dict, service, link, estimates: Estimates,
+                        source: dict) -> None:
+    """What a replay's summary says beyond the service's: the recording (``source``), the
+    link's frame counts, the gate's would-be writes, the speed and the changes detected."""
+    decisions = service.gate.summary()
+    for key in ("malformed", "implausible", "timing"):
+        summary["frames"][key] = getattr(link.counters, key)
+    for key in ("latency_us", "age_us", "checkpoints"):  # no wall-clock latency here
+        summary.pop(key, None)
+    recorded = estimates.t[-1] - estimates.t[0]
+    wall = summary["wall_s"]
+    summary.update({
+        **source,
+        "truncated": bool(getattr(link, "truncated", False)),  # the link warned (iem.bridge)
+        "recorded_s": recorded,
+        "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
+                   "rejected": decisions["rejected"],
+                   "would_send_loads": [_load_record(t, load, prior)
+                                        for t, load, prior in service.gate.sent_loads]},
+        "estimates_per_s": summary["estimates"] / wall if wall > 0 else None,
+        "speed": recorded / wall if wall > 0 else None,
+        # payload changes the model detected (None: a model without a detector)
+        "payload_changes": getattr(service.model, "changes", None),
+    })
 
 
 def _load_record(t: float, load, from_prior) -> dict:

@@ -28,7 +28,6 @@ it; configuration errors exit 78 and are not restarted, see :mod:`deploy.cli`).
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 import sys
@@ -43,7 +42,6 @@ import numpy as np
 from iem.blocks import BlockFormer
 from iem.filters import StateFilter
 from iem.online import OnlineIdentifier
-from iem.persistence import load_model, remove_stale_temporaries, save_model
 from iem.smoothing import ExponentialSmoother
 
 from .arm_watch import ArmWatch
@@ -52,6 +50,7 @@ from .config import CellConfig
 from .gate import SafetyGate
 from .latency import LatencyWindow
 from .load_writer import LoadWriter
+from .model_setup import link_rate, load_or_train_model, start_from_file, wire_check_of
 from .sdnotify import Notifier
 from .status import StatusLine
 
@@ -74,100 +73,6 @@ class CycleRecord:
     smoothed: np.ndarray
     latency_s: float
     age_s: float = math.nan
-
-
-def link_rate(config: CellConfig) -> float:
-    """Joint states per second the configured link delivers, as its kind and wire profile say
-    (:func:`firmware_bridge.links.rate_hz`)."""
-    from firmware_bridge.links import rate_hz
-
-    return rate_hz(config.link.kind, config.link.profile)
-
-
-def point_rate(config: CellConfig) -> float:
-    """Block points per second the estimator works at: the link's rate over ``[estimate]
-    block_frames``."""
-    return link_rate(config) / config.estimate.block_frames
-
-
-def wire_check_of(link):
-    """The range check of ``link``'s load command for the gate: a link with a DBC wire
-    profile (the CAN links) has one (:func:`firmware_bridge.protocol.payload_wire_error`);
-    others (serial msgpack floats, pylibfranka) have no ranges to check: None."""
-    from firmware_bridge.protocol import WireProfile, payload_wire_error
-
-    wire = getattr(link, "profile", None)
-    if not isinstance(wire, WireProfile):
-        return None
-    return functools.partial(payload_wire_error, profile=wire.name)
-
-
-def load_or_train_model(config: CellConfig):
-    """The model of the configuration: its file, or a new one trained on the excitation path."""
-    mc = config.model
-    path = FsPath(mc.path)
-    for stale in remove_stale_temporaries(path):  # left by a save that was killed
-        log.info("removed %s, the temporary file of an interrupted save", stale,
-                 extra={"event": "stale_temporary_removed", "path": str(stale)})
-    rate, frames = link_rate(config), config.estimate.block_frames
-    if path.exists():
-        model = load_model(path)
-        made_for = getattr(model, "rate_hz", rate / frames)  # IEM+phys's filters have one
-        if not math.isclose(made_for, rate / frames):
-            from .config import ConfigError
-
-            raise ConfigError(
-                f"model file {path} was made for {made_for:g} block points per second; the "
-                f"[link] profile {config.link.profile!r} delivers {rate:g} joint states per "
-                f"second, in blocks of [estimate] block_frames = {frames}: "
-                f"{rate / frames:g}; make one for this link with 'iem train --out {path} "
-                f"--rate {rate:g} --block-frames {frames}'")
-        log.info("loaded model %s: %s with %d bags", path, model.name, model.n_bags,
-                 extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
-        if model.name != mc.kind:
-            log.warning("model file %s holds a %s model, the configuration asks for %s; using "
-                        "the file's", path, model.name, mc.kind)
-        return model
-    if not mc.train_if_missing:
-        from iem.errors import ModelFileError
-
-        raise ModelFileError(f"model file {path} does not exist and [model] train_if_missing "
-                             "is false; create one with 'iem train --out FILE' or set "
-                             "train_if_missing = true")
-    from .training import train_initial_model
-
-    model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
-                                log=lambda msg: log.info(msg, extra={"event": "trained"}),
-                                rate_hz=rate, block_frames=frames, arm_file=mc.arm or None,
-                                end_effector=config.arm.end_effector, noise=config.arm.noise)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_model(model, path)
-    log.info("saved the new model to %s", path, extra={"event": "model_saved"})
-    return model
-
-
-INITIAL_STD = (0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002)
-"""The prior's standard deviations of an initial payload file without ``phi_std`` (kg, kg·m,
-kg·m²): what an offline identification on a short motion reaches at least."""
-
-
-def start_from_file(model, path: str) -> None:
-    """Make ``model`` start from the payload file at ``path`` (``[estimate]
-    initial_payload``): its first estimate and prior."""
-    from sim.payload import load_payload_prior
-
-    from .config import ConfigError
-
-    start = getattr(model, "start_from", None)
-    if start is None:
-        raise ConfigError(f"[estimate] initial_payload = {path!r}: the {model.name} model "
-                          "cannot start from a payload (it keeps no payload state); valid "
-                          "with [model] kind = 'IEM+phys'")
-    payload, std = load_payload_prior(path)
-    start(payload.to_phi(), INITIAL_STD if std is None else std)
-    log.info("starting from the payload file %s: %.4f kg at [%.4f, %.4f, %.4f] m; writes wait "
-             "until the live data have tested it", path, payload.mass, *payload.com,
-             extra={"event": "initial_payload", "path": path})
 
 
 class Service:
@@ -223,6 +128,8 @@ class Service:
         self.silences = 0
         self.skipped = 0
         self.reader_skipped = 0
+        self.not_newer_frames = 0
+        """Frames the last run's reader did not use: not newer than the last one used."""
         self.unlearnt = 0
         self._behind = False
         self.cpu_s = 0.0
@@ -308,68 +215,79 @@ class Service:
 
         if self.link is None or self.model is None:
             self.open()
-        cfg, model = self.config, self.model
+        model = self.model
         self.writer = LoadWriter(self.gate, self.link, self.write)  # the link as it is now
         started = time.monotonic()
-        cpu0 = time.thread_time()
-        learn0 = model.learning_cpu_s
-        save0 = self.checkpointer.cpu_s
+        before = (time.thread_time(), model.learning_cpu_s, self.checkpointer.cpu_s)
         self.checkpointer.start(started)
-        watchdog = self.notifier.watchdog_period()
-        next_watchdog = started
         self.notifier.ready(f"identifying the payload; {model.n_bags} bags")
         log.info("running: link %s, model %s (%d bags), writes %s, %g block points per s",
                  getattr(self.link, "name", self.link), model.name, model.n_bags,
                  "on" if self.writer.sink is not None else "off", self.point_rate_hz,
                  extra={"event": "started"})
-        timeout = cfg.link.silence_timeout_s
+        timeout = self.config.link.silence_timeout_s
         reader = (LinkReader if self.threaded_reader else BatchReader)(
             self.link, timeout, self._former()).start()
-        smoothed = None
+        watchdog = self.notifier.watchdog_period()
+        next_watchdog, smoothed = started, None
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
-                if duration is not None and now - started >= duration:
-                    break
-                if until is not None and until():
+                if (duration is not None and now - started >= duration) or (
+                        until is not None and until()):
                     break
                 if watchdog is not None and now >= next_watchdog:
                     self.notifier.watchdog()
                     next_watchdog = now + watchdog
                 item = reader.get(timeout + 0.5)
-                if item is None:
-                    continue
-                if item.kind == "silent":
-                    self._controller_silent(item.value)
-                    if smoothed is not None:  # the gate decides (and counts) on no write
-                        self.gate.decide(time.monotonic(), smoothed)
+                if item is None or item.kind == "silent":
+                    self._silent_item(item, smoothed)
                     continue
                 if item.kind == "end":
                     break
                 if item.kind == "error":
                     raise item.value
                 out = self.step(item)
-                if out is None:
-                    continue
-                smoothed = out.smoothed
-                now = time.monotonic()
-                t_gate = out.state.t if self.gate_clock == "controller" else now
-                self.writer.observe(t_gate, smoothed, out.raw, model.busy)
-                self.checkpointer.tick(now, model)
-                if self.status.due(now):
-                    self.status.show(self._status_text(now - started, smoothed))
+                if out is not None:
+                    smoothed = out.smoothed
+                    self._after_step(out, started)
         finally:
-            self.wall_s = time.monotonic() - started
-            reader.stop()
-            self.reader_skipped += reader.skipped
-            parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0,
-                                      "reader": reader.cpu_s if self.threaded_reader else 0.0,
-                                      "learning": model.learning_cpu_s - learn0,
-                                      "checkpoint": self.checkpointer.cpu_s - save0}
-            self.cpu_s = sum(parts.values())
-            self.status.clear()
-            self.notifier.stopping()
+            self._account(reader, started, *before)
         return self.summary()
+
+    def _silent_item(self, item, smoothed) -> None:
+        """Nothing read (None) or a controller silence: the writes stop; the gate decides
+        (and counts) on no write."""
+        if item is None:
+            return
+        self._controller_silent(item.value)
+        if smoothed is not None:
+            self.gate.decide(time.monotonic(), smoothed)
+
+    def _after_step(self, out: CycleRecord, started: float) -> None:
+        """The load writer, the checkpointer and the status line after one estimate."""
+        now = time.monotonic()
+        t_gate = out.state.t if self.gate_clock == "controller" else now
+        self.writer.observe(t_gate, out.smoothed, out.raw, self.model.busy)
+        self.checkpointer.tick(now, self.model)
+        if self.status.due(now):
+            self.status.show(self._status_text(now - started, out.smoothed))
+
+    def _account(self, reader, started: float, cpu0: float, learn0: float,
+                 save0: float) -> None:
+        """The run's wall time and CPU by thread; the reader stopped; status and systemd
+        told."""
+        self.wall_s = time.monotonic() - started
+        reader.stop()
+        self.reader_skipped += reader.skipped
+        parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0,
+                                  "reader": reader.cpu_s if self.threaded_reader else 0.0,
+                                  "learning": self.model.learning_cpu_s - learn0,
+                                  "checkpoint": self.checkpointer.cpu_s - save0}
+        self.cpu_s = sum(parts.values())
+        self.not_newer_frames = reader.former.skipped
+        self.status.clear()
+        self.notifier.stopping()
 
     def step(self, item) -> CycleRecord | None:
         """One block point through the estimator (no thread of its own): pace against the
@@ -493,7 +411,7 @@ class Service:
                        "send_errors": self.gate.send_errors},
             "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
                        "skipped": self.skipped + self.reader_skipped,
-                       "not_newer": self.online.skipped},
+                       "not_newer": self.online.skipped + self.not_newer_frames},
             "unlearnt": self.unlearnt,
             "learnt": self.online.learned_points,
             "gate": gate["decisions"],

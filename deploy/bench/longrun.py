@@ -38,7 +38,7 @@ the cycle (``background=False``: seeded runs reproduce) unless ``--background`` 
 of ``--budget`` bags (the trained IEM's learners copied onto random poses within the limits)
 saved and loaded: ``load_s``, ``file_mb``, ``route_us`` (p50/p99 over 2,000 random queries)
 and the RSS it adds. Then ``route_sizes`` (new; after ``rss_mb_end`` is taken): route µs
-p50/p99 of the float32 scan against the spatial index on maps of ``--sizes`` bags
+p50/p99 of the float32 scan against exact distances to every bag on maps of ``--sizes`` bags
 (:mod:`deploy.bench.routing`); ``--routing-only`` prints that alone, without the motion.
 
 JSON keys: ``windows`` (a list), ``max_window_mae`` {model: {mass, com, inertia}},
@@ -75,7 +75,7 @@ ROUTE_EVERY = 10
 """Every how many samples the route time is measured."""
 DEFAULT_BUDGET = DEFAULT_BUDGET_BAGS
 ROUTE_SIZES = (2000, 20000, 100000)
-"""Bags of the maps the scan and the index are timed on (``route_sizes``)."""
+"""Bags of the maps the scan and exact distances are timed on (``route_sizes``)."""
 LONGRUN_PARAMS = {"reversal": "sim.coverage:reversed_velocities", "coverage": None}
 """The ensemble's parameters for long runs (plus ``budget_bags``): the plug-in's
 (:data:`deploy.training.DEPLOY_ENSEMBLE`)."""
@@ -342,12 +342,13 @@ def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tande
 
 
 def route_sizes(kin, sizes, seed: int, log=print) -> list[dict]:
-    """Route µs, scan against index, on maps of ``sizes`` bags (:mod:`deploy.bench.routing`)."""
-    from deploy.bench.routing import format_rows, scan_vs_index
+    """Route µs, scan against exact distances, on maps of ``sizes`` bags
+    (:mod:`deploy.bench.routing`)."""
+    from deploy.bench.routing import format_rows, scan_vs_exact
 
-    rows = scan_vs_index(kin, sizes, seed) if sizes else []
+    rows = scan_vs_exact(kin, sizes, seed) if sizes else []
     if rows:
-        log("route µs p50/p99, scan vs index:\n" + format_rows(rows))
+        log("route µs p50/p99, scan vs exact:\n" + format_rows(rows))
     return rows
 
 
@@ -427,10 +428,10 @@ def configure(parser) -> None:
                         help="the paper's rule: no reversed samples, no coverage training, "
                              "no budget")
     parser.add_argument("--sizes", default=",".join(map(str, ROUTE_SIZES)), metavar="N,N,...",
-                        help="bags of the maps on which route µs of the scan and the spatial "
-                             "index are compared (default 2000,20000,100000; '' for none)")
+                        help="bags of the maps on which route µs of the scan and of exact "
+                             "distances are compared (default 2000,20000,100000; '' for none)")
     parser.add_argument("--routing-only", action="store_true",
-                        help="only the scan-vs-index routing figures, without the motion")
+                        help="only the scan-vs-exact routing figures, without the motion")
 
 
 def parse_sizes(text: str) -> tuple[int, ...]:

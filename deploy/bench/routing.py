@@ -55,10 +55,6 @@ def scan_vs_exact(kin, sizes, seed: int = 0, queries: int = 2000) -> list[dict]:
     return out
 
 
-scan_vs_index = scan_vs_exact
-"""The name ``deploy.bench.longrun.route_sizes`` imports (the router has no spatial index)."""
-
-
 def _pct(values: np.ndarray) -> dict:
     return {"p50": float(np.percentile(values, 50)), "p99": float(np.percentile(values, 99))}
 

@@ -224,11 +224,10 @@ def test_systemd_unit_parses_and_is_a_notify_service_with_a_watchdog():
     assert svc["Restart"] == "on-failure" and svc["KillSignal"] == "SIGTERM"
     assert svc["StateDirectory"] == "iem" and svc["User"] not in ("", "root")
     assert "PrivateNetwork" not in svc  # CAN needs the host's network namespace
-    # the compiled kernels' cache: in the state directory, the one place it may write
     env = dict(kv.split("=", 1) for kv in svc["Environment"].split())
-    assert env["NUMBA_CACHE_DIR"].startswith("/var/lib/iem/")
+    assert env["OPENBLAS_NUM_THREADS"] == "1"  # small solves: BLAS threads only contend
     assert svc["ReadWritePaths"] == "/var/lib/iem" and svc["ProtectSystem"] == "strict"
-    assert "MemoryDenyWriteExecute" not in svc  # the kernels' JIT needs executable pages
+    assert "MemoryDenyWriteExecute" not in svc  # libffi closures need executable pages
 
 
 def test_setup_vcan_script_is_valid_bash_and_has_help():

@@ -10,7 +10,7 @@ import pytest
 from deploy.config import ConfigError, load_config
 from deploy.gate import GateConfig
 from deploy.gate_checks import model_doubt
-from deploy.service import INITIAL_STD, start_from_file
+from deploy.model_setup import INITIAL_STD, start_from_file
 from iem.physics import PhysicsInformedEnsemble
 from iem.types import PayloadEstimate
 from sim.family import test_payloads

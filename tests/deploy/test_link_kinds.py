@@ -15,8 +15,9 @@ import pytest
 
 from deploy.cli import main
 from deploy.config import LINK_KINDS, load_config
+from deploy.model_setup import link_rate
 from deploy.sdnotify import Notifier
-from deploy.service import Service, link_rate
+from deploy.service import Service
 from deploy.sim_controller import SimController
 from firmware_bridge.controller_port import open_port
 from firmware_bridge.links import LINKS, JointStateSource, PayloadSink, rate_hz

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from deploy.config import ConfigError, config_from_dict, load_config
-from deploy.service import link_rate
+from deploy.model_setup import link_rate
 
 
 def test_defaults_and_the_options_the_opener_gets():

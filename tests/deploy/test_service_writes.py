@@ -212,7 +212,7 @@ def test_off_a_terminal_the_service_writes_plain_status_lines_between_whole_log_
 @pytest.mark.parametrize("profile", ["fd", "classic"])
 def test_the_wire_check_comes_from_a_can_link_and_a_serial_link_has_none(profile):
     from deploy.inprocess import virtual_channel
-    from deploy.service import wire_check_of
+    from deploy.model_setup import wire_check_of
     from firmware_bridge.links import open_link
 
     can = open_link("virtual", virtual_channel("wire"), profile=profile)

@@ -1,0 +1,116 @@
+"""What the service starts from: the model of the configuration, checked against the link's
+rate, a known payload to start from, and the link's wire range check for the gate.
+
+:func:`load_or_train_model` loads ``[model] path`` (removing the temporary files of an
+interrupted save first) and refuses a model made for another point rate than the link's
+rate over ``[estimate] block_frames``; without a file it trains one on the excitation path
+if ``train_if_missing``. :func:`start_from_file` makes IEM+phys start from ``[estimate]
+initial_payload``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+from pathlib import Path as FsPath
+
+from iem.persistence import load_model, remove_stale_temporaries, save_model
+
+from .config import CellConfig
+
+log = logging.getLogger("iem.service")
+
+
+def link_rate(config: CellConfig) -> float:
+    """Joint states per second the configured link delivers, as its kind and wire profile say
+    (:func:`firmware_bridge.links.rate_hz`)."""
+    from firmware_bridge.links import rate_hz
+
+    return rate_hz(config.link.kind, config.link.profile)
+
+
+def point_rate(config: CellConfig) -> float:
+    """Block points per second the estimator works at: the link's rate over ``[estimate]
+    block_frames``."""
+    return link_rate(config) / config.estimate.block_frames
+
+
+def wire_check_of(link):
+    """The range check of ``link``'s load command for the gate: a link with a DBC wire
+    profile (the CAN links) has one (:func:`firmware_bridge.protocol.payload_wire_error`);
+    others (serial msgpack floats, pylibfranka) have no ranges to check: None."""
+    from firmware_bridge.protocol import WireProfile, payload_wire_error
+
+    wire = getattr(link, "profile", None)
+    if not isinstance(wire, WireProfile):
+        return None
+    return functools.partial(payload_wire_error, profile=wire.name)
+
+
+def load_or_train_model(config: CellConfig):
+    """The model of the configuration: its file, or a new one trained on the excitation path."""
+    mc = config.model
+    path = FsPath(mc.path)
+    for stale in remove_stale_temporaries(path):  # left by a save that was killed
+        log.info("removed %s, the temporary file of an interrupted save", stale,
+                 extra={"event": "stale_temporary_removed", "path": str(stale)})
+    rate, frames = link_rate(config), config.estimate.block_frames
+    if path.exists():
+        model = load_model(path)
+        made_for = getattr(model, "rate_hz", rate / frames)  # IEM+phys's filters have one
+        if not math.isclose(made_for, rate / frames):
+            from .config import ConfigError
+
+            raise ConfigError(
+                f"model file {path} was made for {made_for:g} block points per second; the "
+                f"[link] profile {config.link.profile!r} delivers {rate:g} joint states per "
+                f"second, in blocks of [estimate] block_frames = {frames}: "
+                f"{rate / frames:g}; make one for this link with 'iem train --out {path} "
+                f"--rate {rate:g} --block-frames {frames}'")
+        log.info("loaded model %s: %s with %d bags", path, model.name, model.n_bags,
+                 extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
+        if model.name != mc.kind:
+            log.warning("model file %s holds a %s model, the configuration asks for %s; using "
+                        "the file's", path, model.name, mc.kind)
+        return model
+    if not mc.train_if_missing:
+        from iem.errors import ModelFileError
+
+        raise ModelFileError(f"model file {path} does not exist and [model] train_if_missing "
+                             "is false; create one with 'iem train --out FILE' or set "
+                             "train_if_missing = true")
+    from .training import train_initial_model
+
+    model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
+                                log=lambda msg: log.info(msg, extra={"event": "trained"}),
+                                rate_hz=rate, block_frames=frames, arm_file=mc.arm or None,
+                                end_effector=config.arm.end_effector, noise=config.arm.noise)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_model(model, path)
+    log.info("saved the new model to %s", path, extra={"event": "model_saved"})
+    return model
+
+
+INITIAL_STD = (0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002)
+"""The prior's standard deviations of an initial payload file without ``phi_std`` (kg, kg·m,
+kg·m²): what an offline identification on a short motion reaches at least."""
+
+
+def start_from_file(model, path: str) -> None:
+    """Make ``model`` start from the payload file at ``path`` (``[estimate]
+    initial_payload``): its first estimate and prior."""
+    from sim.payload import load_payload_prior
+
+    from .config import ConfigError
+
+    start = getattr(model, "start_from", None)
+    if start is None:
+        raise ConfigError(f"[estimate] initial_payload = {path!r}: the {model.name} model "
+                          "cannot start from a payload (it keeps no payload state); valid "
+                          "with [model] kind = 'IEM+phys'")
+    payload, std = load_payload_prior(path)
+    start(payload.to_phi(), INITIAL_STD if std is None else std)
+    log.info("starting from the payload file %s: %.4f kg at [%.4f, %.4f, %.4f] m; writes wait "
+             "until the live data have tested it", path, payload.mass, *payload.com,
+             extra={"event": "initial_payload", "path": path})
