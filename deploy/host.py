@@ -5,8 +5,7 @@ idle state (a C-state, or a halted vCPU on a virtual machine); leaving it takes 
 the caches come back cold. Python's estimate cycle touches a large working set (the
 interpreter, numpy, the model), so a cycle that starts from an idle core costs more CPU
 than the same cycle run back to back. Measured on this project's 2-vCPU machine (cpuidle
-driver ``haltpoll``), the estimator alone on 11,000 recorded cycles (README, "Fifth pass:
-the idle cores"):
+driver ``haltpoll``), the estimator alone on 11,000 recorded 1 kHz frames:
 
 - back to back: 56 µs of CPU per cycle on average;
 - paced at 1 kHz, sleeping between cycles: 95-110 µs;

@@ -40,8 +40,9 @@ beyond the paper's rule: each bag's learner also trains on its own samples drive
 (:mod:`sim.coverage`; exact, on the model's arm: the first minute of ``iem bench longrun``,
 seed 1, driven backwards read 0.021 kg off, against 0.20 kg with the random other velocities
 of ``coverage`` and 1.5 kg with neither; a pose met at another speed is flagged out of
-distribution instead), and at most 2,000 bags (the least-used slot is reused beyond; a model
-file of about 6 MB that loads in 0.3 s). The paper benchmark keeps the paper's rule."""
+distribution instead), and at most 2,000 bags (beyond, a new bag takes a slot by
+:class:`iem.budget.BagBudget`'s probation policy; a model file of about 6 MB that loads in
+0.3 s). The paper benchmark keeps the paper's rule."""
 
 
 NOISE_SOURCES = ("arm", "sensor")

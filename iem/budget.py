@@ -14,11 +14,11 @@ The policy keeps what the model knows and lets a new region prove itself first:
   slot of the least-used permanent bag (fewest points joined; the lowest index of equals).
 
 Why: with a budget something must be forgotten once the motion has covered more than the
-budget. Retiring the least-used bag outright (this module's policy before, and still the one
-with ``probation_bags=0``) forgets old knowledge as fast as new: on a motion that never
+budget. Retiring the least-used bag outright (the policy with ``probation_bags=0``)
+forgets old knowledge as fast as new: on a motion that never
 repeats, every bag is used about as much, so the model ends up holding a random sample of
 the regions it saw and loses most of any one stretch (62 of the first minute's 93 bags on a
-ten-minute motion with a 300-bag budget, README). A robot cell repeats its tasks: what it
+ten-minute motion with a 300-bag budget; docs/decisions.md). A robot cell repeats its tasks: what it
 comes back to is promoted and kept, what it passed once makes way first, and what it has
 learnt is not traded for regions it never returns to. What is lost: a region passed once,
 after the budget, more than ``probation_bags`` new bags ago, and the least-used permanent

@@ -35,13 +35,10 @@
   tandem simulators run in the worker too (a new bag's are made in the cycle, for its
   learner's centre; a lock keeps the two threads off the simulators' robot model at once).
   With ``report_errors``, each job also measures the published learner's errors on its
-  point's samples and queues them (:meth:`trained_errors`, IEM+phys's calibration). On the
-  demo's new task (2026-11-23, a 2-vCPU VM) the cycle thread's CPU per sample inside a
-  forming bag was 350-390 µs when the samples and the calibration were made in the cycle,
-  290-305 µs since (other samples: 160-260 µs, as loaded as the machine was); the demo's
-  latency p99, two runs each, alternating, 4.5 and 39 ms before, 1.5 and 1.8 ms since.
+  point's samples and queues them (:meth:`trained_errors`, IEM+phys's calibration). So the
+  estimate never waits for a learner's training, its tandem samples or their calibration.
   Where the worker cannot keep up, the calibration of the points it reaches late lands late
-  (README, "Learning off the cycle": it moved the long run's figures both ways). A closed
+  (docs/method.md, "Learning off the estimate path"). A closed
   bag's learner is never trained again. While more than :data:`MAX_PENDING` jobs wait,
   points that join the open bag are not learnt from (counted in ``skipped_points``): a
   worker that falls behind holds bounded memory. ``background=False`` (the default) runs
