@@ -6,7 +6,7 @@ interface (``bus``); :data:`BUS_OPTIONS` says how each interface is opened with
 
 - ``virtual``: python-can's in-process bus; ``channel`` is any name shared by both ends.
 - ``socketcan``: Linux SocketCAN (``can0``, ``vcan0``); FD frames need ``fd=True``, which the
-  ``fd`` profile sets. The interface is set up outside (deploy/setup-vcan.sh, the README): a
+  ``fd`` profile sets. The interface is set up outside (deploy/setup-vcan.sh, docs/deploying.md): a
   real adapter with ``ip link set can0 type can bitrate 1000000 dbitrate 5000000 fd on
   restart-ms 100`` (``restart-ms``: the interface recovers from bus-off by itself instead
   of staying off), vcan0 with ``ip link set vcan0 mtu 72`` (vcan drops CAN FD frames until its

@@ -75,8 +75,9 @@ class LinkCounters:
         overflow: cycles dropped because the caller did not read them while it waited for
             an acknowledgement (more than ``BUFFERED_CYCLES`` buffered).
         timing: delivered cycles whose controller ``Time`` breaks the protocol's timing
-            requirement against the cycle counter (see ``reassembly.TimeUnwrapper``; the
-            README states it); delivered with the wire's time, counted and reported.
+            requirement against the cycle counter (see ``reassembly.TimeUnwrapper``;
+            docs/deploying.md states it); delivered with the wire's time, counted and
+            reported.
     """
 
     received: int = 0

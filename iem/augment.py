@@ -8,7 +8,8 @@ batch of kept samples: the initial bags' fit and the refit when a bag closes
   21)``, the training family's samples at pose ``q`` with another velocity and acceleration
   (``"sim.coverage:other_velocities"``): each kept point adds ``draws`` such states, so the
   learner covers motions through its poses other than those that formed it (it also costs
-  the closed bags their fit to their own motion: see the README, "Long runs").
+  the closed bags their fit to their own motion: docs/decisions.md, "Training beyond the
+  path").
 - ``reversal``: ``"module:function[@ARG]"`` of a factory of ``f(X (N, 21)) -> X (N, 21)``,
   the samples of the same motion driven backwards (``"sim.coverage:reversed_velocities"``,
   ``...@ARM_FILE`` on a calibrated arm; exact for rigid-body torques, :mod:`sim.coverage`):

@@ -33,7 +33,7 @@ __all__ = ["OOD_HOLD_S", "OOD_THRESHOLD", "VELOCITY_THRESHOLD", "OodHold"]
 
 OOD_THRESHOLD = 4.0
 """Default largest ``|x - center| / scale`` of an input (in its learner's standard
-deviations) that is in distribution; tuned in ``iem bench longrun`` (see the README)."""
+deviations) that is in distribution; tuned in ``iem bench longrun`` (docs/decisions.md)."""
 
 VELOCITY_THRESHOLD = 4.0
 """Default largest :meth:`iem.learner.WeakLearner.velocity_score` of an input that is in
@@ -42,7 +42,8 @@ distribution (about 1 for the learner's own training inputs)."""
 OOD_HOLD_S = 2.0
 """Default longest run of flagged estimates, in s of estimate time, for which the IEM gives
 the last estimate not flagged instead; set from ``iem bench longrun``'s seed 3 with the
-velocity score (1 s let a 2.7 kg error through there; 2 s or more did not; see the README)."""
+velocity score (1 s let a 2.7 kg error through there; 2 s or more did not;
+docs/decisions.md)."""
 
 
 class OodHold:

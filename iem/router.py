@@ -25,7 +25,7 @@ The scan is linear in the bags: about 22 µs a route at 10,000 bags and 29 µs a
 the project's 2-core machine. A k-d tree over the means is faster than that only on points
 inside a bag (about 15 µs), slower on points outside every bag (41-48 µs), and costs 30 MB of
 scipy and a rebuild of milliseconds on the routing thread; at the 2,000-bag budget and 100
-block points a second it does not pay (README, "Bounded growth").
+block points a second it does not pay (docs/decisions.md).
 """
 
 from __future__ import annotations

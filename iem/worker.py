@@ -22,7 +22,7 @@ The interpreter lock: a Python thread runs numpy's small products holding it, an
 holds it up to 5 ms before another thread may take it. So the worker gives it up between jobs
 and between the mini-batches of a refit (``time.sleep(0)``): an estimate waits at most one
 mini-batch step (about 0.1 ms), not a switch interval. It does not make the worker run in
-parallel with the estimate path: on a loaded machine it lags (see the README).
+parallel with the estimate path: on a loaded machine it lags (docs/method.md).
 """
 
 from __future__ import annotations

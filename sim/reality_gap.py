@@ -111,8 +111,8 @@ class RealityGap:
       rad⁻¹, ``phase ~ U(0, 2 pi)``.
 
     The defaults are tuned on gap seeds 10-12 so that the calibrated arm's held-out residual
-    has the size and the colour of a real Panda's (README, "Reality gap"). Body 7 keeps the
-    Franka Hand. Each group of draws has its own stream of ``seed``: the links, Gaz's
+    has the size and the colour of a real Panda's (docs/benchmarks.md, "The plants"). Body 7
+    keeps the Franka Hand. Each group of draws has its own stream of ``seed``: the links, Gaz's
     factors and the offsets of a seed are the same whatever the other bounds.
 
     Attributes:
