@@ -6,7 +6,7 @@ service (the best available model, trained on the excitation path first) runs ag
 for ``--seconds`` (default 60) and writes loads back through the safety gate.
 
 The service reads every 1 kHz frame and estimates once per block point (the means of 10
-frames, :mod:`iem.blocks`). Printed: block points estimated and cycles lost (gaps in the
+frames, :mod:`iem.signals.blocks`). Printed: block points estimated and cycles lost (gaps in the
 cycle counter), the block-to-estimate latency (from the arrival of a block's last frame to
 its estimate, p50/p99) and the age of the block's frames (their mean arrival) when its
 estimate is out, the CPU share of the plug-in (the CPU time of its threads over the wall

@@ -16,8 +16,8 @@ from pathlib import Path as FsPath
 from firmware_bridge.links import LINKS
 from firmware_bridge.protocol import PROFILES
 from iem.errors import InvalidInputError
-from iem.filters import DEFAULT_CUTOFF_HZ
-from iem.smoothing import DEFAULT_TAU_S
+from iem.signals.filters import DEFAULT_CUTOFF_HZ
+from iem.signals.smoothing import DEFAULT_TAU_S
 from iem.types import DEFAULT_BLOCK_FRAMES
 
 from .gate import GateConfig
@@ -80,7 +80,7 @@ class EstimateConfig:
 
     block_frames: int = DEFAULT_BLOCK_FRAMES
     """Frames per block point: the estimator works on the means of this many consecutive
-    gap-free frames (:mod:`iem.blocks`)."""
+    gap-free frames (:mod:`iem.signals.blocks`)."""
     smoothing_tau_s: float = DEFAULT_TAU_S
     filter_cutoff_hz: float = DEFAULT_CUTOFF_HZ
     learn: bool = True
@@ -204,7 +204,7 @@ RANGES = {
     ("ros2", "set_load_timeout_s"): (0.05, 4.0),  # below the unit's WatchdogSec=5
 }
 INT_RANGES = {
-    ("estimate", "block_frames"): (1, 100),  # frames per block point (iem.blocks)
+    ("estimate", "block_frames"): (1, 100),  # frames per block point (iem.signals.blocks)
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
     ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
     ("host", "cpu_dma_latency_us"): (-1, 1_000_000),  # µs; -1: no limit (deploy.host)

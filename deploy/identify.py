@@ -38,11 +38,11 @@ def read_log(path, profile: str = "fd", format: str | None = None,
              topic: str = DEFAULT_TOPIC):
     """The joint states of a recording (``format`` None: detected; ``profile``: a CAN log's
     wire profile; ``topic``: a rosbag2 bag's JointState topic) as a
-    :class:`iem.recording.Recording`."""
+    :class:`iem.signals.recording.Recording`."""
     from firmware_bridge.errors import LogFileError
     from firmware_bridge.recordings import read_recording, recording_format
     from firmware_bridge.replay import ReplaySource
-    from iem.recording import Recording
+    from iem.signals.recording import Recording
 
     fmt = recording_format(path, format)
     if fmt != "can":  # read whole and checked (at least 2 joint states)

@@ -39,7 +39,7 @@ def block_frames(text: str) -> int:
 
 
 def add_block_frames(parser) -> None:
-    """``--block-frames N``: frames per block point (:mod:`iem.blocks`; ``[estimate]
+    """``--block-frames N``: frames per block point (:mod:`iem.signals.blocks`; ``[estimate]
     block_frames``)."""
     from iem.types import DEFAULT_BLOCK_FRAMES
 

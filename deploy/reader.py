@@ -1,8 +1,8 @@
 """What the service reads: block points of the link's frames, handed over once a block.
 
 The link gives controller frames (1 kHz on a Franka); the estimator works on block points,
-the means of consecutive gap-free frames (:mod:`iem.blocks`). Both readers here form them
-with a :class:`iem.blocks.BlockFormer` and hand the service one :class:`Item` per block, a
+the means of consecutive gap-free frames (:mod:`iem.signals.blocks`). Both readers here form them
+with a :class:`iem.signals.blocks.BlockFormer` and hand the service one :class:`Item` per block, a
 controller silence (:class:`~firmware_bridge.errors.ControllerSilent`), the end of a replayed
 stream or a link failure; a silence or the end first closes the open block (its frames are
 the last before it).
@@ -15,7 +15,7 @@ the last before it).
   ``skipped``: never lost silently (the estimator's gap rule then bridges or restarts).
 - :class:`BatchReader` (a replay) reads in the service's thread, ``chunk`` frames at a time
   into preallocated arrays, forms their blocks in one vectorised call
-  (:meth:`iem.blocks.BlockFormer.push_many`) and hands them over as fast as the estimator
+  (:meth:`iem.signals.blocks.BlockFormer.push_many`) and hands them over as fast as the estimator
   takes them: the same blocks as frame by frame, to the bit, and nothing is dropped.
 
 An item's ``frame_time`` is the arrival (``time.time()``, epoch s) of the block's last frame
@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from iem.blocks import N_COLUMNS, BlockFormer
+from iem.signals.blocks import N_COLUMNS, BlockFormer
 
 CAPACITY = 50
 """Blocks the live queue holds (0.5 s at 100 points per second): more behind than that, and

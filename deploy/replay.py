@@ -18,7 +18,7 @@ written unless ``--save-model FILE`` asks for it. Decoding, training and learnin
 deterministic, so replaying the same file twice gives identical estimates (``--out``).
 
 The estimator works on block points, the means of ``--block-frames`` consecutive joint
-states (10 by default, :mod:`iem.blocks`): the recording is read in bulk and its blocks are
+states (10 by default, :mod:`iem.signals.blocks`): the recording is read in bulk and its blocks are
 formed in one vectorised step per chunk, then fed as fast as the estimator takes them,
 learning inline (the JSON's ``speed`` is the recorded time over the wall time).
 

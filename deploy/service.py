@@ -39,10 +39,10 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from iem.blocks import BlockFormer
-from iem.filters import StateFilter
 from iem.online import OnlineIdentifier
-from iem.smoothing import ExponentialSmoother
+from iem.signals.blocks import BlockFormer
+from iem.signals.filters import StateFilter
+from iem.signals.smoothing import ExponentialSmoother
 
 from .arm_watch import ArmWatch
 from .checkpointer import Checkpointer

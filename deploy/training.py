@@ -56,7 +56,7 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_f
                end_effector=None, noise: str = "arm", arm=None,
                block_frames: int = DEFAULT_BLOCK_FRAMES, **params):
     """A fresh model of ``kind`` for joint states at ``rate_hz`` formed into block points of
-    ``block_frames`` (:mod:`iem.blocks`: the model works at ``rate_hz / block_frames``
+    ``block_frames`` (:mod:`iem.signals.blocks`: the model works at ``rate_hz / block_frames``
     points per second); ``params`` go to its IEM;
     ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
     ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`;

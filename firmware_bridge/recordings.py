@@ -19,11 +19,11 @@ Three formats (:data:`FORMATS`), told apart by :func:`detect_format` (a caller m
   ``dq1..dq7`` (rad/s) and ``tau1..tau7`` (N·m, link side: libfranka's ``tau_J``), in any
   order; other columns are ignored. A libfranka ``RobotState`` logged that way.
 
-:func:`read_recording` gives an :class:`iem.recording.Recording` (``t (N,)``, ``q, dq, tau
+:func:`read_recording` gives an :class:`iem.signals.recording.Recording` (``t (N,)``, ``q, dq, tau
 (N, 7)``); :class:`RecordingSource` is a :class:`~firmware_bridge.links.JointStateSource` over
 one (the link kind ``recording``, rosbag2 and CSV), delivering the recorded time stamps as they
-are: nothing is resampled or filled, the estimator's gap rule (:mod:`iem.gaps`) decides what a
-gap is. :func:`open_recording` opens any of the three formats as a source.
+are: nothing is resampled or filled, the estimator's gap rule (:mod:`iem.signals.gaps`) decides what
+a gap is. :func:`open_recording` opens any of the three formats as a source.
 
 A rosbag2 or CSV recording is read whole and checked before anything is delivered: a missing
 joint or column, a time stamp that does not increase strictly, a non-finite value (a single
@@ -44,7 +44,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from iem.recording import Recording
+from iem.signals.recording import Recording
 from iem.types import N_JOINTS, NOMINAL_RATE_HZ, JointState
 
 from .errors import BridgeConfigError, EndOfStream, LogFileError

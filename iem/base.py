@@ -107,7 +107,7 @@ class Estimator(Protocol):
 
     def gap(self, steps: int) -> None:
         """The next sample comes ``steps >= 2`` nominal cycles after the last one (``steps -
-        1`` were lost): signal filters bridge them (:mod:`iem.gaps`)."""
+        1`` were lost): signal filters bridge them (:mod:`iem.signals.gaps`)."""
 
     def set_background(self, on: bool) -> None:
         """Train in a worker thread (True) or inline, reproducibly (False), from now on."""

@@ -87,7 +87,7 @@ from .worker import LearningWorker
 SENSOR_NOISE = DEFAULT_SENSOR.sigmas
 """The sensor model's standard deviations of one frame, ``[q (rad), dq (rad/s), tau (N·m)]``
 x 7 (:data:`iem.sensor.DEFAULT_SENSOR`): the noise the learners are trained with on their
-inputs. A block point (:mod:`iem.blocks`) carries a third of it, but the frame's noise
+inputs. A block point (:mod:`iem.signals.blocks`) carries a third of it, but the frame's noise
 regularises the learners, which generalise better for it: with a block point's noise instead,
 the new path's mass MAE rose from 0.0044 to 0.0057 kg (``iem bench paper --quick --seed 0``)
 and from 0.067 to 0.096 kg on the realistic plant (``iem bench realistic --quick --seed

@@ -51,7 +51,7 @@ class RecursiveLeastSquares(BaseEstimator):
             (see :mod:`iem.regression`), stored in the model file.
         sigma_tau: torque noise of one measured frame, N·m.
         cutoff_hz: low-pass cut-off for q, dq and tau, Hz.
-        rate_hz: sample rate, Hz (the block points', :mod:`iem.blocks`: 100 Hz).
+        rate_hz: sample rate, Hz (the block points', :mod:`iem.signals.blocks`: 100 Hz).
         decimate: update every this many samples (0: the noise correlation length).
         prior_std: prior standard deviation per parameter (10 values).
         point_frames: frames averaged into each sample (a block point's; 1: samples are
@@ -109,7 +109,7 @@ class RecursiveLeastSquares(BaseEstimator):
 
     def gap(self, steps: int) -> None:
         """The next sample comes ``steps`` nominal cycles after the last (see
-        :mod:`iem.gaps`): the filter bridges the lost ones."""
+        :mod:`iem.signals.gaps`): the filter bridges the lost ones."""
         self._steps = int(steps)
 
     @property

@@ -17,7 +17,7 @@ The steps:
 1 -> 2  (:func:`fill_version_1`) every version-1 state in the full version-1 layout: the
         fields that version-1 files written before them lack get the values the loaders
         assumed for such files.
-2 -> 3  (:func:`equations_per_point`) the estimators take block points (:mod:`iem.blocks`),
+2 -> 3  (:func:`equations_per_point`) the estimators take block points (:mod:`iem.signals.blocks`),
         each the mean of some frames, instead of frames: IEM+phys, whose physics averaged
         ``update_every > 1`` frames itself, now takes ``rate_hz := rate_hz /
         update_every``, ``update_every := 1`` and ``point_frames := update_every`` (the same

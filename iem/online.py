@@ -1,20 +1,20 @@
 """The online loop shared by the plug-in and the benchmarks: controller frames in, block
 points through an estimator, estimates out.
 
-Frames go through a :class:`iem.blocks.BlockFormer` (:meth:`OnlineIdentifier.step`), or come
+Frames go through a :class:`iem.signals.blocks.BlockFormer` (:meth:`OnlineIdentifier.step`), or come
 already formed into block points (:meth:`OnlineIdentifier.step_block`: the link reader's
 thread and a replay form them): the estimator works once per block point, the means of
 ``q, dq, tau`` over 10 frames by default (100 points per second from a 1 kHz controller).
 Every filter below runs at that point rate.
 
-Per block point: the causal :class:`iem.filters.StateFilter` gives the
+Per block point: the causal :class:`iem.signals.filters.StateFilter` gives the
 state ``(q, dq, ddq)`` the tandem simulators run at (they move in tandem with the real arm,
 at its measured state); the flange position comes from forward kinematics of the measured
 ``q``; the estimator learns from the point (the tandem samples are computed only if it asks
-for them) and predicts; the estimate is smoothed with :class:`iem.smoothing.ExponentialSmoother`
-(the raw estimate stays available).
+for them) and predicts; the estimate is smoothed with
+:class:`iem.signals.smoothing.ExponentialSmoother` (the raw estimate stays available).
 
-One gap rule (:mod:`iem.gaps`) decides, from the time stamps, for every filter of the path:
+One gap rule (:mod:`iem.signals.gaps`) decides, from the time stamps, for every filter of the path:
 the state filter applies it, and its verdict goes to the estimator and the smoothing. Lost
 cycles up to the state filter's ``max_gap_s`` are bridged (``estimator.gap(k)``: its signal
 filters interpolate the missing inputs; the smoothing decays by their time);
@@ -50,10 +50,10 @@ from dataclasses import replace
 import numpy as np
 
 from .base import Estimator
-from .blocks import BlockFormer
-from .filters import DEFAULT_CUTOFF_HZ, StateFilter
-from .gaps import RESTART, SKIP
-from .smoothing import ExponentialSmoother
+from .signals.blocks import BlockFormer
+from .signals.filters import DEFAULT_CUTOFF_HZ, StateFilter
+from .signals.gaps import RESTART, SKIP
+from .signals.smoothing import ExponentialSmoother
 from .types import JointState, PayloadEstimate
 
 
@@ -66,7 +66,7 @@ class OnlineIdentifier:
         tandem: ``(q, dq, ddq) -> (X (K, 21), Y (K, 10))``, the tandem simulators.
         learn: if False the estimator only predicts (evaluation of a frozen model).
         state_filter: the causal filter giving the tandem state, at the point rate
-            (default: :class:`iem.filters.StateFilter` at ``former``'s point rate).
+            (default: :class:`iem.signals.filters.StateFilter` at ``former``'s point rate).
         smoother: the output smoothing (default: EMA with 0.2 s at the point rate).
         former: what forms frames into block points for :meth:`step` (default: 10 frames of
             a 1 kHz controller).
@@ -155,7 +155,7 @@ class OnlineIdentifier:
         return self._held, self._smoothed.copy()
 
     def step_block(self, state: JointState) -> tuple[PayloadEstimate, np.ndarray]:
-        """Learn from and estimate at one block point (:mod:`iem.blocks`); returns the raw
+        """Learn from and estimate at one block point (:mod:`iem.signals.blocks`); returns the raw
         estimate and the smoothed phi."""
         x = state.features()
         q, dq, ddq = self.state_filter(state.q, state.dq, state.t)

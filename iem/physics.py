@@ -118,11 +118,11 @@ class PhysicsInformedEnsemble(BaseEstimator):
         sigma_tau: torque noise of one measured frame, N·m.
         sigma_dq: velocity noise of one measured frame, rad/s.
         point_frames: frames averaged into each sample the model is given (a block point's,
-            :mod:`iem.blocks`; 1: samples are frames): a sample's noise is a frame's over
+            :mod:`iem.signals.blocks`; 1: samples are frames): a sample's noise is a frame's over
             its square root.
         cutoff_hz: low-pass cut-off of the regression, Hz (default 4: the motion of a task
             path is below 1 Hz, and the ddq noise grows with the cut-off cubed).
-        rate_hz: sample rate, Hz (the block points' rate, :mod:`iem.blocks`: 100 Hz).
+        rate_hz: sample rate, Hz (the block points' rate, :mod:`iem.signals.blocks`: 100 Hz).
         update_every: samples per regression block: one equation every this many samples
             (1: each block point is already the mean of a block of frames).
         prior_scale: factor on the calibrated prior standard deviations.
@@ -298,7 +298,7 @@ class PhysicsInformedEnsemble(BaseEstimator):
 
     def gap(self, steps: int) -> None:
         """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
-        were lost, :mod:`iem.gaps`): the regression bridges them, so no equation straddles
+        were lost, :mod:`iem.signals.gaps`): the regression bridges them, so no equation straddles
         the gap as if it were one cycle."""
         self._steps = int(steps)
 

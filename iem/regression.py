@@ -7,7 +7,7 @@ the covariance of ``e``; the least-squares estimators (:mod:`iem.least_squares`,
 :mod:`iem.physics`) only combine them.
 
 Signals: ``q``, ``dq`` and ``tau`` go through the same causal 2nd-order Butterworth low-pass
-(:class:`iem.filters.LowPass2`), and ``ddq`` is the backward difference of the filtered
+(:class:`iem.signals.filters.LowPass2`), and ``ddq`` is the backward difference of the filtered
 ``dq``, so every term carries the same filter lag. An equation is given every ``every``
 samples. The equation error has two parts: the filtered torque noise (``sigma_tau² g_tau``,
 ``g_tau`` the filter's noise gain) and the velocity noise that the differentiation turns into
@@ -38,9 +38,9 @@ import numpy as np
 
 from .base import load_factory
 from .errors import InvalidInputError
-from .filters import LowPass2, butterworth2
-from .gaps import RESTART, SKIP
 from .sensor import DEFAULT_SENSOR
+from .signals.filters import LowPass2, butterworth2
+from .signals.gaps import RESTART, SKIP
 from .types import NOMINAL_RATE_HZ
 
 
@@ -240,7 +240,7 @@ class PayloadRegression:
         """Take one sample; when an equation is due (every ``every``-th filter sample after
         settling), return ``(Y, r, R)``.
 
-        ``steps`` is the gap rule's verdict on the sample (:mod:`iem.gaps`): the nominal
+        ``steps`` is the gap rule's verdict on the sample (:mod:`iem.signals.gaps`): the nominal
         cycles since the last sample (the lost ones are bridged: linearly interpolated
         inputs, so ``ddq`` is always a difference over one filter sample), ``RESTART`` (the
         filter starts again here) or ``SKIP`` (not used, no equation). Returns None when no

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InvalidInputError
-from .gaps import GapRule
+from .signals.gaps import GapRule
 
 N_JOINTS = 7
 
@@ -167,7 +167,7 @@ def equations(regression, t, q, dq, tau, rate_hz: float) -> list[tuple]:
     sample through the gap rule at ``rate_hz`` as the online loop does, in order; a restart
     of its filter (a long gap) starts a new stretch: a list of stretches, each a list of
     equations."""
-    from .gaps import RESTART, SKIP
+    from .signals.gaps import RESTART, SKIP
 
     rule = GapRule(rate_hz)
     x = np.hstack((np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float)))

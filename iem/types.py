@@ -34,7 +34,7 @@ RobotState, franka_ros2's ``/franka/joint_states``, the ``fd`` wire profile of
 ``classic`` profile's is 500 Hz)."""
 
 DEFAULT_BLOCK_FRAMES = 10
-"""Frames per block point (:mod:`iem.blocks`): the estimator works on the means of this many
+"""Frames per block point (:mod:`iem.signals.blocks`): the estimator works on the means of this many
 consecutive frames (the plug-in's ``[estimate] block_frames``)."""
 
 NOMINAL_POINT_RATE_HZ = NOMINAL_RATE_HZ / DEFAULT_BLOCK_FRAMES

@@ -9,9 +9,9 @@ Set-up (fixed seeds, the default sensor model of :mod:`iem.sensor`):
 - IEM, old_IEM and BEM are trained offline on the excitation path: its bags are routed from
   the planned path and the tandem simulators (77 training payloads) give the samples at the
   planned states. Online, the tandem simulators run at the measured state with the causal
-  ``ddq`` of :class:`iem.filters.StateFilter`, as the plug-in does. LS needs no training.
+  ``ddq`` of :class:`iem.signals.filters.StateFilter`, as the plug-in does. LS needs no training.
 
-Scenarios (every model's output smoothed the same causal way, :mod:`iem.smoothing`):
+Scenarios (every model's output smoothed the same causal way, :mod:`iem.signals.smoothing`):
 
 - ``excitation`` (the paper's Table 2): each model estimates along the excitation path
   (IEM, old_IEM and BEM only estimate: the path is their training path; LS runs its
@@ -76,8 +76,8 @@ ms), the thread idle between them, as a 1 kHz cell's blocks come, and
 per block point either way (times 100 per second, paced: the share of one core the estimate
 path takes, without the link reader and the gate).
 
-Every model works on block points (:mod:`iem.blocks`): each rollout's 1 kHz frames are formed
-into the means of 10 consecutive frames, as the plug-in's reader forms them, and the run's
+Every model works on block points (:mod:`iem.signals.blocks`): each rollout's 1 kHz frames are
+formed into the means of 10 consecutive frames, as the plug-in's reader forms them, and the run's
 arrays hold one row per block point; a scenario's switch at a frame counts from the first
 block that holds a frame after it, and a detection is timed at the detecting block's last
 frame (when its estimate can exist).
@@ -96,7 +96,6 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.bem import BatchEnsemble
-from iem.blocks import BlockFormer, Blocks
 from iem.consistency import min_eigenvalue
 from iem.ensemble import IncrementalEnsemble
 from iem.least_squares import RecursiveLeastSquares
@@ -107,7 +106,8 @@ from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.router import BagRouter
 from iem.sensor import SensorModel
-from iem.smoothing import DEFAULT_TAU_S
+from iem.signals.blocks import BlockFormer, Blocks
+from iem.signals.smoothing import DEFAULT_TAU_S
 from iem.types import GROUPS, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ, PARAMS
 
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged

@@ -1,14 +1,15 @@
 """Offline commissioning identification: a payload from a loaded and a bare recording.
 
 ``identify(loaded, bare)`` (or ``identify(loaded, arm=ARM)``) takes recorded joint states (the
-arrays ``t, q, dq, tau`` at 1 kHz or any rate, in any form :func:`iem.recording.as_recording`
-accepts) and returns an :class:`Identification`: the payload's ten parameters, physically
-consistent, with their covariance, and which of them the data determine and which the prior.
+arrays ``t, q, dq, tau`` at 1 kHz or any rate, in any form
+:func:`iem.signals.recording.as_recording` accepts) and returns an :class:`Identification`: the
+payload's ten parameters, physically consistent, with their covariance, and which of them the
+data determine and which the prior.
 
 Method (offline, so the filters may be non-causal):
 
-1. **Signals** (:func:`iem.recording.filtered`). Each recording goes on a uniform time grid at
-   its own median rate (interpolating over the time stamps it has, so lost cycles shift
+1. **Signals** (:func:`iem.signals.recording.filtered`). Each recording goes on a uniform time grid
+   at its own median rate (interpolating over the time stamps it has, so lost cycles shift
    nothing); spikes (single corrupt samples, more than 6 robust standard deviations from a
    local quadratic fit) are replaced by that fit; ``q``, ``dq`` and ``tau`` go through a
    zero-phase Butterworth low-pass (order 4, ``cutoff_hz`` = 10 Hz: no lag, so every signal
@@ -92,7 +93,7 @@ The package, one step or concern a module: :mod:`.method` (:func:`identify`, ste
 :mod:`sim.robot`) are imported when :func:`identify` runs.
 """
 
-from iem.recording import Recording, as_recording
+from iem.signals.recording import Recording, as_recording
 
 from .fit import HUBER
 from .method import CUTOFF_HZ, DATA_SHARE, EDGE_S, LEAD_PRIOR_S, RATE_HZ, identify

@@ -10,7 +10,7 @@ import numpy as np
 from iem.consistency import is_consistent, project, pseudo_inertia
 from iem.errors import InvalidInputError
 from iem.least_squares import DEFAULT_PRIOR_STD
-from iem.recording import Signals, as_recording, filtered
+from iem.signals.recording import Signals, as_recording, filtered
 from iem.types import GROUPS, N_JOINTS
 
 from .fit import (
@@ -56,7 +56,7 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
 
     Args:
         loaded: the recording with the payload mounted (see
-            :func:`iem.recording.as_recording`).
+            :func:`iem.signals.recording.as_recording`).
         bare: a recording of the same motion without the payload, or None with ``arm``.
         arm: a calibrated arm model (``rnea(q, dq, ddq) -> tau``) or its file, for any motion;
             exactly one of ``bare`` and ``arm``.

@@ -10,7 +10,7 @@ import numpy as np
 
 from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
-from iem.recording import Signals, lag, sample
+from iem.signals.recording import Signals, lag, sample
 from iem.types import GROUPS, PARAMS
 
 from .fit import RobustFit, residuals_and_regressor, robust_fit

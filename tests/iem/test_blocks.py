@@ -1,4 +1,4 @@
-"""Block points (iem.blocks): the means of consecutive gap-free frames, against numpy on
+"""Block points (iem.signals.blocks): the means of consecutive gap-free frames, against numpy on
 recorded frames with gaps, one frame at a time against a chunk at once, and the online loop
 fed frames against the same loop fed the blocks."""
 
@@ -9,10 +9,10 @@ import pytest
 
 from firmware_bridge.errors import EndOfStream
 from firmware_bridge.recordings import open_recording
-from iem.blocks import BlockFormer
 from iem.errors import InvalidInputError
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
+from iem.signals.blocks import BlockFormer
 from iem.types import JointState
 
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iem.filters import LowPass2
-from iem.gaps import RESTART
 from iem.regression import PayloadRegression, correlation_weight
+from iem.signals.filters import LowPass2
+from iem.signals.gaps import RESTART
 
 from .test_gaps import FAKE
 

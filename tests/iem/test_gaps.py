@@ -1,4 +1,4 @@
-"""The one gap rule (iem.gaps) and the filters that apply it: lost, duplicated and late
+"""The one gap rule (iem.signals.gaps) and the filters that apply it: lost, duplicated and late
 samples never make a derivative span several cycles as if they were one."""
 
 from __future__ import annotations
@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from iem.base import BaseEstimator
-from iem.filters import LowPass2, StateFilter
-from iem.gaps import RESTART, SKIP, GapRule
 from iem.online import OnlineIdentifier
 from iem.regression import PayloadRegression
-from iem.smoothing import ExponentialSmoother
+from iem.signals.filters import LowPass2, StateFilter
+from iem.signals.gaps import RESTART, SKIP, GapRule
+from iem.signals.smoothing import ExponentialSmoother
 from iem.types import JointState, PayloadEstimate
 
 

@@ -13,12 +13,12 @@ from iem.base import BaseEstimator
 from iem.change import ChangeDetector, chi_square
 from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
-from iem.filters import LowPass2
-from iem.gaps import RESTART
 from iem.least_squares import DEFAULT_PRIOR_STD, RecursiveLeastSquares
 from iem.online import OnlineIdentifier
 from iem.physics import MODEL_ERROR_GAIN, PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
 from iem.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
+from iem.signals.filters import LowPass2
+from iem.signals.gaps import RESTART
 from iem.types import JointState, PayloadEstimate
 from sim.family import test_payloads
 from sim.robot import PANDA_DYNAMICS, PandaModel
@@ -429,9 +429,9 @@ def switch_rollouts():
 
 
 def _points(rollout) -> np.ndarray:
-    """A 1 kHz rollout's block points (iem.blocks: means of 10 frames), as the plug-in feeds
+    """A 1 kHz rollout's block points (iem.signals.blocks: means of 10 frames), as the plug-in feeds
     the estimator: ``(n / 10, 21)``."""
-    from iem.blocks import BlockFormer
+    from iem.signals.blocks import BlockFormer
 
     return BlockFormer().push_many(rollout.t, rollout.features).X
 

@@ -7,9 +7,9 @@ import pytest
 from scipy import signal
 
 from iem.errors import InvalidInputError
-from iem.filters import LowPass2, StateFilter, butterworth2
 from iem.metrics import convergence_s, mae, mae_groups, moving_average
-from iem.smoothing import ExponentialSmoother
+from iem.signals.filters import LowPass2, StateFilter, butterworth2
+from iem.signals.smoothing import ExponentialSmoother
 from iem.types import PARAMS
 
 

@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 
-from .errors import InvalidInputError
-from .types import NOMINAL_POINT_RATE_HZ
+from ..errors import InvalidInputError
+from ..types import NOMINAL_POINT_RATE_HZ
 
 DEFAULT_TAU_S = 0.2
 """Default time constant of the output smoothing, s."""

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InvalidInputError
-from .types import N_JOINTS
+from ..errors import InvalidInputError
+from ..types import N_JOINTS
 
 SPIKE_WINDOW = 11
 """Window of the local quadratic fit that spikes are measured against, samples."""

@@ -8,7 +8,7 @@ smoothing, gate) therefore works on *block points*: the means of ``q``, ``dq`` a
 is the mean of its frames' time stamps (the instant its means describe) and its cycle counter
 the last frame's.
 
-Frames are checked by the one gap rule (:class:`iem.gaps.GapRule`, at the frame rate) as
+Frames are checked by the one gap rule (:class:`iem.signals.gaps.GapRule`, at the frame rate) as
 they come:
 
 - a frame not newer than the last one used (a duplicate, a frame overtaken by newer ones) is
@@ -38,9 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
+from ..types import DEFAULT_BLOCK_FRAMES, NOMINAL_RATE_HZ, JointState
 from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
-from .types import DEFAULT_BLOCK_FRAMES, NOMINAL_RATE_HZ, JointState
 
 N_COLUMNS = 21
 """Values a frame carries to a block: ``q``, ``dq`` and ``tau_J`` (7 each)."""

@@ -8,7 +8,7 @@ how many nominal cycles lie between the sample it is given and the last one it u
 
 - ``k >= 1``: ``k`` nominal cycles since the last sample used; ``k - 1`` were lost. Up to
   ``max_bridge_s`` the filters bridge the gap: they are fed the missing samples linearly
-  interpolated between the last input and this one (:class:`iem.filters.LowPass2`), so a
+  interpolated between the last input and this one (:class:`iem.signals.filters.LowPass2`), so a
   derivative spans one cycle, never ``k`` cycles as if they were one (an unbridged lost cycle
   doubles that sample's ``ddq``: on the excitation path 5 % of cycles dropped that way gave
   22 false payload changes in 20 s). The state filter's default is 20 ms: bridging bursts of
@@ -26,8 +26,8 @@ tolerant of clock jitter and of a controller clock that drifts by a fraction of 
 
 from __future__ import annotations
 
-from .errors import InvalidInputError
-from .types import NOMINAL_RATE_HZ
+from ..errors import InvalidInputError
+from ..types import NOMINAL_RATE_HZ
 
 RESTART = -1
 """The filters start again at this sample."""

@@ -18,9 +18,9 @@ import math
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
+from ..types import NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
-from .types import NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 
 DEFAULT_CUTOFF_HZ = 25.0
 """Default cut-off of :class:`StateFilter`'s low-pass on ``dq``, Hz (the plug-in's
@@ -44,7 +44,7 @@ def butterworth2(cutoff_hz: float, rate_hz: float) -> tuple[np.ndarray, np.ndarr
 class LowPass2:
     """A 2nd-order Butterworth low-pass on ``channels`` signals, one sample at a time.
 
-    ``steps`` (see :mod:`iem.gaps`) says how many nominal cycles the sample comes after the
+    ``steps`` (see :mod:`iem.signals.gaps`) says how many nominal cycles the sample comes after the
     last one: the ``steps - 1`` missing inputs are interpolated linearly between the last
     input and this one and filtered first, so the filter always runs at its design rate.
     ``previous`` is the output one nominal cycle before the latest (for a backward
@@ -117,7 +117,7 @@ class LowPass2:
 class StateFilter:
     """Causal estimate of ``(q, dq, ddq)`` from measured ``q, dq`` at a nominal rate.
 
-    The time stamps go through the one gap rule (:class:`iem.gaps.GapRule`), which the
+    The time stamps go through the one gap rule (:class:`iem.signals.gaps.GapRule`), which the
     online loop then applies to every other filter of the estimation path (``steps`` tells
     what it decided for the last sample): lost cycles up to ``max_gap_s`` are bridged, so
     ``ddq`` is always a difference over one cycle; a sample that is not newer than the last
