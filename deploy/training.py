@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 
-from iem.budget import DEFAULT_BUDGET_BAGS
+from iem.ensemble.budget import DEFAULT_BUDGET_BAGS
 from iem.errors import InvalidInputError
 from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
 from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
@@ -41,7 +41,7 @@ beyond the paper's rule: each bag's learner also trains on its own samples drive
 seed 1, driven backwards read 0.021 kg off, against 0.20 kg with the random other velocities
 of ``coverage`` and 1.5 kg with neither; a pose met at another speed is flagged out of
 distribution instead), and at most 2,000 bags (beyond, a new bag takes a slot by
-:class:`iem.budget.BagBudget`'s probation policy; a model file of about 6 MB that loads in
+:class:`iem.ensemble.budget.BagBudget`'s probation policy; a model file of about 6 MB that loads in
 0.3 s). The paper benchmark keeps the paper's rule."""
 
 

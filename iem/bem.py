@@ -1,7 +1,7 @@
 """The BEM baseline: the paper's 2023 batch ensemble (Taie et al., 2023).
 
 The paper compares its IEM with "BEM (the 2023 batch ensemble)": a bagging ensemble of two
-kinds of weak learner, single-layer networks (:class:`iem.learner.WeakLearner`) and basic
+kinds of weak learner, single-layer networks (:class:`iem.ensemble.learner.WeakLearner`) and basic
 decision trees (:class:`iem.tree.RegressionTree`), trained once by batch learning on
 ``(q, dq, tau) -> phi`` along the excitation path with the training payloads, and never
 updated afterwards (the paper's Tables 2 and 4: as good as the IEM on the excitation path,
@@ -25,9 +25,8 @@ import math
 import numpy as np
 
 from .base import BaseEstimator, Samples
-from .ensemble import SENSOR_NOISE
+from .ensemble.learner import N_IN, N_OUT, SENSOR_NOISE, WeakLearner, output_range
 from .errors import InvalidInputError
-from .learner import N_IN, N_OUT, WeakLearner, output_range
 from .tree import RegressionTree
 from .types import PayloadEstimate
 

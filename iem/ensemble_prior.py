@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ensemble import IncrementalEnsemble
+from .ensemble.model import IncrementalEnsemble
 from .prior_summary import BagCalibration, PriorSummary
 
 __all__ = ["EnsemblePrior"]

@@ -43,7 +43,10 @@ from .errors import InvalidInputError
 
 Step = Callable[[str, dict], dict]
 
-ALIASES: dict[str, str] = {}
+ALIASES: dict[str, str] = {
+    # iem's modules into sub-packages: the estimators' classes (iem.persistence.MODELS)
+    "iem.ensemble:IncrementalEnsemble": "iem.ensemble.model:IncrementalEnsemble",
+}
 """Module paths that moved: ``"old.module" -> "new.module"`` (every name in it) or
 ``"old.module:name" -> "new.module:name"`` (one name). A row may name a path that moved
 again (rows chain). Add a row when a module that model files name moves."""

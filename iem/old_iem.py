@@ -34,9 +34,9 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Samples, resolve
-from .ensemble import IncrementalEnsemble
+from .ensemble.learner import N_IN, WeakLearner
+from .ensemble.model import IncrementalEnsemble
 from .errors import InvalidInputError
-from .learner import N_IN, WeakLearner
 
 FROZEN, STRICT, RUNNING_CENTRE = "frozen", "strict", "running_centre"
 UPDATES = (FROZEN, STRICT, RUNNING_CENTRE)

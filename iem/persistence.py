@@ -62,7 +62,7 @@ SCHEMA = "iem-payload-model"
 """The ``schema`` field of every model file."""
 
 MODELS: dict[str, str] = {
-    "IEM": "iem.ensemble:IncrementalEnsemble",
+    "IEM": "iem.ensemble.model:IncrementalEnsemble",
     "old_IEM": "iem.old_iem:InPlaceEnsemble",
     "BEM": "iem.bem:BatchEnsemble",
     "LS": "iem.least_squares:RecursiveLeastSquares",

@@ -79,7 +79,7 @@ import numpy as np
 
 from .base import BaseEstimator, Samples
 from .consistency import EPS
-from .ensemble import IncrementalEnsemble
+from .ensemble.model import IncrementalEnsemble
 from .ensemble_prior import EnsemblePrior
 from .errors import InvalidInputError
 from .innovation import MODEL_ERROR_GAIN, NIS_WINDOW, InnovationTest

@@ -19,7 +19,7 @@ a few seconds, rather than scoring it alone) and model: ``bags``, ``nbytes``, th
 :meth:`BagRouter.route` on every 10th sample, timed apart from the estimator;
 ``route_cpu_us`` the same in this thread's CPU time, which leaves out the time the machine
 ran other work), ``retired`` and ``promoted`` (the budget's bags retired and promoted from
-probation so far, :mod:`iem.budget`), ``estimate_us`` (p50/p99 of ``predict_one``),
+probation so far, :mod:`iem.ensemble.budget`), ``estimate_us`` (p50/p99 of ``predict_one``),
 ``learn_ms`` (median, max and total of the ``learn_one`` calls that learnt from a point, and
 how many) and ``mae`` per group (mass, com, inertia) of the smoothed estimate against the
 true payload; ``changes``: payload changes reported (false alarms: the payload never
@@ -56,7 +56,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from iem.budget import DEFAULT_BUDGET_BAGS
+from iem.ensemble.budget import DEFAULT_BUDGET_BAGS
 from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
 from iem.types import JointState
@@ -359,8 +359,8 @@ def budget_figures(model, n: int, kin, seed: int, queries: int = 2000) -> dict:
     import tempfile
 
     from iem.ensemble import IncrementalEnsemble
+    from iem.ensemble.router import BagRouter
     from iem.persistence import load_model, save_model
-    from iem.router import BagRouter
 
     rng = np.random.default_rng([seed, 2000])
     Q = rng.uniform(kin.q_min, kin.q_max, size=(n, 7))
@@ -420,7 +420,7 @@ def configure(parser) -> None:
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="BAGS",
                         help=f"bag budget of the ensemble (default {DEFAULT_BUDGET}; its newest "
-                             "10 %% are on probation, iem/budget.py)")
+                             "10 %% are on probation, iem/ensemble/budget.py)")
     parser.add_argument("--background", action="store_true",
                         help="train in the worker thread, off the cycle (not reproducible: "
                              "when training lands depends on the machine)")

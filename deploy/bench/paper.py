@@ -98,13 +98,13 @@ import numpy as np
 from iem.bem import BatchEnsemble
 from iem.consistency import min_eigenvalue
 from iem.ensemble import IncrementalEnsemble
+from iem.ensemble.router import BagRouter
 from iem.least_squares import RecursiveLeastSquares
 from iem.metrics import convergence_s, groups_of, mae
 from iem.metrics import coverage as coverage_of
 from iem.old_iem import RUNNING_CENTRE, InPlaceEnsemble
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
-from iem.router import BagRouter
 from iem.sensor import SensorModel
 from iem.signals.blocks import BlockFormer, Blocks
 from iem.signals.smoothing import DEFAULT_TAU_S

@@ -26,7 +26,7 @@ import numpy as np
 
 def scan_vs_exact(kin, sizes, seed: int = 0, queries: int = 2000) -> list[dict]:
     """The scan and exact distances on maps of ``sizes`` bags; see the module docstring."""
-    from iem.router import BagRouter
+    from iem.ensemble.router import BagRouter
 
     out = []
     for n in sizes:

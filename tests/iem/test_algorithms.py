@@ -1,7 +1,8 @@
 """The paper's algorithms step by step on small hand-made inputs.
 
-- Algorithm 1 (:class:`iem.router.BagRouter`): bag membership, running means and counts by hand.
-- Algorithm 2 (:class:`iem.learner.WeakLearner`): one SGD step computed by hand.
+- Algorithm 1 (:class:`iem.ensemble.router.BagRouter`): bag membership, running means and counts
+  by hand.
+- Algorithm 2 (:class:`iem.ensemble.learner.WeakLearner`): one SGD step computed by hand.
 - Eq. 1-2 and the online rules (:class:`iem.ensemble.IncrementalEnsemble`): new bags copy the
   nearest learner, the open bag trains, a closed bag's learner never changes, the estimate
   comes from the bag the point falls in or else the nearest one.
@@ -13,8 +14,8 @@ import numpy as np
 import pytest
 
 from iem.ensemble import IncrementalEnsemble
-from iem.learner import SCALE_FLOOR, WeakLearner, output_range
-from iem.router import BagRouter
+from iem.ensemble.learner import SCALE_FLOOR, WeakLearner, output_range
+from iem.ensemble.router import BagRouter
 
 
 def e(i: int, n: int = 7) -> np.ndarray:

@@ -8,8 +8,8 @@ import pytest
 
 from iem.base import Estimator
 from iem.bem import BatchEnsemble
+from iem.ensemble.learner import WeakLearner, output_range
 from iem.errors import InvalidInputError
-from iem.learner import WeakLearner, output_range
 from iem.tree import RegressionTree
 
 N_POINTS, K = 30, 77

@@ -1,13 +1,14 @@
-"""The bag budget's policy (:mod:`iem.budget`): probation for the newest bags, promotion when
-the motion comes back, the least-used permanent bag after a promotion, and its persistence."""
+"""The bag budget's policy (:mod:`iem.ensemble.budget`): probation for the newest bags, promotion
+when the motion comes back, the least-used permanent bag after a promotion, and its
+persistence."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from iem.budget import BagBudget, default_probation
 from iem.ensemble import IncrementalEnsemble
+from iem.ensemble.budget import BagBudget, default_probation
 from iem.errors import InvalidInputError
 from iem.persistence import dumps, loads
 

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from iem import checks
-from iem.ensemble import OOD_THRESHOLD, VELOCITY_THRESHOLD, IncrementalEnsemble
+from iem.ensemble import IncrementalEnsemble
+from iem.ensemble.ood_hold import OOD_THRESHOLD, VELOCITY_THRESHOLD
+from iem.ensemble.router import BagRouter
+from iem.ensemble.worker import LearningError, LearningWorker
 from iem.errors import InvalidInputError
 from iem.persistence import dumps, loads
-from iem.router import BagRouter
-from iem.worker import LearningError, LearningWorker
 
 from .test_checks import DATA
 
@@ -126,7 +127,7 @@ def test_new_bag_estimates_with_its_copied_learner_until_its_training_lands():
     model = fitted(background=True)
     before = model.n_bags
     gate = Gate()
-    model._worker.submit(gate)
+    model._schedule.submit(gate)
     assert gate.started.wait(30)
     i = next(j for j in DATA.further_points()
              if model.router.route(DATA.X[j, :7], DATA.F[j])[0] < 0)
@@ -167,7 +168,7 @@ def test_published_learners_never_change_and_closed_bags_are_never_retrained():
 def test_saving_and_copying_finish_pending_work():
     model = fitted(background=True)
     gate = Gate()
-    model._worker.submit(gate)
+    model._schedule.submit(gate)
     learn(model, DATA.further_points()[:40])
     assert model.pending > 0
     threading.Timer(0.05, gate.release.set).start()
@@ -188,7 +189,7 @@ def test_a_copy_of_a_background_ensemble_does_not_wait_and_holds_the_published_s
     model.drain()
     closed = model.n_bags  # every bag so far is closed and trained
     gate = Gate()
-    model._worker.submit(gate)
+    model._schedule.submit(gate)
     assert gate.started.wait(30)
     learn(model, DATA.further_points()[20:60])
     assert model.pending > 0
@@ -486,7 +487,7 @@ def test_a_dropped_background_ensemble_ends_its_thread():
     model = fitted(background=True)
     learn(model, DATA.further_points()[:5])
     model.drain()
-    thread = model._worker._thread
+    thread = model._schedule.worker._thread
     assert thread.is_alive()
     del model
     gc.collect()
@@ -495,12 +496,12 @@ def test_a_dropped_background_ensemble_ends_its_thread():
 
 
 def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch):
-    import iem.ensemble as ensemble
+    import iem.ensemble.scheduler as scheduler
 
-    monkeypatch.setattr(ensemble, "MAX_PENDING", 5)
+    monkeypatch.setattr(scheduler, "MAX_PENDING", 5)
     model = fitted(background=True)
     gate = Gate()
-    model._worker.submit(gate)
+    model._schedule.submit(gate)
     assert gate.started.wait(30)
     learn(model, DATA.further_points())
     assert model.skipped_points > 0
@@ -512,7 +513,7 @@ def test_a_worker_far_behind_skips_open_bag_points_and_counts_them(monkeypatch):
 
 # -- the fit's memory ----------------------------------------------------------------------
 def test_fit_stacks_a_bags_samples_as_vstack_does_and_refuses_uneven_points():
-    from iem.ensemble import _stacked
+    from iem.ensemble.training import _stacked
 
     idx = np.array(DATA.fit_points[:5])
     X, Y = _stacked(DATA.samples_at, idx)

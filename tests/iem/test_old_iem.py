@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from iem.ensemble.learner import WeakLearner, output_range
 from iem.errors import InvalidInputError
-from iem.learner import WeakLearner, output_range
 from iem.old_iem import UPDATES, InPlaceEnsemble, frozen_update
 
 from .test_checks import DATA

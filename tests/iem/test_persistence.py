@@ -204,7 +204,7 @@ def test_save_fsyncs_file_and_directory(tmp_path, monkeypatch):
 
 # -- registry ------------------------------------------------------------------------------
 def test_registry_table_names_iem_lazily():
-    assert MODELS["IEM"] == "iem.ensemble:IncrementalEnsemble"
+    assert MODELS["IEM"] == "iem.ensemble.model:IncrementalEnsemble"
 
 
 def test_explicit_registry(tmp_path):

@@ -1,4 +1,4 @@
-"""One routing decision (:meth:`iem.router.BagRouter._decide`), whatever proposes its
+"""One routing decision (:meth:`iem.ensemble.router.BagRouter._decide`), whatever proposes its
 candidates: every bag (up to 64 bags, and :meth:`BagRouter.route_exact`), the float32 scan
 (beyond), :meth:`BagRouter.route_many`'s candidates and :meth:`BagRouter.route_join` decide
 as an independent brute-force float64 computation does, ties included, on maps of several
@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from iem.ensemble.router import BagRouter
 from iem.errors import InvalidInputError
-from iem.router import BagRouter
 
 LO, HI = -2.0, 2.0  # rad: a box small enough that bags overlap at δ = 0.5
 DELTA, RHO = 0.5, 0.3

@@ -258,7 +258,7 @@ def test_a_bad_friction_array_says_what_is_valid():
 def test_sensor_model_lives_in_iem():
     assert SensorModel is CoreSensorModel
     assert SensorModel(1e-4, 2e-3, 0.05) == DEFAULT_SENSOR
-    from iem.ensemble import SENSOR_NOISE
+    from iem.ensemble.learner import SENSOR_NOISE
 
     np.testing.assert_array_equal(SENSOR_NOISE, DEFAULT_SENSOR.sigmas)
 

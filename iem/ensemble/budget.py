@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 DEFAULT_BUDGET_BAGS = 2000
 """The bag budget of a model the plug-in trains (``deploy.training.DEPLOY_ENSEMBLE``) and of

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 DEFAULT_DELTA = math.radians(30.0)
 """Joint-space threshold δ of the paper, rad (30°)."""

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import load_factory
+from ..base import load_factory
 
 __all__ = ["TrainingAugment"]
 

@@ -6,9 +6,9 @@ the steps on each point that joins the open bag, the refit when a bag closes. A 
 zero-argument callable; the worker runs the jobs one at a time in the order they were
 submitted, so what each job computes does not depend on when it runs (each learner draws its
 noise from its own seeded generator): only *when* a trained learner lands in the ensemble
-does. A job publishes its result itself, by one assignment under the ensemble's lock (the
-swap is atomic: a cycle predicts with the old learner or with the new one, never with a
-learner half trained).
+does. A job publishes its result itself, by one assignment under the lock of the ensemble's
+:class:`~iem.ensemble.scheduler.LearningScheduler` (the swap is atomic: a cycle predicts with
+the old learner or with the new one, never with a learner half trained).
 
 ``synchronous=True`` runs every job at once in the caller's thread (no thread at all):
 seeded runs then reproduce bit for bit, as tests and benchmarks need. :meth:`drain` waits for
@@ -16,7 +16,7 @@ every submitted job; :meth:`close` drains and stops the thread. A job that raise
 nothing else: the error is kept and raised by the next :meth:`drain` (so it is not lost).
 
 Copies: a deep copy or a pickle of a worker is a new idle worker of the same mode (a thread
-cannot be copied); :class:`~iem.ensemble.IncrementalEnsemble` drains before it is copied.
+cannot be copied); the scheduler's copies get one so.
 
 The interpreter lock: a Python thread runs numpy's small products holding it, and by default
 holds it up to 5 ms before another thread may take it. So the worker gives it up between jobs
@@ -33,7 +33,7 @@ import time
 import weakref
 from collections.abc import Callable
 
-from .errors import IemError
+from ..errors import IemError
 
 
 class LearningError(IemError):

@@ -6,7 +6,7 @@ over the 21 inputs; above ``threshold`` (default :data:`OOD_THRESHOLD`) an estim
 closed bag carries ``ood = True``. So does one whose joint velocities score above
 ``velocity_threshold`` (default :data:`VELOCITY_THRESHOLD`; ``extra["velocity_score"]``): a
 Mahalanobis distance to the learner's training velocities
-(:meth:`iem.learner.WeakLearner.velocity_score`), which knows how they go together. A bag's
+(:meth:`iem.ensemble.learner.WeakLearner.velocity_score`), which knows how they go together. A bag's
 samples lie on one stretch of path, along one direction of motion (and its reverse); a later
 visit at another velocity has each velocity within range but not the combination, and a
 learner without the acceleration among its inputs reads such a visit kilograms off (over
@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidInputError
-from .types import PayloadEstimate
+from ..errors import InvalidInputError
+from ..types import PayloadEstimate
 
 __all__ = ["OOD_HOLD_S", "OOD_THRESHOLD", "VELOCITY_THRESHOLD", "OodHold"]
 
@@ -36,7 +36,7 @@ OOD_THRESHOLD = 4.0
 deviations) that is in distribution; tuned in ``iem bench longrun`` (docs/decisions.md)."""
 
 VELOCITY_THRESHOLD = 4.0
-"""Default largest :meth:`iem.learner.WeakLearner.velocity_score` of an input that is in
+"""Default largest :meth:`iem.ensemble.learner.WeakLearner.velocity_score` of an input that is in
 distribution (about 1 for the learner's own training inputs)."""
 
 OOD_HOLD_S = 2.0
@@ -85,7 +85,7 @@ class OodHold:
 
     def flags(self, score: float, vscore: float, learning: bool) -> dict:
         """The ``extra`` of an estimate whose input scores ``score`` (the largest ``|z|``) and
-        ``vscore`` (:meth:`~iem.learner.WeakLearner.velocity_score`, read only if
+        ``vscore`` (:meth:`~iem.ensemble.learner.WeakLearner.velocity_score`, read only if
         :meth:`scores_velocity`); ``learning``: the open bag's (never flagged)."""
         extra = {"ood_score": score}
         ood = False
