@@ -302,7 +302,7 @@ def test_the_commissioning_procedure_runs_on_simulated_traffic(tmp_path, capsys)
     for words in lines:
         if words[0] == "cp":
             shutil.copy(here(words[1]), here(words[2]))
-            transcript.append(f"$ {shlex.join(words)}")
+            transcript.append(f"$ cp {Path(words[1]).name} {Path(words[2]).name}")
             continue
         for command, args in iem_invocations(shlex.join(words)):
             if not command:  # the unit or user named iem (systemctl, sudo -u iem)
@@ -320,9 +320,8 @@ def test_the_commissioning_procedure_runs_on_simulated_traffic(tmp_path, capsys)
                     for section, table in doc.items()), encoding="utf-8")
             status = main([*command.split(), *args])
             out = capsys.readouterr()
-            transcript.append(f"$ iem {command} {shlex.join(args)}".replace(str(tmp_path) + "/",
-                                                                            "")
-                              + f"\n{out.out}{out.err}".rstrip())
+            transcript.append(f"$ iem {command} {shlex.join(args)}\n{out.out}{out.err}"
+                              .rstrip().replace(f"{tmp_path}/", ""))
             assert status == 0, transcript[-1]
             if command == "run":
                 run_log = out.err
