@@ -360,7 +360,7 @@ def _figures(out_dir, results, runs, bench, models) -> list[tuple[str, str]]:
                            ("new path", bench.new_rollout, runs["new_path"]["IEM"])):
         pts = bench.kin.flange_positions(ro.q[run.last[::2]])  # block points' last frames
         ax.scatter(*pts.T, c=run.bags[::2], cmap="tab10", s=2, vmin=0, vmax=9)
-    centres = iem.ensemble.router.flange_means
+    centres = iem.router.flange_means
     ax.scatter(*centres.T, c="k", marker="x", s=60, label="bag centres")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
