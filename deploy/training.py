@@ -47,7 +47,7 @@ distribution instead), and at most 2,000 bags (beyond, a new bag takes a slot by
 
 NOISE_SOURCES = ("arm", "sensor")
 """What IEM+phys takes as the error of its equations: ``arm``, the arm's own noise (measured
-by ``iem calibrate`` into the arm file; :data:`iem.torque_noise.NOMINAL_ARM_NOISE`, a
+by ``iem calibrate`` into the arm file; :data:`iem.physics.torque_noise.NOMINAL_ARM_NOISE`, a
 conservative default, for an arm that was not calibrated), the right choice on a real arm;
 ``sensor``, the sensor model's white noise alone: a simulated arm whose model is exact."""
 
@@ -159,11 +159,11 @@ def load_arm_file(arm_file, end_effector=None):
 def arm_torque_noise(arm, point_rate_hz: float = NOMINAL_POINT_RATE_HZ) -> dict:
     """What IEM+phys takes as its equations' error on ``arm`` (None: the nominal arm): the
     noise ``iem calibrate`` measured into the arm file, or the nominal arm's conservative
-    default (:data:`iem.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate (one
+    default (:data:`iem.physics.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate (one
     equation per block point)."""
     from dataclasses import replace
 
-    from iem.torque_noise import NOMINAL_ARM_NOISE
+    from iem.physics.torque_noise import NOMINAL_ARM_NOISE
 
     if arm is not None and arm.noise is not None:
         return dict(arm.noise)

@@ -6,8 +6,8 @@ Y(q, dq, ddq) phi``. Recursive least squares (in Kalman form, 7 equations per up
 
     S = Y P Y^T + R,  K = P Y^T S^-1,  phi <- phi + K (r - Y phi),  P <- P - K S K^T
 
-The equations ``(Y, r, R)`` come from :class:`iem.regression.PayloadRegression`: ``q``, ``dq``
-and ``tau`` through the same causal 2nd-order Butterworth low-pass (default 20 Hz), ``ddq``
+The equations ``(Y, r, R)`` come from :class:`iem.physics.regression.PayloadRegression`: ``q``,
+``dq`` and ``tau`` through the same causal 2nd-order Butterworth low-pass (default 20 Hz), ``ddq``
 the backward difference of the filtered ``dq``, and ``R`` the filtered torque noise plus the
 errors-in-variables term of the ``ddq`` noise (``M(q) diag(sigma_ddq²) M(q)^T``), so the
 reported uncertainty ``std = sqrt(diag(P))`` stays honest. The filtered torque noise is
@@ -16,7 +16,7 @@ correlated over about ``rate / (2 cutoff)`` samples, so the filter updates only 
 deviation sized to the Panda's rated payload (3 kg, CoM within 0.1 m, inertia within
 0.01 kg·m²): the classical method knows the robot's rating, not the payload family.
 
-The robot model is given by the caller, named, not passed (see :mod:`iem.regression`), and
+The robot model is given by the caller, named, not passed (see :mod:`iem.physics.regression`), and
 imported only when the model first learns.
 """
 
@@ -26,21 +26,12 @@ import numpy as np
 
 from .base import BaseEstimator, Samples
 from .errors import InvalidInputError
-from .regression import (
-    PayloadRegression,
-    impulse_response,
-    load_dynamics,
-    noise_gains,
-    required_dynamics,
-)
+from .physics.posterior import DEFAULT_PRIOR_STD
+from .physics.regression import PayloadRegression, required_dynamics
 from .sensor import DEFAULT_SENSOR
 from .types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, PayloadEstimate
 
-__all__ = ["DEFAULT_PRIOR_STD", "RecursiveLeastSquares", "impulse_response", "load_dynamics",
-           "noise_gains"]
-
-DEFAULT_PRIOR_STD = (3.0, 0.3, 0.3, 0.3, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01)
-"""Prior standard deviation per parameter (kg, kg·m, kg·m²): the Panda's rated payload."""
+__all__ = ["RecursiveLeastSquares"]
 
 
 class RecursiveLeastSquares(BaseEstimator):
@@ -48,7 +39,7 @@ class RecursiveLeastSquares(BaseEstimator):
 
     Args:
         dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
-            (see :mod:`iem.regression`), stored in the model file.
+            (see :mod:`iem.physics.regression`), stored in the model file.
         sigma_tau: torque noise of one measured frame, N·m.
         cutoff_hz: low-pass cut-off for q, dq and tau, Hz.
         rate_hz: sample rate, Hz (the block points', :mod:`iem.signals.blocks`: 100 Hz).

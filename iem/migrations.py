@@ -46,6 +46,7 @@ Step = Callable[[str, dict], dict]
 ALIASES: dict[str, str] = {
     # iem's modules into sub-packages: the estimators' classes (iem.persistence.MODELS)
     "iem.ensemble:IncrementalEnsemble": "iem.ensemble.model:IncrementalEnsemble",
+    "iem.physics:PhysicsInformedEnsemble": "iem.physics.model:PhysicsInformedEnsemble",
 }
 """Module paths that moved: ``"old.module" -> "new.module"`` (every name in it) or
 ``"old.module:name" -> "new.module:name"`` (one name). A row may name a path that moved

@@ -66,7 +66,7 @@ MODELS: dict[str, str] = {
     "old_IEM": "iem.old_iem:InPlaceEnsemble",
     "BEM": "iem.bem:BatchEnsemble",
     "LS": "iem.least_squares:RecursiveLeastSquares",
-    "IEM+phys": "iem.physics:PhysicsInformedEnsemble",
+    "IEM+phys": "iem.physics.model:PhysicsInformedEnsemble",
 }
 """Estimator kinds that can be loaded: ``name -> "module:Class"``. Add one line per kind (or
 call :func:`register_model`); the module is imported only when a file of that kind is read."""

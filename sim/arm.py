@@ -25,7 +25,8 @@ the plant, the tandem simulators and the estimators' regression use one arm mode
 
 The arm file is the model file's format (:mod:`iem.persistence`: msgpack, schema
 :data:`ARM_SCHEMA`, versioned, CRC32-checked, written atomically). Estimators name the arm
-by their dynamics spec (:mod:`iem.regression`): ``"sim.arm:arm_dynamics@/path/arm.msgpack"``.
+by their dynamics spec (:mod:`iem.physics.regression`):
+``"sim.arm:arm_dynamics@/path/arm.msgpack"``.
 """
 
 from __future__ import annotations
@@ -203,7 +204,7 @@ class ArmParams:
         end_effector: the label of the end effector body 7 carries
             (:mod:`sim.end_effector`: ``"franka_hand"``, ``"none"`` or a tool file's label).
         noise: what this arm model leaves unexplained in IEM+phys's equations
-            (:class:`iem.torque_noise.TorqueNoise` as a dict, measured by ``iem calibrate``
+            (:class:`iem.physics.torque_noise.TorqueNoise` as a dict, measured by ``iem calibrate``
             on traffic it did not fit); None: not measured (the nominal arm's conservative
             default applies).
     """

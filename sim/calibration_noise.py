@@ -2,10 +2,10 @@
 
 ``iem calibrate`` fits the arm (:func:`sim.calibration.calibrate_segments`) and then measures
 what the fitted model still leaves unexplained, in the domain where IEM+phys uses it: the
-residuals ``r`` of the equations its regression forms (:class:`iem.regression.
+residuals ``r`` of the equations its regression forms (:class:`iem.physics.regression.
 PayloadRegression` with the same block size, low-pass and rate, fed sample by sample through
 the gap rule as the online loop feeds it), on traffic the fit did not see
-(:func:`iem.torque_noise.measure`: per joint the size, the correlation over time and the
+(:func:`iem.physics.torque_noise.measure`: per joint the size, the correlation over time and the
 slow drift).
 
 The held-out traffic comes from a cross-validation by blocks: the traffic is cut into
@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from iem.torque_noise import TorqueNoise, bias_std, equations, measure, phantom_payloads
+from iem.physics.torque_noise import TorqueNoise, bias_std, equations, measure, phantom_payloads
 from iem.types import NOMINAL_RATE_HZ
 
 from .arm import ArmDynamics, ArmParams
@@ -92,11 +92,11 @@ def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
 def _measure_folds(pairs, source: str) -> TorqueNoise:
     """The noise the arms of ``(arm, held-out parts)`` pairs leave on their parts (each part a
     stretch of its own), pooled: the size,
-    correlation and drift of the residuals (:func:`iem.torque_noise.measure`), then the
+    correlation and drift of the residuals (:func:`iem.physics.torque_noise.measure`), then the
     correlation weight scaled by what the phantom payloads of the held-out stretches show
-    (:func:`iem.torque_noise.phantom_payloads`: their spread beyond their own variances is the
-    noise's ``bias_std``)."""
-    from iem.regression import PayloadRegression
+    (:func:`iem.physics.torque_noise.phantom_payloads`: their spread beyond their own variances is
+    the noise's ``bias_std``)."""
+    from iem.physics.regression import PayloadRegression
 
     c = REGRESSION
     stretches, weight, r_tau = [], 1.0, 0.0

@@ -231,7 +231,7 @@ def spatial_inertia(phi) -> np.ndarray:
 class PandaDynamics:
     """``(q, dq, ddq) -> (tau_robot, Y, M)`` of a nominal Panda (:meth:`PandaModel.
     rnea_regressor_mass`), plus the payload's mass matrix ``payload_mass_matrix(q, phi)``
-    (the fast path :class:`iem.regression.PayloadRegression` uses when it is there)."""
+    (the fast path :class:`iem.physics.regression.PayloadRegression` uses when it is there)."""
 
     def __init__(self) -> None:
         self.model = PandaModel()
@@ -251,7 +251,7 @@ def panda_dynamics() -> PandaDynamics:
 
 PANDA_DYNAMICS = "sim.robot:panda_dynamics"
 """The dynamics spec of the nominal Panda (:func:`panda_dynamics`), which callers give the
-least-squares estimators (``dynamics=``; :mod:`iem.regression`) and model files store."""
+least-squares estimators (``dynamics=``; :mod:`iem.physics.regression`) and model files store."""
 
 
 @cache

@@ -81,7 +81,7 @@ def test_a_listed_arrow_that_is_gone_is_seen():
 
 
 def test_the_value_types_home_is_numpy_only():
-    for name in ("types", "payload", "errors", "torque_noise"):
+    for name in ("types", "payload", "errors", "physics/torque_noise"):
         imported = _imports(REPO / "iem" / f"{name}.py")
         assert not imported - {"iem"}, (name, imported)
         text = (REPO / "iem" / f"{name}.py").read_text(encoding="utf-8")

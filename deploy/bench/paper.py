@@ -43,7 +43,7 @@ it tracks the payload with its physics but, like the IEM, does not train its lea
   reported standard deviations of the truth (``coverage_2sigma_groups`` per group,
   ``mean_std_groups`` the mean reported standard deviation), else None; and for every model
   ``mae_groups_raw``, the MAE before the smoothing, and ``consistent_share``, the share of its
-  raw estimates that are physically consistent (:mod:`iem.consistency`); for IEM+phys also
+  raw estimates that are physically consistent (:mod:`iem.physics.consistency`); for IEM+phys also
   ``data_std_end``, the standard deviation per parameter that the path's equations alone give
   at its end (``data_std``: what the motion could tell, without the prior).
 - ``new_path_continued``: the new task path for the models that carry a payload estimate
@@ -96,7 +96,6 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.bem import BatchEnsemble
-from iem.consistency import min_eigenvalue
 from iem.ensemble import IncrementalEnsemble
 from iem.ensemble.router import BagRouter
 from iem.least_squares import RecursiveLeastSquares
@@ -105,6 +104,7 @@ from iem.metrics import coverage as coverage_of
 from iem.old_iem import RUNNING_CENTRE, InPlaceEnsemble
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
+from iem.physics.consistency import min_eigenvalue
 from iem.sensor import SensorModel
 from iem.signals.blocks import BlockFormer, Blocks
 from iem.signals.smoothing import DEFAULT_TAU_S

@@ -38,7 +38,7 @@ Method (offline, so the filters may be non-causal):
    reweighted), so that a disturbance longer than a spike (a touch, a cable pulling) pulls
    with bounded force.
 5. **Prior.** A stated weak Gaussian prior: standard deviations of the Panda's rated payload
-   (:data:`iem.least_squares.DEFAULT_PRIOR_STD`: 3 kg, 0.3 kg·m, 0.01 kg·m²); zero mean for
+   (:data:`iem.physics.posterior.DEFAULT_PRIOR_STD`: 3 kg, 0.3 kg·m, 0.01 kg·m²); zero mean for
    the mass and the first moments, and for the inertia about the flange the inertia of a
    point mass at the CoM a first fit found (refit once from there): a body whose CoM is far
    from the flange has at least that inertia about it, so a zero mean would contradict it
@@ -48,8 +48,8 @@ Method (offline, so the filters may be non-causal):
 6. **Physical consistency.** The weighted least-squares cost is ``(phi - phi_hat)^T H (phi -
    phi_hat) + const``, ``H`` the posterior precision, so the constrained least squares under
    the pseudo-inertia LMI ``J(phi) >= eps E`` is exactly the weighted projection
-   :func:`iem.consistency.project` (a log-barrier Newton method, checked against SLSQP in its
-   tests): no separate convex-programming dependency.
+   :func:`iem.physics.consistency.project` (a log-barrier Newton method, checked against SLSQP in
+   its tests): no separate convex-programming dependency.
 7. **Uncertainty.** ``cov = H^-1`` (the lead marginalised out), ``std`` its diagonal's root,
    with the residual variance measured on the
    data and inflated by the residuals' own autocorrelation (filtered noise and model error are

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from iem.consistency import is_consistent, project, pseudo_inertia
 from iem.errors import InvalidInputError
-from iem.least_squares import DEFAULT_PRIOR_STD
+from iem.physics.consistency import is_consistent, project, pseudo_inertia
+from iem.physics.posterior import DEFAULT_PRIOR_STD
 from iem.signals.recording import Signals, as_recording, filtered
 from iem.types import GROUPS, N_JOINTS
 

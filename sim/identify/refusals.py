@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 
-from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
+from iem.physics.consistency import is_consistent, project
 from iem.signals.recording import Signals, lag, sample
 from iem.types import GROUPS, PARAMS
 

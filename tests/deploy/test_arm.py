@@ -10,7 +10,7 @@ from deploy.config import config_from_dict, load_config
 from deploy.replay import CSV_HEADER
 from iem.errors import ModelFileError
 from iem.persistence import check_arm, load_model
-from iem.regression import load_dynamics
+from iem.physics.regression import load_dynamics
 from sim.arm import ArmParams, arm_record, arm_spec, load_arm, save_arm
 from sim.family import default_test_payload
 from sim.paths import calibration_path, new_task_path

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iem.change import LEVEL_EQUATIONS, ChangeDetector
 from iem.errors import InvalidInputError
+from iem.physics.change import LEVEL_EQUATIONS, ChangeDetector
 
 
 def feed(det, values) -> list[int]:

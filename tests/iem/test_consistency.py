@@ -12,7 +12,8 @@ import pinocchio as pin
 import pytest
 from scipy.optimize import minimize
 
-from iem.consistency import (
+from iem.errors import InvalidInputError
+from iem.physics.consistency import (
     EPS,
     from_pseudo_inertia,
     is_consistent,
@@ -20,7 +21,6 @@ from iem.consistency import (
     project,
     pseudo_inertia,
 )
-from iem.errors import InvalidInputError
 from sim.family import test_payloads, training_payloads
 from sim.payload import Payload
 from sim.robot import phi_from_pin, phi_to_pin

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iem.regression import PayloadRegression, correlation_weight
+from iem.physics.regression import PayloadRegression, correlation_weight
 from iem.signals.filters import LowPass2
 from iem.signals.gaps import RESTART
 

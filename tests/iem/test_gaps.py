@@ -8,7 +8,7 @@ import pytest
 
 from iem.base import BaseEstimator
 from iem.online import OnlineIdentifier
-from iem.regression import PayloadRegression
+from iem.physics.regression import PayloadRegression
 from iem.signals.filters import LowPass2, StateFilter
 from iem.signals.gaps import RESTART, SKIP, GapRule
 from iem.signals.smoothing import ExponentialSmoother

@@ -700,7 +700,7 @@ def _least_squares(dynamics):
 
 
 def _regression(dynamics):
-    from iem.regression import PayloadRegression
+    from iem.physics.regression import PayloadRegression
 
     return PayloadRegression(dynamics)
 

@@ -10,13 +10,14 @@ import pinocchio as pin
 import pytest
 
 from iem.base import BaseEstimator
-from iem.change import ChangeDetector, chi_square
-from iem.consistency import is_consistent, project
 from iem.errors import InvalidInputError
-from iem.least_squares import DEFAULT_PRIOR_STD, RecursiveLeastSquares
+from iem.least_squares import RecursiveLeastSquares
 from iem.online import OnlineIdentifier
 from iem.physics import MODEL_ERROR_GAIN, PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
-from iem.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
+from iem.physics.change import ChangeDetector, chi_square
+from iem.physics.consistency import is_consistent, project
+from iem.physics.posterior import DEFAULT_PRIOR_STD
+from iem.physics.regression import PayloadRegression, impulse_response, noise_gains, settle_samples
 from iem.signals.filters import LowPass2
 from iem.signals.gaps import RESTART
 from iem.types import JointState, PayloadEstimate
@@ -186,8 +187,8 @@ def test_the_curvature_is_the_second_difference_of_the_robot_torque(new_rollout_
 
 
 def test_the_detector_gets_the_equation_with_and_without_its_model_error_the_nis_without():
-    """``_test`` (:class:`iem.innovation.InnovationTest`): the detector gets ``nu^T S^-1 nu``
-    and ``nu^T (S + diag((g c)^2))^-1 nu``, the NIS the first over 7, ``S = R + Y P Y^T``
+    """``_test`` (:class:`iem.physics.innovation.InnovationTest`): the detector gets ``nu^T S^-1
+    nu`` and ``nu^T (S + diag((g c)^2))^-1 nu``, the NIS the first over 7, ``S = R + Y P Y^T``
     (numpy's own solve here); without a curvature (the first equations) the plain one alone."""
     X = _hand_made(1500)
     rng = np.random.default_rng(4)
@@ -360,7 +361,7 @@ def test_the_prior_alone_and_the_first_estimate_with_equations_restart_the_smoot
 
 def test_a_posterior_saved_as_a_list_still_loads_and_its_size_is_what_it_holds():
     """Model files from before the posterior's state was a dict hold it as a list."""
-    from iem.posterior import Posterior
+    from iem.physics.posterior import Posterior
 
     post = Posterior(PHI.copy(), np.eye(10), np.eye(10), 2.0, equations=7)
     state = post.to_state()
@@ -566,7 +567,7 @@ def test_lowpass_state_round_trips_through_the_regression_state():
 def test_every_output_is_physically_consistent():
     """Thousands of estimates from junk (the check suite's synthetic path, whose torques are
     no Panda's, and random inputs): the raw posterior is often impossible, the output never."""
-    from iem.consistency import min_eigenvalue
+    from iem.physics.consistency import min_eigenvalue
 
     from .test_consistency import _payload_ok
 
@@ -624,9 +625,10 @@ def _spread_run(model, X, F, monkeypatch):
     """Feed ``X`` sample by sample; per sample the heavy jobs done (equations formed,
     equations tested, posterior refreshes, Newton steps of the projection), every posterior
     made, and the estimates."""
-    import iem.live_projection as live
-    import iem.physics as physics
-    from iem.regression import PayloadRegression as Reg
+    import iem.physics.live_projection as live
+    import iem.physics.model as physics
+    import iem.physics.tracking as tracking
+    from iem.physics.regression import PayloadRegression as Reg
 
     jobs = {"formed": 0, "tested": 0, "refreshed": 0, "newton": 0}
     made = []
@@ -661,6 +663,7 @@ def _spread_run(model, X, F, monkeypatch):
     monkeypatch.setattr(Reg, "_filter", counted_filter)
     monkeypatch.setattr(PhysicsInformedEnsemble, "_take", counted_take)
     monkeypatch.setattr(physics, "combine", counted_combine)
+    monkeypatch.setattr(tracking, "combine", counted_combine)
     monkeypatch.setattr(live, "project_steps", counted_steps)
     per_sample, estimates = [], []
     for x, f in zip(X, F, strict=True):

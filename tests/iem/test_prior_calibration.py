@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from iem.prior_summary import MASS_BINS, MIN_BIN_SAMPLES, SCALE_RANGE, BagCalibration
+from iem.physics.prior_summary import MASS_BINS, MIN_BIN_SAMPLES, SCALE_RANGE, BagCalibration
 
 
 def _labelled(rng, masses, err_std):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from iem.errors import InvalidInputError
-from iem.posterior import EquationWindow
-from iem.torque_noise import (
+from iem.physics.posterior import EquationWindow
+from iem.physics.torque_noise import (
     MIN_OFFSET_STD,
     NOMINAL_ARM_NOISE,
     TorqueNoise,

@@ -328,7 +328,7 @@ def test_a_near_point_mass_is_projected_onto_the_consistent_bodies(short):
     consistent set, so the noisy least-squares estimate leaves it; the projection brings it
     back, and (a projection onto a convex set that holds the truth, in the metric of the
     posterior precision) can only bring it closer to the truth in that metric."""
-    from iem.consistency import is_consistent
+    from iem.physics.consistency import is_consistent
 
     arm = Arm()
     truth = Payload("compact", 1.0, (0.01, -0.02, 0.1), (1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6))

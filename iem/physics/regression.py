@@ -36,12 +36,12 @@ import math
 
 import numpy as np
 
-from .base import load_factory
-from .errors import InvalidInputError
-from .sensor import DEFAULT_SENSOR
-from .signals.filters import LowPass2, butterworth2
-from .signals.gaps import RESTART, SKIP
-from .types import NOMINAL_RATE_HZ
+from ..base import load_factory
+from ..errors import InvalidInputError
+from ..sensor import DEFAULT_SENSOR
+from ..signals.filters import LowPass2, butterworth2
+from ..signals.gaps import RESTART, SKIP
+from ..types import NOMINAL_RATE_HZ
 
 
 def impulse_response(cutoff_hz: float, rate_hz: float, n: int = 4000) -> np.ndarray:
@@ -142,7 +142,7 @@ class PayloadRegression:
             block rate loses nothing, and each sample costs one addition; the block means
             of white noise are white, with ``1 / decimate`` of its variance.
         model_error_std: the RMS per joint (7, N·m) of what the arm model leaves in the
-            equations (:attr:`iem.torque_noise.TorqueNoise.std`, measured in this domain),
+            equations (:attr:`iem.physics.torque_noise.TorqueNoise.std`, measured in this domain),
             or None: the sensor noise alone. Its excess over the filtered torque noise is
             added to ``R``'s diagonal (:attr:`model_var`).
     """
@@ -201,7 +201,7 @@ class PayloadRegression:
         """Second difference of the robot model's torque ``tau_robot`` over the last three
         equations (7, N·m), None until three consecutive equations since the start: how
         sharply the arm's own torque bends, which sets the error of the filtered equations
-        (:data:`iem.innovation.MODEL_ERROR_GAIN`)."""
+        (:data:`iem.physics.innovation.MODEL_ERROR_GAIN`)."""
 
     @property
     def settled(self) -> bool:

@@ -1,11 +1,11 @@
 """IEM+phys's test of each equation against the posterior: the NIS and the change detector.
 
-An equation ``r = Y phi + e``, ``e ~ N(0, R)`` (:mod:`iem.regression`) has, under the current
-posterior ``N(mean, P)``, the innovation ``nu = r - Y mean`` with covariance ``S = R + Y P
+An equation ``r = Y phi + e``, ``e ~ N(0, R)`` (:mod:`iem.physics.regression`) has, under the
+current posterior ``N(mean, P)``, the innovation ``nu = r - Y mean`` with covariance ``S = R + Y P
 Y^T``. Its normalised square ``nu^T S^-1 nu`` per degree of freedom, averaged over the last
 :data:`NIS_WINDOW` equations, is the NIS (about 1 while the data fit the model: the safety
 gate's check). Once the window holds enough equations for the posterior to stand on its own,
-the same innovation feeds the CUSUM of :class:`iem.change.ChangeDetector`, beside the
+the same innovation feeds the CUSUM of :class:`iem.physics.change.ChangeDetector`, beside the
 innovation judged with the filtered equation's model error (:data:`MODEL_ERROR_GAIN`); the
 detector adds the smaller of the two.
 """
@@ -23,7 +23,7 @@ __all__ = ["MODEL_ERROR_GAIN", "NIS_WINDOW", "InnovationTest"]
 MODEL_ERROR_GAIN = 3.0
 """The change detector's model error: the standard deviation of an equation's error per
 joint is this times the second difference of the robot model's torque over the last three
-equations (:attr:`iem.regression.PayloadRegression.curvature`, 10 ms apart by default).
+equations (:attr:`iem.physics.regression.PayloadRegression.curvature`, 10 ms apart by default).
 
 A 4 Hz low-pass does not commute with the arm's nonlinear dynamics: where the arm's torque
 bends sharply (a fast start from rest), the filtered equations of a perfect arm miss by
@@ -35,7 +35,7 @@ mass matrix times the jerk, ``|ddq|``), the second difference predicts the miss 
 Judged by it alone, the detector raised false alarms elsewhere (seed 0's 10 minutes: 3):
 with the sharp bends explained away, the level stayed low and the rest of the misfit
 counted. So the detector gets both statistics and adds the smaller
-(:class:`iem.change.ChangeDetector`): evidence only where both see it. The gain was chosen
+(:class:`iem.physics.change.ChangeDetector`): evidence only where both see it. The gain was chosen
 on that stretch (seed 1, 1,830-1,900 s) with payload changes of 20, 48 and 275 g injected at
 1,850 s: the CUSUM's largest evidence on the fixed payload 294 -> 32 (threshold 300); 48 g
 detected after 90 ms (70 by the noise alone), 275 g after 30 ms (30), 20 g by neither. The
@@ -48,7 +48,7 @@ class InnovationTest:
     """The NIS of the last :data:`NIS_WINDOW` equations and the change detector they feed.
 
     Args:
-        drift, threshold: the detector's CUSUM (:class:`iem.change.ChangeDetector`).
+        drift, threshold: the detector's CUSUM (:class:`iem.physics.change.ChangeDetector`).
         dof: rows of an equation (the arm's joints).
         level: rescale the detector's statistic by its recent level (a model whose ``R`` is
             the sensor's alone: its misfit at speed is what the level follows); False: the
@@ -78,7 +78,7 @@ class InnovationTest:
     def __call__(self, Y, r, R, mean, cov, detect: bool, curvature=None) -> bool:
         """Test one equation against the posterior ``N(mean, cov)``: its NIS always, the
         change detector only if ``detect``; True if the detector reports a change. A
-        ``curvature`` (7, :attr:`iem.regression.PayloadRegression.curvature`) gives the
+        ``curvature`` (7, :attr:`iem.physics.regression.PayloadRegression.curvature`) gives the
         detector the innovation judged with the model error
         ``S + diag((MODEL_ERROR_GAIN * curvature)²)`` too."""
         nu = r - Y @ mean

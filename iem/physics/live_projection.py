@@ -1,7 +1,7 @@
 """The posterior an IEM+phys estimate shows on a live link, projected a few steps per sample.
 
 Projecting a posterior's mean onto physically consistent parameters
-(:func:`iem.consistency.project_steps`) takes up to 200 Newton steps, about 4 ms: in one
+(:func:`iem.physics.consistency.project_steps`) takes up to 200 Newton steps, about 4 ms: in one
 1 kHz cycle it would stall the estimate. :class:`SpreadProjection` spreads it: each sample
 does ``budget`` Newton steps of the oldest projection in progress, and estimates meanwhile
 show the last finished one (its phi and std, the same posterior, the same arithmetic as at

@@ -29,7 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 NOISE_PSEUDO_COUNT = 10
 """Weight, in samples, of the input-noise covariance against the sample covariance of the

@@ -1,6 +1,6 @@
 """What an arm model leaves unexplained, in the equations IEM+phys forms: the arm's own noise.
 
-IEM+phys's equations ``r = Y phi + e`` (:mod:`iem.regression`) have, on a simulated arm,
+IEM+phys's equations ``r = Y phi + e`` (:mod:`iem.physics.regression`) have, on a simulated arm,
 the sensor's white noise through the filter as their error. On a real arm the error is mostly
 what the arm model gets wrong (link parameters, friction, sensor offsets): larger, correlated
 over time, and slowly drifting. On a real Panda after calibration it is 0.05-0.25 N·m per
@@ -11,11 +11,11 @@ sensor model alone says 0.01-0.02 N·m, white. :class:`TorqueNoise` describes it
 - ``weight``: how many consecutive equations carry the information of one independent
   equation about a constant payload (the sum of the residual's autocorrelation at the
   equations' spacing, :func:`measure`), at least the filter's own
-  (:func:`iem.regression.correlation_weight`);
+  (:func:`iem.physics.regression.correlation_weight`);
 - ``offset_std``: the size of the part that does not average out over a window of
   equations (N·m): the slow drift of the residual's mean. IEM+phys carries one torque
   offset per joint as a state with this prior standard deviation (marginalised in its
-  window of equations, :class:`iem.posterior.EquationWindow`), so a mean that moves with
+  window of equations, :class:`iem.physics.posterior.EquationWindow`), so a mean that moves with
   the arm's temperature is not read as payload;
 - ``bias_std``: what the arm model's error reads as payload on bare-arm traffic
   (:func:`phantom_payloads`): a floor under the estimate's standard deviations.
@@ -32,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InvalidInputError
-from .signals.gaps import GapRule
+from ..errors import InvalidInputError
+from ..signals.gaps import GapRule
 
 N_JOINTS = 7
 
@@ -162,12 +162,12 @@ def measure(residual: np.ndarray, rate_hz: float, filter_weight: float,
 
 
 def equations(regression, t, q, dq, tau, rate_hz: float) -> list[tuple]:
-    """The equations ``(Y, r, R)`` ``regression`` (a fresh :class:`iem.regression.
+    """The equations ``(Y, r, R)`` ``regression`` (a fresh :class:`iem.physics.regression.
     PayloadRegression`) forms from a recording ``t (N,)``, ``q, dq, tau (N, 7)`` fed sample by
     sample through the gap rule at ``rate_hz`` as the online loop does, in order; a restart
     of its filter (a long gap) starts a new stretch: a list of stretches, each a list of
     equations."""
-    from .signals.gaps import RESTART, SKIP
+    from ..signals.gaps import RESTART, SKIP
 
     rule = GapRule(rate_hz)
     x = np.hstack((np.asarray(q, float), np.asarray(dq, float), np.asarray(tau, float)))
@@ -186,7 +186,7 @@ def equations(regression, t, q, dq, tau, rate_hz: float) -> list[tuple]:
 
 PHANTOM_PRIOR_STD = (3.0, 0.3, 0.3, 0.3, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01)
 """Prior standard deviation of a phantom payload's parameters (kg, kg·m, kg·m²: the Panda's
-rated payload, as :data:`iem.least_squares.DEFAULT_PRIOR_STD`)."""
+rated payload, as :data:`iem.physics.posterior.DEFAULT_PRIOR_STD`)."""
 
 
 def phantom_payloads(stretches: list[list[tuple]], noise: TorqueNoise, filter_weight: float,

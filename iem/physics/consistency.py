@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 from .small_linalg import cholesky, solve, sym_inv
 
 EPS = 1e-9

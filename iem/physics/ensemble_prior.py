@@ -1,13 +1,13 @@
 """The ensemble as IEM+phys's prior: how sure each bag's learner is, and what its estimates
-since the last payload change say (:mod:`iem.prior_summary` holds the statistics).
+since the last payload change say (:mod:`iem.physics.prior_summary` holds the statistics).
 
 :class:`EnsemblePrior` keeps, beside the held :class:`iem.ensemble.IncrementalEnsemble`:
 
-- the per-bag calibration (:class:`~iem.prior_summary.BagCalibration`) with the slot
+- the per-bag calibration (:class:`~iem.physics.prior_summary.BagCalibration`) with the slot
   generation it was measured for: a slot the ensemble reused for a new bag (its budget)
   forgets the retired bag's errors, so the new learner is not judged by them;
 - the summary of the ensemble's estimates since the last change
-  (:class:`~iem.prior_summary.PriorSummary`), each with its bag and, out of distribution,
+  (:class:`~iem.physics.prior_summary.PriorSummary`), each with its bag and, out of distribution,
   the extra uncertainty of an input the learner was not trained for.
 
 It gives the prior as ``(mu_p, C_p)`` before the model's own scale and floor:
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .ensemble.model import IncrementalEnsemble
+from ..ensemble.model import IncrementalEnsemble
 from .prior_summary import BagCalibration, PriorSummary
 
 __all__ = ["EnsemblePrior"]

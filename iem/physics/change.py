@@ -1,8 +1,8 @@
 """Payload-change detection on the whitened torque residual (numpy only).
 
 With the current estimate ``phi`` (covariance ``P``) the next regression equation
-``r = Y phi + e`` (:mod:`iem.regression`) has the innovation ``nu = r - Y phi`` with covariance
-``S = R + Y P Y^T``; while the payload stays, ``chi2 = nu^T S^-1 nu`` is chi-square with
+``r = Y phi + e`` (:mod:`iem.physics.regression`) has the innovation ``nu = r - Y phi`` with
+covariance ``S = R + Y P Y^T``; while the payload stays, ``chi2 = nu^T S^-1 nu`` is chi-square with
 ``dof = 7`` degrees of freedom (mean 7). A new payload adds ``Y (phi_new - phi)`` to ``nu``:
 0.275 kg more is about 1 N·m on the shoulder and elbow, against a filtered noise of about
 0.01 N·m, so ``chi2`` jumps by orders of magnitude.
@@ -39,7 +39,7 @@ misfits that one over 30 lets through.
 
 Some misfits rise as steeply as a change: where the arm's torque bends sharply, the
 filtered equations of a perfect arm miss by 0.1-0.3 N·m. So each equation is also judged
-with a model error for it in its covariance (:data:`iem.innovation.MODEL_ERROR_GAIN`: 3 x
+with a model error for it in its covariance (:data:`iem.physics.innovation.MODEL_ERROR_GAIN`: 3 x
 the second difference of the robot model's torque over the last three equations), a second
 statistic ``chi2_model <= chi2`` with a level of its own, and the CUSUM adds the smaller of
 the two rescaled statistics. Why the smaller: with the sharp part of a misfit explained
@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 from .small_linalg import chi_square
 
 __all__ = ["LEVEL_CLIP", "LEVEL_EQUATIONS", "ChangeDetector", "chi_square"]

@@ -1,13 +1,13 @@
 """IEM+phys's payload posterior: a Gaussian prior and linear equations in information form.
 
-The data are equations ``r = Y phi + e``, ``e ~ N(0, R)`` (:mod:`iem.regression`), kept in an
-:class:`EquationWindow` as their sufficient statistics ``info = sum Y^T (c R)^-1 Y`` and
+The data are equations ``r = Y phi + e``, ``e ~ N(0, R)`` (:mod:`iem.physics.regression`), kept in
+an :class:`EquationWindow` as their sufficient statistics ``info = sum Y^T (c R)^-1 Y`` and
 ``eta = sum Y^T (c R)^-1 r`` (``c``: how many equations one independent one is worth, see
-:attr:`iem.regression.PayloadRegression.correlation_weight`). :func:`combine` fuses them with a
-prior ``N(mu_p, C_p)`` whose covariance the data may inflate (:func:`prior_inflation`) into a
+:attr:`iem.physics.regression.PayloadRegression.correlation_weight`). :func:`combine` fuses them
+with a prior ``N(mu_p, C_p)`` whose covariance the data may inflate (:func:`prior_inflation`) into a
 :class:`Posterior`: precision ``Lambda = (s² C_p)^-1 + info``, mean
 ``Lambda^-1 ((s² C_p)^-1 mu_p + eta)``; its physically consistent point (the mean projected
-in the metric ``Lambda``, :func:`iem.consistency.project`) and standard deviations are made
+in the metric ``Lambda``, :func:`iem.physics.consistency.project`) and standard deviations are made
 once, on first use.
 """
 
@@ -20,6 +20,11 @@ import numpy as np
 
 from .consistency import EPS, project
 from .small_linalg import eigh, sym_inv
+
+DEFAULT_PRIOR_STD = (3.0, 0.3, 0.3, 0.3, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01)
+"""Prior standard deviation per parameter (kg, kg·m, kg·m²) where nothing else is known: the
+Panda's rated payload (LS's prior, IEM+phys's before the ensemble has any bag, the
+commissioning identification's)."""
 
 MAX_INFLATION = 1e6
 """Largest factor :func:`prior_inflation` puts on the prior covariance."""
@@ -78,7 +83,7 @@ class EquationWindow:
 
     Args:
         offset_var: prior variance (7, (N·m)²) of a constant torque offset per joint that
-            every equation of the window shares (:attr:`iem.torque_noise.TorqueNoise.
+            every equation of the window shares (:attr:`iem.physics.torque_noise.TorqueNoise.
             offset_std` squared), or None: no offsets. The offsets are states ``o`` of the
             equations ``r = Y phi + o + e``, marginalised: the window keeps the sums
             ``sum Y^T W``, ``sum W`` and ``sum W r`` beside ``info`` and ``eta`` (``W =

@@ -1,0 +1,245 @@
+"""How IEM+phys follows the payload: each sample's equation tested against the posterior and
+added to the window of equations since the last change, a change detected, the prior chosen,
+the posterior refreshed (the method: :mod:`iem.physics`).
+
+:class:`PayloadTracking` is the payload half of
+:class:`~iem.physics.PhysicsInformedEnsemble`, which inherits it and holds the state it works
+on (the held ensemble and its prior, the regression, the window of equations, the innovation
+test, the cached posterior, the :class:`~iem.physics.scheduler.RefreshScheduler`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..types import GROUPS
+from .posterior import DEFAULT_PRIOR_STD, Posterior, combine
+
+__all__ = ["DETECT_AFTER", "PRIOR_FLOOR", "PayloadTracking"]
+
+PRIOR_FLOOR = (1e-4, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
+"""Smallest prior standard deviation per parameter (kg, kg·m, kg·m²): keeps ``C_p``
+invertible where the learners happen to agree with every training payload."""
+DETECT_AFTER = 10
+"""Equations a window holds before the change detector tests new ones (0.1 s by default)."""
+
+
+class PayloadTracking:
+    """The payload's posterior since the last change, sample by sample, for
+    :class:`~iem.physics.PhysicsInformedEnsemble`: :meth:`reset`, :meth:`resume`,
+    :meth:`gap`, :meth:`start_from`, what the data say (:attr:`data_std`, :attr:`nis`,
+    :attr:`prior_inflation`, :meth:`posterior`) and each observed sample's equation."""
+
+    def reset(self) -> None:
+        """Forget the payload (a new task or a new payload); the ensemble is kept."""
+        self._reg.reset()
+        self._forget()
+        self._holdoff = 0
+        self.changes = 0
+        self._steps = 1
+
+    def resume(self) -> None:
+        """The signal stream restarted (a silence, a restart from a checkpoint, a new
+        recording), the payload did not: the regression's filter starts again (its settling
+        samples give no equations), the window of equations and the prior summary stay."""
+        self._reg.reset()
+
+    def gap(self, steps: int) -> None:
+        """The next sample comes ``steps`` nominal cycles after the last one (``steps - 1``
+        were lost, :mod:`iem.signals.gaps`): the regression bridges them, so no equation straddles
+        the gap as if it were one cycle."""
+        self._steps = int(steps)
+
+    def start_from(self, phi, std) -> None:
+        """Start from a known payload (e.g. ``iem identify``'s): ``phi`` with standard
+        deviations ``std`` is the prior (instead of the ensemble's summary) until the data
+        show a payload change; its estimates say ``unverified`` until the window
+        holds :data:`DETECT_AFTER` equations, so a gate can wait for the live data to judge
+        it (a wrong file then inflates the prior, or is detected as a change)."""
+        phi = np.asarray(phi, dtype=float).reshape(10)
+        std = np.asarray(std, dtype=float).reshape(10)
+        if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(std)) and np.all(std > 0)):
+            raise InvalidInputError(f"start_from needs a finite phi and std > 0 (10 values "
+                                    f"each), got {phi}, {std}")
+        self._forget()
+        self._initial = (phi.copy(), np.diag(np.square(std)))
+
+    def _forget(self) -> None:
+        self._window.clear()
+        self.ensemble_prior.summary.clear()
+        self._innovation.reset()
+        self._changed = False
+        self._post: Posterior | None = None
+        self._initial: tuple[np.ndarray, np.ndarray] | None = None
+        self._schedule.clear()  # nothing due, queued or shown: the next estimate at once
+        self._data_shown = False  # an estimate with equations was given since the change
+        self._undetermined: tuple[str, ...] = tuple(GROUPS)  # groups from the prior alone
+
+    # -- views ---------------------------------------------------------------------------
+    @property
+    def _m(self) -> int:
+        """Equations in the window since the last change."""
+        return self._window.m
+
+    @property
+    def _info(self) -> np.ndarray:
+        return self._window.info
+
+    @property
+    def prior_inflation(self) -> float:
+        """The factor the data currently put on the prior covariance (1: they agree)."""
+        self._flush()
+        post = self._posterior()
+        return 1.0 if post is None else post.inflation
+
+    @property
+    def data_std(self) -> np.ndarray:
+        """Standard deviation per parameter from the window's equations alone, without the
+        prior (inf along directions they do not see): what the motion since the last change
+        told about the payload."""
+        return self._window.data_std()
+
+    @property
+    def nis(self) -> float:
+        """The mean normalised innovation squared per degree of freedom of the last
+        :data:`~iem.physics.innovation.NIS_WINDOW` equations (about 1 while the data agree with the
+        model; NaN before the first): the gate's check that the data fit the physics."""
+        return self._innovation.nis
+
+    # -- samples in -------------------------------------------------------------------------
+    def _observe(self, x: np.ndarray, flange, est) -> None:
+        """:meth:`observe_one`, given the ensemble's estimate at ``x`` if already made."""
+        self._changed = False
+        self._schedule.busy = self._take_queued()  # one job: the last sample's equation
+        steps, self._steps = self._steps, 1
+        equation = self._reg(x, self._mean_for_noise, steps)
+        if equation is not None:
+            equation = (*equation, self._reg.curvature)  # for the test's model error
+            self._schedule.busy = True  # forming it was this sample's work
+            if self._holdoff <= 0:
+                if self._schedule.one_job:
+                    self._schedule.queued = equation
+                else:
+                    self._take(equation)
+        if self._holdoff > 0:
+            self._holdoff = max(0, self._holdoff - steps)
+        self._observed_bag = -2
+        if not self._ens.n_bags:
+            return
+        if est is None:
+            est = self._ens.predict_raw(x, flange)
+        self._observed_x[:] = x
+        self._observed_bag = est.bag
+        if self.ensemble_prior.add(est, x):
+            n = self.ensemble_prior.summary.n
+            if self._window.empty and (n % self.update_every == 1 or self.update_every == 1):
+                self._schedule.stale = True  # no data yet: refresh the prior-only posterior every
+                # few samples (with data, the equations refresh it)
+        self._schedule.sample_done()
+
+    def _take(self, equation) -> None:
+        """Test an equation against the posterior, then add it to the window (or restart
+        on a detected change)."""
+        Y, r, R, curvature = equation
+        if self._test(Y, r, R, curvature):
+            self._forget()
+            self._changed = True
+            self.changes += 1
+            self._holdoff = self._holdoff_n
+        else:
+            if self._info_var is not None:
+                R = R + np.diag(self._info_var)
+            self._window.add(Y, r, R, weight=self._weight)
+            self._schedule.equation_added(self._window.m)
+
+    def _take_queued(self) -> bool:
+        """Test and add the equation a spread sample queued, if any; True if there was one."""
+        equation = self._schedule.take_queued()
+        if equation is None:
+            return False
+        self._take(equation)
+        return True
+
+    def _flush(self) -> None:
+        """Do the work a spread cycle left for the next samples (for a view of the state
+        outside the cycle): the queued equation, then the refresh as soon as asked."""
+        self._take_queued()
+        self._schedule.busy = False
+
+    def _mean_for_noise(self) -> np.ndarray | None:
+        post = self._post if self.spread and self._post is not None else self._posterior()
+        return None if post is None else post.mean
+
+    def _test(self, Y, r, R, curvature=None) -> bool:
+        """Test one equation against the current posterior (whose prior the data have
+        already inflated if they contradict it, :class:`iem.physics.innovation.InnovationTest`): its
+        NIS always, the change detector from the window's :data:`DETECT_AFTER`-th equation
+        on (before, a conflict is the prior's, not a new payload's)."""
+        post = self._posterior()
+        if post is None:
+            return False
+        offsets = self._window.offsets(post.mean)  # the equation is judged net of them
+        if offsets is not None:
+            r = r - offsets
+        return self._innovation(Y, r, R, post.mean, post.cov,
+                                self._window.m >= DETECT_AFTER, curvature)
+
+    def _prior(self, x=None, flange=None):
+        """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary
+        since the last change, or the ensemble at ``x``."""
+        if self._initial is not None:
+            mean, cov = self._initial
+        elif self.ensemble_prior.summary.n > 0:
+            mean, cov = self.ensemble_prior.summarised()
+        elif x is not None and self._ens.n_bags:
+            at = self.ensemble_prior.at(x, flange)
+            if at is None:
+                return None
+            mean, cov = at
+        else:
+            mean = np.zeros(10)
+            cov = np.diag(np.square(DEFAULT_PRIOR_STD))
+        cov = cov * self.prior_scale ** 2
+        return mean, 0.5 * (cov + cov.T) + np.diag(self._floor)
+
+    def posterior(self, x=None, flange=None):
+        """``(mean, cov)`` of the payload before the projection, or None.
+
+        The posterior of the samples since the last change; before any, the ensemble's
+        estimate at ``x`` with its bag's covariance (None if there is none to go on).
+        """
+        self._flush()
+        post = self._posterior()
+        if post is None and x is not None:
+            prior = self._prior(np.asarray(x, dtype=float), flange)
+            post = None if prior is None else combine(*prior, self._window, self.eps)
+        return None if post is None else (post.mean.copy(), post.cov.copy())
+
+    def _posterior(self) -> Posterior | None:
+        """The posterior of the state (cached: refreshed every ``refresh_every`` equations
+        and every ``update_every`` samples of the prior summary before the first; when
+        :attr:`spread`, in the next sample that has no other heavy work, at most
+        :data:`~iem.physics.scheduler.SPREAD_WAIT` samples late)."""
+        if self._schedule.due(self._post):
+            if (self.ensemble_prior.summary.n == 0 and self._ens.n_bags
+                    and self._initial is None):
+                return None  # nothing seen yet: predict_one uses the ensemble at its x
+            try:
+                prior = self._prior()
+                self._post = combine(*prior, self._window, self.eps)
+            except np.linalg.LinAlgError:
+                return None
+            self._undetermined = self._from_prior(prior[1])
+            self._schedule.refreshed()
+        return self._post
+
+    def _from_prior(self, c_p: np.ndarray) -> tuple[str, ...]:
+        """The parameter groups the window's equations do not determine: where, for some
+        parameter of the group, they say less than the prior (their standard deviation
+        alone is wider than the prior's); the estimate there is the prior's."""
+        if self._window.empty:
+            return tuple(GROUPS)
+        data = self._window.data_std()
+        prior = np.sqrt(np.maximum(np.diag(c_p), 0.0))
+        return tuple(g for g, idx in GROUPS.items() if np.any(data[list(idx)] > prior[list(idx)]))
