@@ -47,6 +47,9 @@ ALIASES: dict[str, str] = {
     # iem's modules into sub-packages: the estimators' classes (iem.persistence.MODELS)
     "iem.ensemble:IncrementalEnsemble": "iem.ensemble.model:IncrementalEnsemble",
     "iem.physics:PhysicsInformedEnsemble": "iem.physics.model:PhysicsInformedEnsemble",
+    "iem.old_iem": "iem.baselines.old_iem",
+    "iem.bem": "iem.baselines.bem",
+    "iem.least_squares": "iem.baselines.least_squares",
 }
 """Module paths that moved: ``"old.module" -> "new.module"`` (every name in it) or
 ``"old.module:name" -> "new.module:name"`` (one name). A row may name a path that moved

@@ -63,9 +63,9 @@ SCHEMA = "iem-payload-model"
 
 MODELS: dict[str, str] = {
     "IEM": "iem.ensemble.model:IncrementalEnsemble",
-    "old_IEM": "iem.old_iem:InPlaceEnsemble",
-    "BEM": "iem.bem:BatchEnsemble",
-    "LS": "iem.least_squares:RecursiveLeastSquares",
+    "old_IEM": "iem.baselines.old_iem:InPlaceEnsemble",
+    "BEM": "iem.baselines.bem:BatchEnsemble",
+    "LS": "iem.baselines.least_squares:RecursiveLeastSquares",
     "IEM+phys": "iem.physics.model:PhysicsInformedEnsemble",
 }
 """Estimator kinds that can be loaded: ``name -> "module:Class"``. Add one line per kind (or

@@ -21,10 +21,11 @@ Scenarios (every model's output smoothed the same causal way, :mod:`iem.signals.
 - ``forgetting`` (Fig. 5): the excitation-path MAE before and after the new task path
   (``before``/``after`` smoothed, ``before_raw``/``after_raw``), and ``weights_identical``:
   whether every excitation bag's learner is bit-identical after it (:mod:`deploy.bench.honesty`;
-  the old in-place IEM's are not). For the old IEM also its ``update`` (:mod:`iem.old_iem`),
-  ``paper``: the paper's figures (``before`` its Table 2, ``after`` section 5.3's, ``ratio``),
-  and ``variants``: the same scenario for a copy with the ``running_centre`` update (the
-  variant kept for comparison), from the old IEM as it was before the new task path.
+  the old in-place IEM's are not). For the old IEM also its ``update``
+  (:mod:`iem.baselines.old_iem`), ``paper``: the paper's figures (``before`` its Table 2, ``after``
+  section 5.3's, ``ratio``), and ``variants``: the same scenario for a copy with the
+  ``running_centre`` update (the variant kept for comparison), from the old IEM as it was before the
+new task path.
 - ``revisit``: then the excitation path's first 6 s played backwards, learning on (the new
   task path never enters an excitation bag; this does), and the excitation path scored again.
 - ``holdout``: IEM and IEM+phys afresh on the new task path with payloads drawn at random
@@ -95,13 +96,13 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from iem.bem import BatchEnsemble
+from iem.baselines.bem import BatchEnsemble
+from iem.baselines.least_squares import RecursiveLeastSquares
+from iem.baselines.old_iem import RUNNING_CENTRE, InPlaceEnsemble
 from iem.ensemble import IncrementalEnsemble
 from iem.ensemble.router import BagRouter
-from iem.least_squares import RecursiveLeastSquares
 from iem.metrics import convergence_s, groups_of, mae
 from iem.metrics import coverage as coverage_of
-from iem.old_iem import RUNNING_CENTRE, InPlaceEnsemble
 from iem.online import OnlineIdentifier
 from iem.physics import PhysicsInformedEnsemble
 from iem.physics.consistency import min_eigenvalue

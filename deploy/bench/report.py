@@ -185,8 +185,8 @@ def _old_iem_note(old) -> list[str]:
 
     before = {g: old["before"][g] / p["before"][g] for g in GROUPS}
     ratio = {g: old["after"][g] / old["before"][g] for g in GROUPS}
-    lines = [f"Old IEM (update `{old.get('update')}`, `iem/old_iem.py`) after the update: "
-             f"{trio(times(old))} times the paper's figures (mass / com / inertia; raw "
+    lines = [f"Old IEM (update `{old.get('update')}`, `iem/baselines/old_iem.py`) after the "
+             f"update: {trio(times(old))} times the paper's figures (mass / com / inertia; raw "
              f"{trio({g: old['after_raw'][g] / p['after'][g] for g in GROUPS})}). That factor "
              f"is the product of where it starts, {trio(before)} times the paper's Table 2 "
              f"before the update (its learners are the IEM's, Table 2 above), and how much it "

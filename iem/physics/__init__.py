@@ -9,7 +9,8 @@ own noise :mod:`~iem.physics.torque_noise`), the prior (:mod:`~iem.physics.ensem
 :mod:`~iem.physics.prior_summary`), the posterior (:mod:`~iem.physics.posterior`), physical
 consistency (:mod:`~iem.physics.consistency`), the equations' test and the change detector
 (:mod:`~iem.physics.innovation`, :mod:`~iem.physics.change`) and the small solves
-(:mod:`~iem.physics.small_linalg`). LS (:mod:`iem.least_squares`) forms its equations here too.
+(:mod:`~iem.physics.small_linalg`). LS (:mod:`iem.baselines.least_squares`) forms its
+equations here too.
 
 The paper's learners see one instant at a time and know no physics; least squares knows the
 physics but needs rich motion and time. This model keeps both, per estimate:

@@ -3,7 +3,7 @@
 With the robot's own model the torque the payload adds is linear in its parameters,
 ``r = tau - tau_robot(q, dq, ddq) = Y(q, dq, ddq) phi + e``. :class:`PayloadRegression` turns
 the measured ``x = [q, dq, tau]`` of each cycle into such equations ``(Y, r, R)``, with ``R``
-the covariance of ``e``; the least-squares estimators (:mod:`iem.least_squares`,
+the covariance of ``e``; the least-squares estimators (:mod:`iem.baselines.least_squares`,
 :mod:`iem.physics`) only combine them.
 
 Signals: ``q``, ``dq`` and ``tau`` go through the same causal 2nd-order Butterworth low-pass

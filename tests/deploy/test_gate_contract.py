@@ -89,9 +89,9 @@ def test_no_verdict_yet_is_reported_and_does_not_hold_back():
 
 
 def test_the_estimators_report_what_they_can_say():
-    from iem.bem import BatchEnsemble
+    from iem.baselines.bem import BatchEnsemble
+    from iem.baselines.least_squares import RecursiveLeastSquares
     from iem.ensemble import IncrementalEnsemble
-    from iem.least_squares import RecursiveLeastSquares
     from iem.physics import PhysicsInformedEnsemble
     from sim.robot import PANDA_DYNAMICS
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from iem.base import Estimator
-from iem.bem import BatchEnsemble
+from iem.baselines.bem import BatchEnsemble
+from iem.baselines.tree import RegressionTree
 from iem.ensemble.learner import WeakLearner, output_range
 from iem.errors import InvalidInputError
-from iem.tree import RegressionTree
 
 N_POINTS, K = 30, 77
 

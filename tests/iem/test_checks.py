@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from iem import capability_checks, checks
-from iem.bem import BatchEnsemble
+from iem.baselines.bem import BatchEnsemble
+from iem.baselines.least_squares import RecursiveLeastSquares
+from iem.baselines.old_iem import InPlaceEnsemble
 from iem.checks import CheckData, CheckFailed, check_estimator
 from iem.ensemble import IncrementalEnsemble
 from iem.errors import IemError, InvalidInputError
-from iem.least_squares import RecursiveLeastSquares
-from iem.old_iem import InPlaceEnsemble
 from iem.persistence import MODELS
 from iem.physics import PhysicsInformedEnsemble
 from iem.types import PayloadEstimate

@@ -9,6 +9,8 @@ version; each step on its own; the module-path aliases.
 from __future__ import annotations
 
 import copy
+import importlib
+import importlib.util
 import json
 import zlib
 from pathlib import Path
@@ -18,8 +20,8 @@ import numpy as np
 import pytest
 
 from iem import migrations
+from iem.baselines.least_squares import RecursiveLeastSquares
 from iem.errors import InvalidInputError, ModelFileError
-from iem.least_squares import RecursiveLeastSquares
 from iem.migrations import (
     STEPS,
     VERSION,
@@ -29,7 +31,7 @@ from iem.migrations import (
     migrate,
     with_current_paths,
 )
-from iem.persistence import dumps, load_model, loads
+from iem.persistence import MODELS, dumps, load_model, loads, new_model
 from sim.robot import PANDA_DYNAMICS
 
 DATA = Path(__file__).parent / "data"
@@ -270,8 +272,6 @@ def test_equations_per_point_leaves_other_kinds():
 
 # -- module paths that moved ----------------------------------------------------------------
 def test_the_alias_table_names_importable_paths():
-    import importlib
-
     for new in migrations.ALIASES.values():
         module, _, name = current_path(new).partition(":")
         loaded = importlib.import_module(module)
@@ -312,5 +312,49 @@ def test_a_registered_class_at_a_moved_path_loads(monkeypatch):
     registry = {"LS": "iem.ls_before:RecursiveLeastSquares"}
     with pytest.raises(ModelFileError, match="cannot be imported"):
         loads(data, registry=registry)
-    monkeypatch.setattr(migrations, "ALIASES", {"iem.ls_before": "iem.least_squares"})
+    monkeypatch.setattr(migrations, "ALIASES", {"iem.ls_before": "iem.baselines.least_squares"})
     assert isinstance(loads(data, registry=registry), RecursiveLeastSquares)
+
+
+# -- iem's modules into sub-packages (issue 29 point 4) ---------------------------------------
+OLD_MODELS = {"IEM": "iem.ensemble:IncrementalEnsemble", "old_IEM": "iem.old_iem:InPlaceEnsemble",
+              "BEM": "iem.bem:BatchEnsemble", "LS": "iem.least_squares:RecursiveLeastSquares",
+              "IEM+phys": "iem.physics:PhysicsInformedEnsemble"}
+"""The estimators' classes as :data:`iem.persistence.MODELS` named them before iem/ became
+sub-packages."""
+
+
+def test_each_old_class_path_leads_to_the_class_models_names_now():
+    assert sorted(OLD_MODELS) == sorted(MODELS)
+    for kind, old in OLD_MODELS.items():
+        assert current_path(old) == MODELS[kind], kind
+
+
+@pytest.mark.parametrize("old", ["iem.old_iem", "iem.bem", "iem.tree", "iem.least_squares",
+                                 "iem.filters", "iem.worker", "iem.regression",
+                                 "iem.torque_noise"])
+def test_no_module_is_left_at_an_old_path(old):
+    """One home per thing: a moved module is found only through the alias table."""
+    assert importlib.util.find_spec(old) is None
+
+
+@pytest.mark.parametrize("path", FIXTURES, ids=lambda p: p.stem)
+def test_the_fixtures_load_through_a_registry_naming_the_old_paths(path):
+    head, _ = _head(path)
+    model = loads(path.read_bytes(), registry=OLD_MODELS)
+    module, _, name = MODELS[head["kind"]].partition(":")
+    assert type(model) is getattr(importlib.import_module(module), name)
+    assert _same_state(model.to_state(), load_model(path).to_state())
+    expected = EXPECTED[path.stem.partition("_")[2]]
+    est = model.predict_one(np.array(expected["x"]), np.array(expected["flange"]))
+    assert est.phi.tolist() == expected["phi"]
+
+
+@pytest.mark.parametrize("kind", sorted(OLD_MODELS))
+def test_a_file_of_each_kind_loads_through_its_old_class_path(kind):
+    params = {"dynamics": PANDA_DYNAMICS} if kind in ("LS", "IEM+phys") else {}
+    data = dumps(new_model(kind, **params))
+    model = loads(data, registry=OLD_MODELS)
+    module, _, name = MODELS[kind].partition(":")
+    assert type(model) is getattr(importlib.import_module(module), name)
+    assert dumps(model) == data

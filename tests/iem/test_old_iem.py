@@ -1,14 +1,14 @@
-"""The old IEM's in-place update (:mod:`iem.old_iem`): what it changes in the nearest learner
-and what it leaves as trained (the synthetic path of ``test_checks``: no sim)."""
+"""The old IEM's in-place update (:mod:`iem.baselines.old_iem`): what it changes in the nearest
+learner and what it leaves as trained (the synthetic path of ``test_checks``: no sim)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from iem.baselines.old_iem import UPDATES, InPlaceEnsemble, frozen_update
 from iem.ensemble.learner import WeakLearner, output_range
 from iem.errors import InvalidInputError
-from iem.old_iem import UPDATES, InPlaceEnsemble, frozen_update
 
 from .test_checks import DATA
 

@@ -667,8 +667,8 @@ def test_loads_names_its_source():
 
 
 def test_new_model_selects_a_kind_by_name():
+    from iem.baselines.least_squares import RecursiveLeastSquares
     from iem.errors import InvalidInputError
-    from iem.least_squares import RecursiveLeastSquares
     from iem.persistence import DEFAULT_MODEL, new_model
     from iem.physics import PhysicsInformedEnsemble
 
@@ -694,7 +694,7 @@ def _physics(dynamics):
 
 
 def _least_squares(dynamics):
-    from iem.least_squares import RecursiveLeastSquares
+    from iem.baselines.least_squares import RecursiveLeastSquares
 
     return RecursiveLeastSquares(dynamics)
 

@@ -10,8 +10,8 @@ import pinocchio as pin
 import pytest
 
 from iem.base import BaseEstimator
+from iem.baselines.least_squares import RecursiveLeastSquares
 from iem.errors import InvalidInputError
-from iem.least_squares import RecursiveLeastSquares
 from iem.online import OnlineIdentifier
 from iem.physics import MODEL_ERROR_GAIN, PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
 from iem.physics.change import ChangeDetector, chi_square

@@ -8,8 +8,8 @@ import msgpack
 import numpy as np
 import pytest
 
+from iem.baselines.tree import LEAF, RegressionTree
 from iem.errors import InvalidInputError
-from iem.tree import LEAF, RegressionTree
 
 
 def _sse(Y: np.ndarray) -> float:

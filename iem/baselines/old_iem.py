@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Samples, resolve
-from .ensemble.learner import N_IN, WeakLearner
-from .ensemble.model import IncrementalEnsemble
-from .errors import InvalidInputError
+from ..base import Samples, resolve
+from ..ensemble.learner import N_IN, WeakLearner
+from ..ensemble.model import IncrementalEnsemble
+from ..errors import InvalidInputError
 
 FROZEN, STRICT, RUNNING_CENTRE = "frozen", "strict", "running_centre"
 UPDATES = (FROZEN, STRICT, RUNNING_CENTRE)

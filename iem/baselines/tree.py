@@ -2,7 +2,7 @@
 
 The paper's BEM (Taie et al., 2023, recalled in the paper's introduction) bags two kinds of
 weak learner, a single-layer network and "a basic decision tree"; this is that tree
-(Breiman's CART for regression), used by :mod:`iem.bem`.
+(Breiman's CART for regression), used by :mod:`iem.baselines.bem`.
 
 Model: a binary tree of axis-aligned tests ``x[f] <= threshold``; a leaf predicts the mean of
 the training targets that reach it. Multi-output: ``Y`` is ``(N, m)`` (``m = 10`` payload
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidInputError
+from ..errors import InvalidInputError
 
 LEAF = -1
 _REL_GAIN = 1e-12

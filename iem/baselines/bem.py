@@ -2,7 +2,7 @@
 
 The paper compares its IEM with "BEM (the 2023 batch ensemble)": a bagging ensemble of two
 kinds of weak learner, single-layer networks (:class:`iem.ensemble.learner.WeakLearner`) and basic
-decision trees (:class:`iem.tree.RegressionTree`), trained once by batch learning on
+decision trees (:class:`iem.baselines.tree.RegressionTree`), trained once by batch learning on
 ``(q, dq, tau) -> phi`` along the excitation path with the training payloads, and never
 updated afterwards (the paper's Tables 2 and 4: as good as the IEM on the excitation path,
 lost on a new task path).
@@ -24,11 +24,11 @@ import math
 
 import numpy as np
 
-from .base import BaseEstimator, Samples
-from .ensemble.learner import N_IN, N_OUT, SENSOR_NOISE, WeakLearner, output_range
-from .errors import InvalidInputError
+from ..base import BaseEstimator, Samples
+from ..ensemble.learner import N_IN, N_OUT, SENSOR_NOISE, WeakLearner, output_range
+from ..errors import InvalidInputError
+from ..types import PayloadEstimate
 from .tree import RegressionTree
-from .types import PayloadEstimate
 
 
 class BatchEnsemble(BaseEstimator):
@@ -43,7 +43,7 @@ class BatchEnsemble(BaseEstimator):
         n_networks: number of single-layer network members.
         n_trees: number of tree members.
         max_depth, min_samples_leaf, max_features: the trees' hyper-parameters
-            (see :class:`iem.tree.RegressionTree`).
+            (see :class:`iem.baselines.tree.RegressionTree`).
         fit_epochs, fit_lr: the networks' offline SGD (see :meth:`WeakLearner.fit`).
         fit_stride: every how many excitation-path points to take.
         input_noise: noise added to the training inputs (21 values; default: the sensor

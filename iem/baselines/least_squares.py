@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import BaseEstimator, Samples
-from .errors import InvalidInputError
-from .physics.posterior import DEFAULT_PRIOR_STD
-from .physics.regression import PayloadRegression, required_dynamics
-from .sensor import DEFAULT_SENSOR
-from .types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, PayloadEstimate
+from ..base import BaseEstimator, Samples
+from ..errors import InvalidInputError
+from ..physics.posterior import DEFAULT_PRIOR_STD
+from ..physics.regression import PayloadRegression, required_dynamics
+from ..sensor import DEFAULT_SENSOR
+from ..types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, PayloadEstimate
 
 __all__ = ["RecursiveLeastSquares"]
 
