@@ -15,7 +15,8 @@ import logging
 import math
 from pathlib import Path as FsPath
 
-from iem.persistence import load_model, remove_stale_temporaries, save_model
+from iem.atomic_file import remove_stale_temporaries
+from iem.persistence import load_model, save_model
 
 from .config import CellConfig
 

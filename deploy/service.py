@@ -19,7 +19,7 @@ A pipeline of small parts, in one loop:
    a failed save leaves the last good file.
 
 Around the loop: temporary files of an interrupted save are removed at start
-(:func:`iem.persistence.remove_stale_temporaries`); the model is loaded (or trained if there
+(:func:`iem.atomic_file.remove_stale_temporaries`); the model is loaded (or trained if there
 is none and ``train_if_missing``); a silent controller stops the writes until it returns;
 link failures end the run with the error (exit status 2: under systemd, the unit restarts
 it; configuration errors exit 78 and are not restarted, see :mod:`deploy.cli`).

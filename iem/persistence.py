@@ -31,30 +31,22 @@ names (its kind's class, the factory specs ``coverage``, ``reversal``, ``dynamic
 state) go through :data:`iem.migrations.ALIASES` at load, so that a module that moves keeps
 its files loading.
 
-Writing goes to a temporary file in the target's directory, which is flushed, fsynced and
-then renamed over the target (``os.replace``), and the directory is fsynced: a crash or an
-error at any point leaves either the old file or the new one, never a mix. A process killed
-while it writes (kill -9, power loss) leaves its temporary file behind, named
-``.<name>.<pid>.<8 hex digits>.tmp`` next to the target; :func:`remove_stale_temporaries`
-removes those of dead processes (the service calls it at start). Every problem with
-a file, on saving or on loading, raises :class:`iem.errors.ModelFileError` naming the file and
-what was wrong; nothing else escapes for a bad file.
+A file is written atomically (:mod:`iem.atomic_file`: a crash or an error at any point leaves
+either the old file or the new one). Every problem with a file, on saving or on loading,
+raises :class:`iem.errors.ModelFileError` naming the file and what was wrong; nothing else
+escapes for a bad file.
 """
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import importlib
-import os
-import re
-import secrets
 import zlib
 from collections.abc import Mapping
 from pathlib import Path
 
 import msgpack
 
+from .atomic_file import write_atomically
 from .errors import InvalidInputError, ModelFileError
 from .migrations import VERSION, current_path, migrate, with_current_paths
 
@@ -224,6 +216,43 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
         ModelFileError: the bytes are not a valid model file of a registered kind.
     """
     where = f"{label} file {source}"
+    head = _checked_head(data, where, schema)
+    arm, family, version = head.get("arm"), head.get("family"), head["version"]
+    state_bytes = head["state"]
+    crc = _record_crc(arm, zlib.crc32(state_bytes), family, version)
+    if crc != head["crc32"]:
+        raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
+                             f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
+    cls = _model_class(head["kind"], MODELS if registry is None else registry, where)
+    state = _unpack(state_bytes, f"{where}: the state is not valid msgpack")
+    if not isinstance(state, dict):
+        raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
+    try:
+        state = with_current_paths(migrate(head["kind"], state, version))
+    except Exception as exc:  # any failure to bring the state up is a bad file
+        raise ModelFileError(f"{where}: the state of version {version} cannot be brought to "
+                             f"version {VERSION}: {type(exc).__name__}: {exc}") from exc
+    try:
+        model = cls.from_state(state)
+    except Exception as exc:  # any failure to rebuild from the file is a bad file
+        raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
+                             f"{label}: {type(exc).__name__}: {exc}") from exc
+    if arm is not None:
+        model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"]),
+                             **({"end_effector": str(arm["end_effector"])}
+                                if arm.get("end_effector") else {})}
+    if schema == SCHEMA:  # a model file without the record was trained on the paper's
+        model.trained_family = family if family is not None else DEFAULT_FAMILY
+    return model
+
+
+def _checked_head(data: bytes, where: str, schema: str) -> dict:
+    """The header map of a model file's bytes, its fields checked (not yet its CRC): the
+    schema, a version this build reads, the fields' types, the arm and family records.
+
+    Raises:
+        ModelFileError: it is not the header of a model file of ``schema`` this build reads.
+    """
     if not data:
         raise ModelFileError(f"{where} is empty")
     head = _unpack(data, f"{where} is not a msgpack model file (truncated or corrupt)")
@@ -259,32 +288,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     family = head.get("family")
     if family is not None and not isinstance(family, str):
         raise ModelFileError(f"{where}: field 'family' is {family!r}, expected a family name")
-    state_bytes = head["state"]
-    crc = _record_crc(arm, zlib.crc32(state_bytes), family, version)
-    if crc != head["crc32"]:
-        raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
-                             f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
-    cls = _model_class(head["kind"], MODELS if registry is None else registry, where)
-    state = _unpack(state_bytes, f"{where}: the state is not valid msgpack")
-    if not isinstance(state, dict):
-        raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
-    try:
-        state = with_current_paths(migrate(head["kind"], state, version))
-    except Exception as exc:  # any failure to bring the state up is a bad file
-        raise ModelFileError(f"{where}: the state of version {version} cannot be brought to "
-                             f"version {VERSION}: {type(exc).__name__}: {exc}") from exc
-    try:
-        model = cls.from_state(state)
-    except Exception as exc:  # any failure to rebuild from the file is a bad file
-        raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
-                             f"{label}: {type(exc).__name__}: {exc}") from exc
-    if arm is not None:
-        model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"]),
-                             **({"end_effector": str(arm["end_effector"])}
-                                if arm.get("end_effector") else {})}
-    if schema == SCHEMA:  # a model file without the record was trained on the paper's
-        model.trained_family = family if family is not None else DEFAULT_FAMILY
-    return model
+    return head
 
 
 def _model_class(kind: str, registry: Mapping[str, str], where: str):
@@ -302,8 +306,8 @@ def _model_class(kind: str, registry: Mapping[str, str], where: str):
 
 # -- files -------------------------------------------------------------------------------
 def save_model(model, path, schema: str = SCHEMA, label: str = "model") -> None:
-    """Write ``model`` to ``path`` atomically (the previous file survives any failure);
-    ``schema`` and ``label`` as for :func:`loads`.
+    """Write ``model`` to ``path`` atomically (:func:`iem.atomic_file.write_atomically`: the
+    previous file survives any failure); ``schema`` and ``label`` as for :func:`loads`.
 
     Raises:
         ModelFileError: the state cannot be packed, or the file cannot be written; the
@@ -314,88 +318,7 @@ def save_model(model, path, schema: str = SCHEMA, label: str = "model") -> None:
         data = dumps(model, schema)
     except ModelFileError as exc:
         raise ModelFileError(f"cannot save {label} to {path}: {exc}") from exc
-    directory = path.parent
-    tmp = directory / _temporary_name(path.name, os.getpid(), secrets.token_hex(4))
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-        try:
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-    except OSError as exc:
-        raise ModelFileError(f"cannot save {label} to {path}: {exc.strerror or exc} "
-                             f"(the previous file, if any, is unchanged)") from exc
-    _fsync_dir(directory, path)
-
-
-def _temporary_name(name: str, pid: int, token: str) -> str:
-    """The name of :func:`save_model`'s temporary file for the target ``name``."""
-    return f".{name}.{pid}.{token}.tmp"
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # e.g. EPERM: it exists, under another user
-        return True
-    return True
-
-
-def remove_stale_temporaries(path) -> list[Path]:
-    """Remove the temporary files an interrupted :func:`save_model` of ``path`` left behind.
-
-    Only files of :func:`save_model`'s own pattern for this target, in its directory
-    (``.<name>.<pid>.<8 hex digits>.tmp``), written by a process that is no longer running
-    (a save in progress in a live process, this one included, is left alone). Returns the
-    files removed; a file that cannot be removed is left and skipped.
-    """
-    path = Path(path)
-    pattern = re.compile(re.escape(f".{path.name}") + r"\.(\d+)\.[0-9a-f]{8}\.tmp")  # as
-    # _temporary_name(path.name, pid, secrets.token_hex(4)) makes them
-    removed = []
-    try:
-        entries = list(path.parent.iterdir())
-    except OSError:
-        return removed  # no directory (yet) or not readable: nothing of ours to clean
-    for entry in entries:
-        match = pattern.fullmatch(entry.name)
-        if match is None or _pid_alive(int(match.group(1))):
-            continue
-        with contextlib.suppress(OSError):
-            if entry.is_file() and not entry.is_symlink():
-                entry.unlink()
-                removed.append(entry)
-    return removed
-
-
-def _fsync_dir(directory: Path, path: Path) -> None:
-    """Make the rename durable; filesystems that cannot fsync a directory are tolerated."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return  # e.g. no read permission on the directory: the rename itself is done
-    try:
-        os.fsync(fd)
-    except OSError as exc:
-        if exc.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF, errno.EACCES):
-            raise ModelFileError(f"model written to {path}, but its directory could not be "
-                                 f"synced, so the new file may not survive a power loss: "
-                                 f"{exc.strerror or exc}") from exc
-    finally:
-        os.close(fd)
+    write_atomically(path, data, label)
 
 
 def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SCHEMA,

@@ -8,8 +8,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+from iem.atomic_file import remove_stale_temporaries
 from iem.ensemble import IncrementalEnsemble
-from iem.persistence import load_model, remove_stale_temporaries, save_model
+from iem.persistence import load_model, save_model
 
 REPO = Path(__file__).resolve().parents[2]
 
