@@ -16,7 +16,7 @@ from pathlib import Path as FsPath
 
 from iem.types import PARAMS
 
-from .paper import Bench
+from .harness import Bench
 
 
 def run_custom(payload_file, path_file, out_dir, quick: bool = False, seed: int = 0,

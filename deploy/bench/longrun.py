@@ -61,7 +61,7 @@ from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
 from iem.types import JointState
 
-from .paper import rollout_blocks
+from .harness import rollout_blocks
 
 MODELS = ("IEM", "IEM+phys")
 WINDOW_S = 30.0

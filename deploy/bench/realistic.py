@@ -1,6 +1,6 @@
 """``iem bench realistic``: the models on an arm that is not its nominal model.
 
-Set-up (seed ``S``; the paper benchmark's machinery, :class:`deploy.bench.paper.Bench`):
+Set-up (seed ``S``; the paper benchmark's machinery, :class:`deploy.bench.harness.Bench`):
 
 - **The arm.** The plant carries the reality gap :class:`sim.plant.RealityGap` with seed
   ``GAP_SEED_BASE + S`` (link masses +-5 %, CoMs +-5 mm, inertias +-10 %, Gaz's friction
@@ -50,7 +50,7 @@ from iem.physics import PhysicsInformedEnsemble
 from iem.sensor import DEFAULT_SENSOR
 from iem.types import GROUPS, NOMINAL_RATE_HZ
 
-from .paper import CHANGE_TO, Bench
+from .harness import CHANGE_TO, Bench
 
 MODEL_ORDER = ("IEM", "IEM+phys", "IEM+cal", "IEM+phys+cal")
 BATCH_MODELS = ("batch+bare", "batch+arm")

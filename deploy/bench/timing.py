@@ -1,0 +1,80 @@
+"""The paper benchmark's timing: bag routing among many bags, and IEM+phys's cycle as the
+plug-in runs it on a live link (back to back, and paced as a 1 kHz cell's blocks come).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from iem.ensemble.router import BagRouter
+from iem.online import OnlineIdentifier
+from iem.types import NOMINAL_POINT_RATE_HZ
+
+from .harness import Bench, rollout_blocks
+
+__all__ = ["PACED_RATE_HZ", "ROUTE_SIZES", "cycle_timing", "route_timing"]
+
+ROUTE_SIZES = (1, 10, 100, 1000, 10000)
+PACED_RATE_HZ = NOMINAL_POINT_RATE_HZ
+"""The rate at which :func:`cycle_timing`'s paced run feeds block points: a Panda's 1 kHz in
+blocks of 10 frames."""
+
+
+def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> dict:
+    """µs per :meth:`iem.online.OnlineIdentifier.step_block` of ``model`` along ``rollout``'s
+    block points (a new task, learning on) with its ensemble's training in the learning
+    worker, as the plug-in runs it on a live link (:meth:`iem.base.Estimator.go_live`):
+    ``{"median", "p99", "cpu_mean"}`` (``cpu_mean``: the step thread's CPU). The worker's own
+    time is not counted (it competes for the interpreter, so it shows in the step's time as
+    it would there).
+
+    ``rate_hz``: one step per period of that rate, the thread idle between them, as on a live
+    link; None: back to back. Paced, the same steps cost more: each is a short burst of
+    interpreter and NumPy code that starts with cold caches and predictors. The paced figure
+    is the one a cell meets; the back-to-back one is the code's own cost."""
+    model.reset()
+    model.go_live()  # the live link's set-up, as deploy.service makes it
+    online = OnlineIdentifier(model, bench.kin.flange_position, bench.tandem.samples,
+                              learn=True)
+    blocks = rollout_blocks(rollout)
+    times = np.empty(len(blocks))
+    cpu = np.empty(len(blocks))
+    period = None if rate_hz is None else 1.0 / float(rate_hz)
+    try:
+        due = time.perf_counter()
+        for k in range(len(blocks)):
+            state = blocks.state(k)
+            if period is not None:  # the next block comes one period after the last
+                due += period
+                wait = due - time.perf_counter()
+                if wait > 0.0:
+                    time.sleep(wait)
+            c0, t0 = time.thread_time(), time.perf_counter()
+            online.step_block(state)
+            times[k] = time.perf_counter() - t0
+            cpu[k] = time.thread_time() - c0
+    finally:
+        model.stop()
+    return {"median": float(np.median(times) * 1e6),
+            "p99": float(np.percentile(times, 99) * 1e6),
+            "cpu_mean": float(cpu.mean() * 1e6)}
+
+
+def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> dict:
+    """Median µs of one :meth:`BagRouter.route` among ``n`` bags spread over the workspace."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for n in sizes:
+        qs = rng.uniform(kin.q_min, kin.q_max, size=(n, 7))
+        router = BagRouter.from_means(qs, kin.flange_positions(qs))
+        probe_q = rng.uniform(kin.q_min, kin.q_max, size=(queries, 7))
+        probe_f = kin.flange_positions(probe_q)
+        times = np.empty(queries)
+        for i in range(queries):
+            t0 = time.perf_counter()
+            router.route(probe_q[i], probe_f[i])
+            times[i] = time.perf_counter() - t0
+        out[str(n)] = float(np.median(times) * 1e6)
+    return out
