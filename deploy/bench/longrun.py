@@ -2,11 +2,9 @@
 
 Set-up (everything seeded by ``--seed``):
 
-- The motion: rest-to-rest quintic segments (:func:`sim.paths.linear_path`) between random
-  waypoints drawn uniformly within the joint limits less a margin of
-  :data:`MARGIN` of each joint's range; each segment's duration is the shortest that keeps
-  every joint's velocity and acceleration within :data:`LIMIT_FRACTION` (90 %) of its limit
-  (a quintic's peaks are ``1.875 |dq| / T`` and ``5.7735 |dq| / T²``).
+- The motion (:mod:`deploy.bench.random_motion`): rest-to-rest quintic segments between
+  random waypoints within the joint limits less a margin, each as short as 90 % of the
+  velocity and acceleration limits allow.
 - The plant (:class:`sim.plant.PandaPlant`, perfect arm, default sensor model) carries the
   test payload (``test-3w``) and is told it, so it follows the motion.
 - The models are trained as ``iem train`` does
@@ -49,9 +47,8 @@ JSON keys: ``windows`` (a list), ``max_window_mae`` {model: {mass, com, inertia}
 from __future__ import annotations
 
 import json
-import math
-import os
 import time
+from dataclasses import dataclass
 from pathlib import Path as FsPath
 
 import numpy as np
@@ -62,17 +59,12 @@ from iem.online import OnlineIdentifier
 from iem.types import JointState
 
 from .harness import rollout_blocks
+from .random_motion import random_segments, reversed_path
+from .window_feed import WindowFeed, percentiles, rss_mb
 
 MODELS = ("IEM", "IEM+phys")
 WINDOW_S = 30.0
-MARGIN = 0.1
-"""Margin of the waypoints from the joint limits, as a fraction of each joint's range."""
-LIMIT_FRACTION = 0.9
-"""Largest fraction of the velocity and acceleration limits a segment uses."""
-MIN_SEGMENT_S = 0.5
 REVERSE_S = 60.0
-ROUTE_EVERY = 10
-"""Every how many samples the route time is measured."""
 DEFAULT_BUDGET = DEFAULT_BUDGET_BAGS
 ROUTE_SIZES = (2000, 20000, 100000)
 """Bags of the maps the scan and exact distances are timed on (``route_sizes``)."""
@@ -81,144 +73,6 @@ LONGRUN_PARAMS = {"reversal": "sim.coverage:reversed_velocities", "coverage": No
 (:data:`deploy.training.DEPLOY_ENSEMBLE`)."""
 PLAIN_PARAMS = {"reversal": None, "coverage": None, "budget_bags": None}
 """``--plain``: the paper's rule, none of the plug-in's ensemble settings."""
-
-_QUINTIC_DS = 1.875
-_QUINTIC_DDS = 10.0 / math.sqrt(3.0)
-
-
-def rss_mb() -> float:
-    """Resident set size of this process, MB (from /proc/self/statm)."""
-    try:
-        with open("/proc/self/statm") as f:
-            pages = int(f.read().split()[1])
-        return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
-    except (OSError, ValueError, IndexError):
-        return math.nan
-
-
-def segment_duration(q_a, q_b, dq_max, ddq_max, fraction: float = LIMIT_FRACTION) -> float:
-    """Shortest quintic duration (s, whole ms) from ``q_a`` to ``q_b`` within ``fraction``
-    of the velocity and acceleration limits."""
-    d = np.abs(np.asarray(q_b, float) - np.asarray(q_a, float))
-    t_v = float(np.max(_QUINTIC_DS * d / (fraction * dq_max)))
-    t_a = float(np.max(np.sqrt(_QUINTIC_DDS * d / (fraction * ddq_max))))
-    return max(MIN_SEGMENT_S, math.ceil(max(t_v, t_a) * 1000.0 + 1.0) / 1000.0)
-
-
-def random_segments(seconds: float, seed: int, kin):
-    """Random rest-to-rest quintic segments (:class:`sim.paths.Path`) totalling at least
-    ``seconds``; yields them one at a time."""
-    from sim.paths import linear_path
-
-    rng = np.random.default_rng([seed, 15])
-    span = kin.q_max - kin.q_min
-    lo, hi = kin.q_min + MARGIN * span, kin.q_max - MARGIN * span
-    q = rng.uniform(lo, hi)
-    total, k = 0.0, 0
-    while total < seconds:
-        nxt = rng.uniform(lo, hi)
-        T = segment_duration(q, nxt, kin.dq_max, kin.ddq_max)
-        seg = linear_path(q, nxt, T, name=f"segment-{k}")
-        total += seg.duration
-        k += 1
-        q = nxt
-        yield seg
-
-
-def reversed_path(segments):
-    """The segments driven backwards: the last first, each from its end to its start, with
-    every velocity reversed (q(T - t), -dq(T - t), ddq(T - t))."""
-    from sim.paths import Path
-
-    path = None
-    for seg in reversed(segments):
-        back = Path(name=f"{seg.name}-back", t=seg.t, q=seg.q[::-1], dq=-seg.dq[::-1],
-                    ddq=seg.ddq[::-1])
-        path = back if path is None else path.then(back)
-    return path
-
-
-class _Feed:
-    """One model fed through an :class:`OnlineIdentifier`, with per-window figures."""
-
-    def __init__(self, name, model, kin, tandem, learn: bool = True) -> None:
-        self.name = name
-        self.model = model
-        self.kin = kin
-        self.online = OnlineIdentifier(model, kin.flange_position, tandem.samples,
-                                       learn=learn, timed=True)
-        self._new_window()
-        self.changes_total = 0
-
-    def _new_window(self) -> None:
-        self.smoothed: list[np.ndarray] = []
-        self.route_s: list[float] = []
-        self.route_cpu_s: list[float] = []
-        self.changes = 0
-        self.ood = 0
-        self.online.learn_times.clear()
-        self.online.predict_times.clear()
-        self.online.learnt.clear()
-
-    @property
-    def ensemble(self):
-        """The model's ensemble (IEM+phys's own, or the IEM itself)."""
-        return getattr(self.model, "ensemble_model", self.model)
-
-    @property
-    def router(self):
-        return self.ensemble.router
-
-    def step(self, state: JointState, k: int) -> None:
-        """One 1 kHz frame: formed into block points by the online loop (an estimate only
-        when a block closes; the frames between hold it, as the plug-in's output does)."""
-        out = self.online.step(state)
-        if out is None:
-            return  # before the first block point
-        est, smoothed = out
-        self.smoothed.append(smoothed)
-        if est.extra.get("change"):
-            self.changes += 1
-        self.ood += bool(est.ood)
-        if k % ROUTE_EVERY == 0:
-            flange = self.kin.flange_position(state.q)
-            router = self.router
-            c0, t0 = time.thread_time(), time.perf_counter()
-            router.route(state.q, flange)
-            self.route_s.append(time.perf_counter() - t0)
-            self.route_cpu_s.append(time.thread_time() - c0)
-
-    def window(self, phi) -> dict:
-        o = self.online
-        learnt = np.array(o.learnt, dtype=bool)
-        learn_ms = np.array(o.learn_times)[learnt] * 1e3 if learnt.any() else np.array([])
-        est_us = np.array(o.predict_times) * 1e6
-        route_us = np.array(self.route_s) * 1e6
-        budget = self.ensemble.budget
-        out = {
-            "bags": int(self.model.n_bags), "nbytes": int(self.model.nbytes()),
-            "retired": 0 if budget is None else budget.retired,
-            "promoted": 0 if budget is None else budget.promoted,
-            "rss_mb": rss_mb(),
-            "route_us": _pct(route_us),
-            "route_cpu_us": _pct(np.array(self.route_cpu_s) * 1e6),
-            "estimate_us": _pct(est_us),
-            "learn_ms": {"median": float(np.median(learn_ms)) if learn_ms.size else None,
-                         "max": float(learn_ms.max()) if learn_ms.size else None,
-                         "total": float(learn_ms.sum()), "points": int(learn_ms.size)},
-            "mae": groups_of(mae(np.array(self.smoothed), phi)),
-            "changes": self.changes,
-            "ood_share": self.ood / max(1, len(self.smoothed)),
-        }
-        self.changes_total += self.changes
-        self._new_window()
-        return out
-
-
-def _pct(values: np.ndarray) -> dict:
-    if values.size == 0:
-        return {"p50": None, "p99": None}
-    return {"p50": float(np.percentile(values, 50)), "p99": float(np.percentile(values, 99))}
 
 
 def train_models(seed: int, log, params: dict | None = None) -> dict:
@@ -236,21 +90,76 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
     from sim.family import default_test_payload, training_payloads
 
     require("mujoco", "iem bench longrun (the simulated Panda)")
-    from sim.plant import PandaPlant
     from sim.robot import PandaModel
     from sim.tandem import TandemSimulators
 
     started = time.perf_counter()
     kin = PandaModel()
     payload = default_test_payload()
-    phi = payload.to_phi()
     tandem = TandemSimulators(training_payloads(), model=PandaModel())
     models = train_models(seed, log, params)
-    feeds = {name: _Feed(name, m, kin, tandem) for name, m in models.items()}
+    feeds = {name: WindowFeed(name, m, kin, tandem) for name, m in models.items()}
+    drive = _drive(feeds, payload, float(minutes) * 60.0, seed, kin, log)
+    for m in models.values():
+        m.close()
+        m.drain()  # the training still in the worker lands before the replay
+
+    reverse_mae, reverse_s = reverse_figures(models, drive.first_minute, payload, seed, kin,
+                                             tandem, log)
+    del drive.first_minute  # the replay's data die with it, before the figures at the budget
+
+    at_budget = budget_figures(models["IEM"], (params or {}).get("budget_bags") or DEFAULT_BUDGET,
+                               kin, seed)
+    log(f"at the budget: {at_budget}")
+    windows = drive.windows
+    results = {
+        "windows": windows,
+        "max_window_mae": {name: {g: max(w[name]["mae"][g] for w in windows)
+                                  for g in ("mass", "com", "inertia")} for name in models},
+        "reverse_mae": reverse_mae,
+        "false_alarms": {name: (f.changes_total
+                                if models[name].detects_changes else None)
+                         for name, f in feeds.items()},
+        "bags_end": {name: int(m.n_bags) for name, m in models.items()},
+        "rss_mb_end": rss_mb(),
+        "route_us_p99_end": {name: windows[-1][name]["route_us"]["p99"] for name in models},
+        "route_cpu_us_p99_end": {name: windows[-1][name]["route_cpu_us"]["p99"]
+                                 for name in models},
+        "at_budget": at_budget,
+        "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
+                  "segments": drive.segments, "samples": drive.samples,
+                  "reverse_s": reverse_s, "params": params or {},
+                  "wall_s": time.perf_counter() - started},
+    }
+    results["route_sizes"] = route_sizes(kin, sizes, seed, log)
+    log("max window MAE: " + "; ".join(f"{n} {_fmt(v)}"
+                                         for n, v in results["max_window_mae"].items()))
+    log(f"false alarms {results['false_alarms']}  bags {results['bags_end']}  "
+        f"RSS {results['rss_mb_end']:.0f} MB  route p99 {results['route_us_p99_end']} µs  "
+        f"({results['setup']['wall_s']:.0f} s)")
+    return results
+
+
+@dataclass
+class _Drive:
+    """What driving the motion gave: the windows' figures, the segments of its first
+    :data:`REVERSE_S` seconds (for the reverse replay), and how many segments and frames."""
+
+    windows: list
+    first_minute: list
+    segments: int
+    samples: int
+
+
+def _drive(feeds: dict, payload, seconds: float, seed: int, kin, log) -> _Drive:
+    """The plant along ``seconds`` of random motion, every frame fed to every model, the
+    figures taken every :data:`WINDOW_S`."""
+    from sim.plant import PandaPlant
+
+    phi = payload.to_phi()
     plant = PandaPlant(payload=payload, seed=seed, controller_load=payload)
     windows: list[dict] = []
     first_minute = []
-    seconds = float(minutes) * 60.0
     t_sim, k, next_window, started_plant = 0.0, 0, WINDOW_S, False
     segments = 0
     for seg in random_segments(seconds, seed, kin):
@@ -279,42 +188,7 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         w = {"t_end_s": t_sim, **{name: f.window(phi) for name, f in feeds.items()}}
         windows.append(w)
         log(_fmt_window(w))
-    for m in models.values():
-        m.close()
-        m.drain()  # the training still in the worker lands before the replay
-
-    reverse_mae, reverse_s = reverse_figures(models, first_minute, payload, seed, kin, tandem,
-                                             log)
-    del first_minute  # the replay's data die with it, before the figures at the budget
-
-    at_budget = budget_figures(models["IEM"], (params or {}).get("budget_bags") or DEFAULT_BUDGET,
-                               kin, seed)
-    log(f"at the budget: {at_budget}")
-    results = {
-        "windows": windows,
-        "max_window_mae": {name: {g: max(w[name]["mae"][g] for w in windows)
-                                  for g in ("mass", "com", "inertia")} for name in models},
-        "reverse_mae": reverse_mae,
-        "false_alarms": {name: (f.changes_total
-                                if models[name].detects_changes else None)
-                         for name, f in feeds.items()},
-        "bags_end": {name: int(m.n_bags) for name, m in models.items()},
-        "rss_mb_end": rss_mb(),
-        "route_us_p99_end": {name: windows[-1][name]["route_us"]["p99"] for name in models},
-        "route_cpu_us_p99_end": {name: windows[-1][name]["route_cpu_us"]["p99"]
-                                 for name in models},
-        "at_budget": at_budget,
-        "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
-                  "segments": segments, "samples": k, "reverse_s": reverse_s,
-                  "params": params or {}, "wall_s": time.perf_counter() - started},
-    }
-    results["route_sizes"] = route_sizes(kin, sizes, seed, log)
-    log("max window MAE: " + "; ".join(f"{n} {_fmt(v)}"
-                                         for n, v in results["max_window_mae"].items()))
-    log(f"false alarms {results['false_alarms']}  bags {results['bags_end']}  "
-        f"RSS {results['rss_mb_end']:.0f} MB  route p99 {results['route_us_p99_end']} µs  "
-        f"({results['setup']['wall_s']:.0f} s)")
-    return results
+    return _Drive(windows, first_minute, segments, k)
 
 
 def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tandem,
@@ -393,8 +267,8 @@ def budget_figures(model, n: int, kin, seed: int, queries: int = 2000) -> dict:
         times[i] = time.perf_counter() - t0
         cpu[i] = time.thread_time() - c0
     return {"bags": n, "file_mb": size / 1e6, "load_s": load_s, "rss_added_mb": rss1 - rss0,
-            "nbytes_mb": loaded.nbytes() / 1e6, "route_us": _pct(times * 1e6),
-            "route_cpu_us": _pct(cpu * 1e6)}
+            "nbytes_mb": loaded.nbytes() / 1e6, "route_us": percentiles(times * 1e6),
+            "route_cpu_us": percentiles(cpu * 1e6)}
 
 
 def _fmt(groups: dict) -> str:

@@ -9,15 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from deploy.bench.longrun import (
-    LIMIT_FRACTION,
-    LONGRUN_PARAMS,
-    MARGIN,
-    parse_sizes,
-    random_segments,
-    reversed_path,
-    run_longrun,
-)
+from deploy.bench.longrun import LONGRUN_PARAMS, parse_sizes, run_longrun
+from deploy.bench.random_motion import LIMIT_FRACTION, MARGIN, random_segments, reversed_path
 from iem.errors import InvalidInputError
 from sim.robot import PandaModel
 
