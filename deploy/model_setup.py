@@ -1,5 +1,6 @@
 """What the service starts from: the model of the configuration, checked against the link's
-rate, a known payload to start from, and the link's wire range check for the gate.
+rate and the configured arm and family, a known payload to start from, and the link's wire
+range check for the gate.
 
 :func:`load_or_train_model` loads ``[model] path`` (removing the temporary files of an
 interrupted save first) and refuses a model made for another point rate than the link's
@@ -91,6 +92,29 @@ def load_or_train_model(config: CellConfig):
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})
     return model
+
+
+def checked_model(config: CellConfig, model=None):
+    """``(model, arm)``: ``model`` (None: :func:`load_or_train_model`) checked against the
+    configured arm file and payload family, started from ``[estimate] initial_payload`` if
+    one is set; ``arm`` the configured arm (None: the nominal one).
+
+    Raises:
+        ModelFileError: the model was made for another arm.
+        ConfigError: it was trained on another payload family.
+    """
+    from .training import check_model_arm, check_model_family, load_arm_file
+
+    arm, arm_record = load_arm_file(config.model.arm or None, config.arm.end_effector)
+    if model is None:
+        model = load_or_train_model(config)
+    path = FsPath(config.model.path)
+    where = f"the model {path}" if path.exists() else "the model"
+    check_model_arm(model, arm_record, where=where)
+    check_model_family(model, config.model.family, where=where)
+    if config.estimate.initial_payload:
+        start_from_file(model, config.estimate.initial_payload)
+    return model, arm
 
 
 INITIAL_STD = (0.01, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002, 0.002)

@@ -35,7 +35,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path as FsPath
 
 import numpy as np
 
@@ -50,8 +49,10 @@ from .config import CellConfig
 from .gate import SafetyGate
 from .latency import LatencyWindow
 from .load_writer import LoadWriter
-from .model_setup import link_rate, load_or_train_model, start_from_file, wire_check_of
+from .model_setup import checked_model, link_rate, wire_check_of
+from .pacing import LearningPace
 from .sdnotify import Notifier
+from .service_report import status_text, summary_of
 from .status import StatusLine
 
 log = logging.getLogger("iem.service")
@@ -130,8 +131,7 @@ class Service:
         self.reader_skipped = 0
         self.not_newer_frames = 0
         """Frames the last run's reader did not use: not newer than the last one used."""
-        self.unlearnt = 0
-        self._behind = False
+        self.pace = LearningPace()
         self.cpu_s = 0.0
         self.cpu_parts = {"cycle": 0.0, "reader": 0.0, "learning": 0.0, "checkpoint": 0.0}
         """CPU s of the last run by thread: the estimating loop's, the link reader's, the
@@ -150,7 +150,7 @@ class Service:
         from sim.robot import PandaModel
 
         from .host import hold_cpu_latency
-        from .training import check_model_arm, check_model_family, load_arm_file, tandem_for
+        from .training import tandem_for
 
         if self.cpu_latency is None:  # first: a host that refuses it fails before training
             self.cpu_latency = hold_cpu_latency(self.config.host.cpu_dma_latency_us)
@@ -158,17 +158,7 @@ class Service:
                 log.info("holding a CPU wake-up latency limit of %d µs on %s (in force: %d "
                          "µs)", self.cpu_latency.latency_us, self.cpu_latency.device,
                          self.cpu_latency.effective_us, extra={"event": "cpu_latency"})
-        arm, arm_record = load_arm_file(self.config.model.arm or None,
-                                        self.config.arm.end_effector)
-        if self.model is None:
-            self.model = load_or_train_model(self.config)
-        path = FsPath(self.config.model.path)
-        check_model_arm(self.model, arm_record,
-                        where=f"the model {path}" if path.exists() else "the model")
-        check_model_family(self.model, self.config.model.family,
-                           where=f"the model {path}" if path.exists() else "the model")
-        if self.config.estimate.initial_payload:
-            start_from_file(self.model, self.config.estimate.initial_payload)
+        self.model, arm = checked_model(self.config, self.model)
         # a live link: learning and heavy work never hold up estimating; a replay: inline
         # and at once, reproducible
         self.model.go_live(self.threaded_reader,
@@ -271,7 +261,7 @@ class Service:
         self.writer.observe(t_gate, out.smoothed, out.raw, self.model.busy)
         self.checkpointer.tick(now, self.model)
         if self.status.due(now):
-            self.status.show(self._status_text(now - started, out.smoothed))
+            self.status.show(status_text(self, now - started, out.smoothed))
 
     def _account(self, reader, started: float, cpu0: float, learn0: float,
                  save0: float) -> None:
@@ -353,24 +343,15 @@ class Service:
         self.status.show("controller silent: writes stopped", force=True)
 
     def _pace(self, lag: float, max_lag: float) -> None:
-        """Behind the controller by more than ``max_lag`` s (a slow learning step), the
-        service still estimates every point but skips the learning steps until it is
-        current again (below half of ``max_lag``), so estimates and writes stay fresh;
-        counted in ``unlearnt``, logged once per episode."""
-        behind = lag > (max_lag / 2.0 if self._behind else max_lag)  # hysteresis
-        if behind:
-            self.unlearnt += 1
-        if behind != self._behind:
-            self._behind = behind
-            self.online.learn = self.config.estimate.learn and not behind
-            if behind:
-                log.warning("behind the controller by %.0f ms: estimating without learning "
-                            "until current", lag * 1e3, extra={"event": "behind",
-                                                               "lag_ms": lag * 1e3})
-            else:
-                log.info("current again (%d points estimated without learning so far)",
-                         self.unlearnt, extra={"event": "current",
-                                               "unlearnt": self.unlearnt})
+        """Learn or not, as the service keeps up with the controller (:class:`deploy.pacing.
+        LearningPace`)."""
+        if self.pace.observe(lag, max_lag):
+            self.online.learn = self.config.estimate.learn and not self.pace.behind
+
+    @property
+    def unlearnt(self) -> int:
+        """Block points estimated without learning because the service was behind."""
+        return self.pace.unlearnt
 
     def _controller_back(self) -> None:
         self.silent = False
@@ -380,50 +361,9 @@ class Service:
         self.notifier.status("identifying the payload")
 
     # -- reporting -----------------------------------------------------------------------
-    def _status_text(self, elapsed: float, phi: np.ndarray) -> str:
-        c = self.link.counters
-        rate = self.cycles / elapsed if elapsed > 0 else 0.0
-        m = phi[0]
-        com = phi[1:4] / m if m > 0 else np.full(3, np.nan)
-        drops = sum(c.dropped().values())
-        return (f"{elapsed:6.1f} s  m {m:6.3f} kg  c [{com[0]:+.3f} {com[1]:+.3f} "
-                f"{com[2]:+.3f}] m  bags {self.model.n_bags}  {rate:6.0f} est/s  writes "
-                f"{self.gate.sent}/{self.gate.acked}"
-                + (f" refused {self.gate.refusals}" if self.gate.refusals else "")
-                + f"  drops {drops} lost {c.lost}"
-                + ("  SILENT" if self.silent else ""))
-
     def summary(self) -> dict:
-        c = self.link.counters
-        gate = self.gate.summary()
-        return {
-            "cycles": self.cycles,
-            "estimates": self.cycles,
-            "bags": self.model.n_bags,
-            "model": self.model.name,
-            "block_frames": self.config.estimate.block_frames,
-            "latency_us": dict(zip(("p50", "p99"), self.latencies.percentiles_us(50, 99),
-                                   strict=True)),
-            "age_us": dict(zip(("p50", "p99"), self.ages.percentiles_us(50, 99),
-                               strict=True)),
-            "writes": {"sent": gate["sent"], "acked": gate["acked"],
-                       "rejected": gate["rejected"], "refused_by_controller": self.gate.refusals,
-                       "send_errors": self.gate.send_errors},
-            "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
-                       "skipped": self.skipped + self.reader_skipped,
-                       "not_newer": self.online.skipped + self.not_newer_frames},
-            "unlearnt": self.unlearnt,
-            "learnt": self.online.learned_points,
-            "gate": gate["decisions"],
-            "silences": self.silences,
-            "arm_mismatch": self.arm_watch.finding,
-            "checkpoints": self.checkpoints,
-            "wall_s": self.wall_s,
-            "cpu_s": self.cpu_s,
-            "cpu_parts": dict(self.cpu_parts),
-            "cpu_dma_latency_us": (None if self.cpu_latency is None
-                                   else self.cpu_latency.latency_us),
-        }
+        """What the last run did (:func:`deploy.service_report.summary_of`)."""
+        return summary_of(self)
 
 
 def configure(parser) -> None:
