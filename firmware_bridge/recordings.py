@@ -7,14 +7,9 @@ Three formats (:data:`FORMATS`), told apart by :func:`detect_format` (a caller m
   the live link decodes the bus (the link kind ``replay``). python-can's own CSV CAN log is
   recognised and refused: it keeps no CAN FD flag, so ``iem record`` does not write it.
 - ``rosbag2``: ``ros2 bag record /franka/joint_states``: a bag directory holding
-  ``metadata.yaml``, or one of its ``.db3`` (sqlite3) or ``.mcap`` files, read with
-  ``rosbags`` (no ROS install). The topic (default ``/franka/joint_states``) must carry
-  ``sensor_msgs/msg/JointState``; joints are mapped by name as the ``ros2`` link maps them
-  (:func:`firmware_bridge.ros2_link.match_joints`: ``fr3_joint1..7`` or ``panda_joint1..7``,
-  in any order, other joints such as the fingers ignored); ``position``, ``velocity`` and
-  ``effort`` (franka_ros2: tau_J, link side) give q, dq and tau. ``t`` is the message's
-  ``header.stamp`` (s, to the nearest double of its nanoseconds); only if every message's
-  stamp is zero (a publisher that does not stamp) is it the bag's receive time.
+  ``metadata.yaml``, or one of its ``.db3`` (sqlite3) or ``.mcap`` files, whose topic (default
+  ``/franka/joint_states``) carries ``sensor_msgs/msg/JointState``: the arm's joints by name,
+  ``t`` from the header stamps (:mod:`firmware_bridge.rosbag2_reader`).
 - ``csv``: a text file whose header names the columns ``t`` (s), ``q1..q7`` (rad),
   ``dq1..dq7`` (rad/s) and ``tau1..tau7`` (N·m, link side: libfranka's ``tau_J``), in any
   order; other columns are ignored. A libfranka ``RobotState`` logged that way.
@@ -37,39 +32,30 @@ at 1 kHz).
 from __future__ import annotations
 
 import csv
-import logging
 import time
-from collections.abc import Callable
 from pathlib import Path as FsPath
 
 import numpy as np
 
 from iem.signals.recording import Recording
-from iem.types import N_JOINTS, NOMINAL_RATE_HZ, JointState
+from iem.types import N_JOINTS, JointState
 
 from .errors import BridgeConfigError, EndOfStream, LogFileError
 from .links import LinkCounters, open_link
 from .reassembly import CYCLE_MOD
 from .record import FORMATS as CAN_SUFFIXES
-from .ros2_link import DEFAULT_TOPIC, JOINT_SETS, match_joints
+from .recording_checks import RATE_HZ, checked_recording, refuse_nonfinite
+from .ros2_link import DEFAULT_TOPIC
+from .rosbag2_reader import BAG_SUFFIXES, read_rosbag2
 
 FORMATS = ("can", "rosbag2", "csv")
 """The recording formats, as ``--format`` names them."""
-BAG_SUFFIXES = (".db3", ".mcap")
-"""Files of a rosbag2 bag that are read on their own (sqlite3, MCAP)."""
-JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 CSV_COLUMNS = ("t", *(f"{s}{i}" for s in ("q", "dq", "tau") for i in range(1, N_JOINTS + 1)))
 """The columns a joint-state CSV must have (any order; others are ignored)."""
 CAN_CSV_HEADER = ("timestamp", "arbitration_id")
 """How python-can's CSV CAN log starts its header."""
-RATE_HZ = NOMINAL_RATE_HZ
-"""Joint states per second the estimator is set up for on a recording: Franka's controller
-rate (libfranka's RobotState and franka_ros2's ``/franka/joint_states``)."""
 VALID = ("a CAN log (.blf, .log, .asc, .trc), a rosbag2 bag (its directory, a .db3 or a .mcap "
          "file) or a joint-state CSV (header t,q1..q7,dq1..dq7,tau1..tau7)")
-
-log = logging.getLogger("iem.bridge")
-
 
 # -- which format ------------------------------------------------------------------------------
 def _header(path: FsPath) -> list[str] | None:
@@ -135,41 +121,6 @@ def recording_format(path, format: str | None = None) -> str:
 
 
 # -- readers -----------------------------------------------------------------------------------
-def _recording(path, t, q, dq, tau, what: Callable[[int], str]) -> Recording:
-    """The arrays as a read-only Recording, after the checks every format shares; ``what(k)``
-    names joint state ``k`` in the file (a line, a message)."""
-    n = t.shape[0]
-    if n < 2:
-        raise LogFileError(f"{path}: {n} joint state(s); a recording needs at least 2")
-    steps = np.diff(t)
-    if np.any(steps <= 0.0):
-        k = int(np.flatnonzero(steps <= 0.0)[0]) + 1
-        how = "repeats" if steps[k - 1] == 0.0 else "goes back from"
-        raise LogFileError(f"{path}: {what(k)}: t = {float(t[k])!r} s {how} {what(k - 1)}'s "
-                           f"{float(t[k - 1])!r} s; the time stamps of a recording must increase "
-                           "strictly (one joint state per controller cycle, in order)")
-    median = float(np.median(steps))
-    if not 0.5 / RATE_HZ <= median <= 2.0 / RATE_HZ:
-        log.warning("%s: the median time step is %.3g ms; the estimator is set up for %g joint "
-                    "states per second and restarts its filters after gaps over 20 ms", path,
-                    median * 1e3, RATE_HZ, extra={"event": "recording_rate"})
-    for a in (t, q, dq, tau):
-        a.flags.writeable = False  # the source hands out rows as JointState's own arrays
-    return Recording(t=t, q=q, dq=dq, tau=tau)
-
-
-def _nonfinite(path, arrays: dict[str, np.ndarray], what, column) -> None:
-    for name, a in arrays.items():
-        bad = ~np.isfinite(a)
-        if bad.any():
-            k = int(np.flatnonzero(bad.reshape(a.shape[0], -1).any(axis=1))[0])
-            j = int(np.flatnonzero(bad[k])[0]) if a.ndim == 2 else -1
-            value = float(a[k, j] if a.ndim == 2 else a[k])
-            raise LogFileError(f"{path}: {what(k)}, {column(name, j)}: {value!r} is not a "
-                               "finite number; every value of a recording must be (a single "
-                               "non-finite value refuses the whole file)")
-
-
 def read_csv(path) -> Recording:
     """A joint-state CSV (see the module docstring) as arrays; LogFileError naming the line and
     column of anything wrong."""
@@ -219,111 +170,11 @@ def read_csv(path) -> Recording:
     def column(name: str, j: int) -> str:
         return f"column {CSV_COLUMNS[j]}"
 
-    _nonfinite(path, {"all": values}, what, column)
+    refuse_nonfinite(path, {"all": values}, what, column)
     n = N_JOINTS
     t = np.ascontiguousarray(values[:, 0])
     q, dq, tau = (np.ascontiguousarray(values[:, 1 + i * n:1 + (i + 1) * n]) for i in range(3))
-    return _recording(path, t, q, dq, tau, what)
-
-
-def _open_bag(path: FsPath):
-    from rosbags.rosbag2 import Reader
-
-    if not path.exists():
-        raise LogFileError(f"{path}: no such rosbag2 bag (a directory holding metadata.yaml, a "
-                           ".db3 or a .mcap file)")
-    if not (path.is_dir() or path.suffix.lower() in BAG_SUFFIXES):
-        raise LogFileError(f"{path}: a rosbag2 bag is a directory holding metadata.yaml, a .db3 "
-                           "or a .mcap file")
-    reader = Reader(path)
-    reader.open()
-    return reader
-
-
-def read_rosbag2(path, topic: str = DEFAULT_TOPIC) -> Recording:
-    """The ``sensor_msgs/msg/JointState`` messages of ``topic`` in a rosbag2 bag (see the
-    module docstring) as arrays; LogFileError naming the message and joint of anything wrong,
-    or the bag's topics if ``topic`` is not one of them."""
-    from rosbags.typesys import Stores, get_typestore
-
-    path = FsPath(path)
-    try:
-        reader = _open_bag(path)
-    except LogFileError:
-        raise
-    except Exception as exc:  # rosbags, sqlite3 and MCAP parsers raise their own errors
-        raise LogFileError(f"{path}: cannot read as a rosbag2 bag: {exc}") from exc
-    try:
-        connections = [c for c in reader.connections if c.topic == topic]
-        if not connections:
-            topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
-            raise LogFileError(f"{path}: no topic {topic} in the bag; its topics are "
-                               f"{topics or 'none'} (--topic names the JointState topic)")
-        types = sorted({c.msgtype for c in connections})
-        if types != [JOINT_STATE_TYPE]:
-            others = [f"{c.topic}" for c in reader.connections if c.msgtype == JOINT_STATE_TYPE]
-            raise LogFileError(f"{path}: topic {topic} carries {', '.join(types)}; a recording "
-                               f"needs {JOINT_STATE_TYPE} (topics of that type in the bag: "
-                               f"{', '.join(others) or 'none'})")
-        deserialize = get_typestore(Stores.LATEST).deserialize_cdr
-        where = f"{topic} message"
-        stamps, received, q, dq, tau = [], [], [], [], []
-        index: dict[tuple[str, ...], np.ndarray] = {}
-        joint_set: tuple[str, ...] = JOINT_SETS["fr3"]  # the first message's, for messages
-        try:
-            for k, (_, receive_ns, raw) in enumerate(reader.messages(connections=connections)):
-                msg = deserialize(raw, JOINT_STATE_TYPE)
-                names = tuple(msg.name)
-                if names not in index:
-                    index[names], matched = _joint_index(path, names, f"{where} {k}")
-                    joint_set = matched if k == 0 else joint_set
-                at = index[names]
-                fields = []
-                for field in ("position", "velocity", "effort"):
-                    a = np.asarray(getattr(msg, field), dtype=float)
-                    if a.shape != (len(names),):
-                        raise LogFileError(
-                            f"{path}: {where} {k}: {field} has {a.shape[0]} values for "
-                            f"{len(names)} joint names; a recording needs position, velocity "
-                            "and effort (tau_J) of every joint")
-                    fields.append(a[at])
-                q.append(fields[0])
-                dq.append(fields[1])
-                tau.append(fields[2])
-                stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
-                received.append(int(receive_ns))
-        except LogFileError:
-            raise
-        except Exception as exc:
-            raise LogFileError(f"{path}: cannot read {where} {len(stamps)}: {exc}") from exc
-    finally:
-        reader.close()
-    if not stamps:
-        raise LogFileError(f"{path}: no messages on {topic}; a recording needs the joint "
-                           "states of a motion")
-    if not any(stamps):
-        stamps = received  # a publisher that does not stamp: the bag's receive time
-    t = np.array([s / 1_000_000_000 for s in stamps])  # Python ints: the nearest double
-    arrays = {"position": np.array(q), "velocity": np.array(dq), "effort": np.array(tau)}
-
-    def what(k: int) -> str:
-        return f"{where} {k}"
-
-    _nonfinite(path, arrays, what, lambda field, j: f"{field} of {joint_set[j]}")
-    return _recording(path, t, *arrays.values(), what)
-
-
-def _joint_index(path, names: tuple[str, ...], what: str
-                 ) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Where the arm's joints are among ``names`` (the ros2 link's rule), and their names."""
-    found = match_joints(names)
-    if found is not None:
-        return np.array(found[0]), found[1]
-    closest = max(JOINT_SETS.values(), key=lambda s: sum(n in names for n in s))
-    missing = [n for n in closest if n not in names]
-    raise LogFileError(f"{path}: {what} names the joints {', '.join(names) or 'none'}; a "
-                       "recording needs the seven arm joints fr3_joint1..7 or panda_joint1..7 "
-                       f"(missing: {', '.join(missing)})")
+    return checked_recording(path, t, q, dq, tau, what)
 
 
 def _read_can(path, profile: str) -> Recording:

@@ -22,10 +22,10 @@ from firmware_bridge.recordings import (
     open_recording,
     read_csv,
     read_recording,
-    read_rosbag2,
     recording_format,
 )
 from firmware_bridge.replay import ReplaySource
+from firmware_bridge.rosbag2_reader import read_rosbag2
 
 FR3 = tuple(f"fr3_joint{i}" for i in range(1, 8))
 PANDA = tuple(f"panda_joint{i}" for i in range(1, 8))
