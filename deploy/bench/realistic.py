@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import time
 from pathlib import Path as FsPath
 
@@ -51,6 +50,7 @@ from iem.sensor import DEFAULT_SENSOR
 from iem.types import GROUPS, NOMINAL_RATE_HZ
 
 from .harness import CHANGE_TO, Bench
+from .realistic_report import report
 
 MODEL_ORDER = ("IEM", "IEM+phys", "IEM+cal", "IEM+phys+cal")
 BATCH_MODELS = ("batch+bare", "batch+arm")
@@ -215,7 +215,6 @@ def _batch(loaded, bare, arm, truth, after: int = 0) -> dict:
 def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
                   arm_file=None) -> dict:
     """All scenarios; writes ``results.json`` and ``report.md`` to ``out_dir``."""
-    from sim.arm import load_arm, save_arm
     from sim.robot import PandaModel
     from sim.tandem import TandemSimulators
 
@@ -223,16 +222,7 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bench = RealisticBench(quick=quick, seed=seed, log=log)
-    if arm_file is None:
-        t0 = time.perf_counter()
-        arm, held_out = bench.calibrate()
-        arm_file = out_dir / "arm.msgpack"
-        save_arm(arm, arm_file)
-        log(f"calibrated the arm in {time.perf_counter() - t0:.1f} s: residual RMS "
-            + " ".join(f"{b:.3f}->{a:.3f}" for b, a in zip(arm.report["rms_before"],
-                                                         arm.report["rms_after"], strict=True)))
-    else:
-        arm, held_out = load_arm(arm_file), None
+    arm, held_out, arm_file = _arm(bench, out_dir, arm_file, log)
     cal_tandem = TandemSimulators(bench.tandem.phi, model=PandaModel(arm=arm))
     tandems = {"IEM+cal": cal_tandem, "IEM+phys+cal": cal_tandem}
     models = bench.make_models(arm_file)
@@ -242,53 +232,14 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
     scen: dict = {name: {} for name in SCENARIOS}
     bare_run = bench.rollout(bench.new_path, None, seed + BARE_NOISE)
     for name in SCENARIOS:
-        payload = payloads[name]
-        mount = {bench.change_at: bench.change_payload} if name == "payload_change" else None
-        rollout = bench.rollout(bench.new_path, payload, seed + SCENARIO_NOISE[name],
-                                mount=mount)
-        truth = np.zeros(10) if payload is None else payload.to_phi()
-        after = 0
-        if name == "payload_change":
-            truth, after = bench.change_payload.to_phi(), bench.change_at
-        for model_name in MODEL_ORDER:
-            model = copy.deepcopy(models[model_name])
-            r = bench.run(model, rollout, learn=True, tandem=tandems.get(model_name))
-            first = int(np.searchsorted(r.last, after))  # the first block point after it
-            s = _score(r, truth, model, first)
-            if name == "payload_change" and model.detects_changes:
-                fired = np.flatnonzero(r.changes[first:])
-                s["detect_s"] = (None if fired.size == 0 else
-                                 float(r.t_end[first + fired[0]] - after / NOMINAL_RATE_HZ))
-            scen[name][model_name] = s
-            g = s["mae_groups"]
-            log(f"{name:14s} {model_name:13s} mass {g['mass']:.4f} com {g['com']:.4f} "
-                f"inertia {g['inertia']:.5f} cov {s['coverage_2sigma']} "
-                f"alarms {s['false_alarms']}")
-        for model_name, bare in (("batch+bare", bare_run), ("batch+arm", None)):
-            s = scen[name][model_name] = _batch(rollout, bare, arm, truth, after)
-            g = s["mae_groups"]
-            log(f"{name:14s} {model_name:13s} " + (
-                f"refused: {s['refused']}" if g is None else
-                f"mass {g['mass']:.5f} com {g['com']:.5f} inertia {g['inertia']:.5f} "
-                f"({s['time_s']:.1f} s)"))
+        scen[name] = _scenario(bench, name, payloads[name], models, tandems, bare_run, arm)
     results = {
         "models": [*MODEL_ORDER, *BATCH_MODELS],
         "scenarios": scen,
         "calibration": {"arm_file": str(arm_file), "report": arm.report,
                         "held_out": held_out},
         "targets": {f"{s}.{m}": t for (s, m), t in TARGETS.items()},
-        "setup": {"quick": quick, "seed": seed, "gap": {
-            "seed": bench.gap.seed, "mass_rel": bench.gap.mass_rel,
-            "inertia_rel": bench.gap.inertia_rel, "com_abs": bench.gap.com_abs,
-            "friction_factor": list(bench.gap.friction_factor or ()),
-            "offset_std": bench.gap.offset_std},
-            "calibration_noise_seed": CAL_NOISE_BASE + seed,
-            "sensor": {"sigma_q": DEFAULT_SENSOR.sigma_q, "sigma_dq": DEFAULT_SENSOR.sigma_dq,
-                       "sigma_tau": DEFAULT_SENSOR.sigma_tau},
-            "payloads": {k: (None if p is None else p.name) for k, p in payloads.items()},
-            "family": bench.family, "training_payloads": len(bench.tandem),
-            "change": {"to": CHANGE_TO, "at_s": bench.change_at / 1000.0},
-            "new_path_s": bench.new_path.duration},
+        "setup": _setup(bench, payloads),
     }
     results["setup"]["wall_s"] = time.perf_counter() - started
     (out_dir / "results.json").write_text(json.dumps(results, indent=2) + "\n")
@@ -298,87 +249,75 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
     return results
 
 
-def _f(v, digits: int = 4) -> str:
-    if v is None:
-        return "-"
-    return f"{v:.{digits}g}" if isinstance(v, float) and math.isfinite(v) else str(v)
+def _arm(bench: RealisticBench, out_dir: FsPath, arm_file, log):
+    """``(arm, held_out, arm_file)``: the bare arm calibrated (its file written to
+    ``out_dir``, its held-out residuals), or the given ``arm_file`` (held out: None)."""
+    from sim.arm import load_arm, save_arm
+
+    if arm_file is not None:
+        return load_arm(arm_file), None, arm_file
+    t0 = time.perf_counter()
+    arm, held_out = bench.calibrate()
+    arm_file = out_dir / "arm.msgpack"
+    save_arm(arm, arm_file)
+    log(f"calibrated the arm in {time.perf_counter() - t0:.1f} s: residual RMS "
+        + " ".join(f"{b:.3f}->{a:.3f}" for b, a in zip(arm.report["rms_before"],
+                                                     arm.report["rms_after"], strict=True)))
+    return arm, held_out, arm_file
 
 
-def report(results: dict) -> str:
-    """The markdown report (tables per scenario, the calibration, the targets)."""
-    su = results["setup"]
-    lines = [f"# bench realistic (seed {su['seed']}{', quick' if su['quick'] else ''})", "",
-             f"Plant: reality gap seed {su['gap']['seed']} (mass ±{su['gap']['mass_rel']:.0%}, "
-             f"CoM ±{su['gap']['com_abs'] * 1000:g} mm, inertia ±{su['gap']['inertia_rel']:.0%}, "
-             f"Gaz friction x {su['gap']['friction_factor']}, offsets σ "
-             f"{su['gap']['offset_std']} N·m); sensor σ_q {su['sensor']['sigma_q']} rad, "
-             f"σ_dq {su['sensor']['sigma_dq']} rad/s, σ_tau {su['sensor']['sigma_tau']} N·m; "
-             f"new task path {su['new_path_s']:.0f} s. MAE is of the smoothed estimate "
-             "(τ = 0.2 s EMA, as the plug-in writes it), raw beside it.", ""]
-    cal = results["calibration"]
-    rep = cal["report"]
-    if rep.get("rms_before"):
-        lines += ["## Calibration (bare arm, calibration motion, noise seed "
-                  f"{su['calibration_noise_seed']})", "",
-                  f"Condition number {rep['condition_number']:.0f}, "
-                  f"{rep['base_parameters']} base parameters.", "",
-                  "| joint | " + " | ".join(str(j + 1) for j in range(7)) + " |",
-                  "| --- |" + " --- |" * 7,
-                  "| residual RMS, nominal (N·m) | "
-                  + " | ".join(f"{v:.3f}" for v in rep["rms_before"]) + " |",
-                  "| residual RMS, calibrated | "
-                  + " | ".join(f"{v:.3f}" for v in rep["rms_after"]) + " |"]
-        held = cal.get("held_out")
-        if held:
-            lines += [f"| held out ({held['path']}), nominal | "
-                      + " | ".join(f"{v:.3f}" for v in held["rms_nominal"]) + " |",
-                      "| held out, calibrated | "
-                      + " | ".join(f"{v:.3f}" for v in held["rms_calibrated"]) + " |",
-                      "| held out, the true arm | "
-                      + " | ".join(f"{v:.3f}" for v in held["rms_true_arm"]) + " |"]
-        lines.append("")
-    for name, by_model in results["scenarios"].items():
-        lines += [f"## {name}", "",
-                  "| model | mass (kg) | com (kg·m) | inertia (kg·m²) | raw mass / com / "
-                  "inertia | 2σ coverage (all; mass, com, inertia) | false alarms |",
-                  "| --- | --- | --- | --- | --- | --- | --- |"]
-        for model, s in by_model.items():
-            if s["mae_groups"] is None:
-                lines.append(f"| {model} | refused: {s.get('refused')} | | | | | |")
-                continue
-            g, r = s["mae_groups"], s["mae_groups_raw"]
-            cg = s["coverage_2sigma_groups"]
-            cov = ("-" if s["coverage_2sigma"] is None else
-                   f"{s['coverage_2sigma']:.2f}; " + ", ".join(f"{cg[k]:.2f}" for k in GROUPS))
-            alarms = _f(s["false_alarms"])
-            if "detect_s" in s:
-                alarms += f" (detected after {_f(s['detect_s'], 3)} s)"
-            lines.append(f"| {model} | {_f(g['mass'])} | {_f(g['com'])} | {_f(g['inertia'])} "
-                         f"| {_f(r['mass'])} / {_f(r['com'])} / {_f(r['inertia'])} | {cov} "
-                         f"| {alarms} |")
-        lines.append("")
-    lines += ["## Targets (issues 11 and 16)", "",
-              "| scenario.model | group | target | measured | met |",
-              "| --- | --- | --- | --- | --- |"]
-    for key, groups in results["targets"].items():
-        scenario, model = key.split(".", 1)
-        s = results["scenarios"][scenario][model]
-        if s["mae_groups"] is None:
-            lines.append(f"| {key} | all | | refused | no |")
-            continue
-        for g, target in groups.items():
-            v = s["mae_groups"][g]
-            lines.append(f"| {key} | {g} | {target:g} | {_f(v)} | "
-                         f"{'yes' if v <= target else 'no'} |")
-        if scenario == "new_path" and model == "IEM+phys+cal":
-            cg = s["coverage_2sigma_groups"] or {}
-            for g in GROUPS:
-                v = cg.get(g)
-                lines.append(f"| {key} | coverage {g} | >= 0.9 | {_f(v, 3)} | "
-                             f"{'yes' if v is not None and v >= 0.9 else 'no'} |")
-            fa = s["false_alarms"]
-            lines.append(f"| {key} | false alarms | 0 | {fa} | {'yes' if fa == 0 else 'no'} |")
-    return "\n".join(lines) + "\n"
+def _scenario(bench: RealisticBench, name: str, payload, models: dict, tandems: dict,
+              bare_run, arm) -> dict:
+    """One scenario: every model on a copy of itself along the new task path with
+    ``payload`` (switched at mid-path for ``payload_change``), then the batch models."""
+    log = bench.log
+    mount = {bench.change_at: bench.change_payload} if name == "payload_change" else None
+    rollout = bench.rollout(bench.new_path, payload, bench.seed + SCENARIO_NOISE[name],
+                            mount=mount)
+    truth = np.zeros(10) if payload is None else payload.to_phi()
+    after = 0
+    if name == "payload_change":
+        truth, after = bench.change_payload.to_phi(), bench.change_at
+    out = {}
+    for model_name in MODEL_ORDER:
+        model = copy.deepcopy(models[model_name])
+        r = bench.run(model, rollout, learn=True, tandem=tandems.get(model_name))
+        first = int(np.searchsorted(r.last, after))  # the first block point after it
+        s = _score(r, truth, model, first)
+        if name == "payload_change" and model.detects_changes:
+            fired = np.flatnonzero(r.changes[first:])
+            s["detect_s"] = (None if fired.size == 0 else
+                             float(r.t_end[first + fired[0]] - after / NOMINAL_RATE_HZ))
+        out[model_name] = s
+        g = s["mae_groups"]
+        log(f"{name:14s} {model_name:13s} mass {g['mass']:.4f} com {g['com']:.4f} "
+            f"inertia {g['inertia']:.5f} cov {s['coverage_2sigma']} "
+            f"alarms {s['false_alarms']}")
+    for model_name, bare in (("batch+bare", bare_run), ("batch+arm", None)):
+        s = out[model_name] = _batch(rollout, bare, arm, truth, after)
+        g = s["mae_groups"]
+        log(f"{name:14s} {model_name:13s} " + (
+            f"refused: {s['refused']}" if g is None else
+            f"mass {g['mass']:.5f} com {g['com']:.5f} inertia {g['inertia']:.5f} "
+            f"({s['time_s']:.1f} s)"))
+    return out
+
+
+def _setup(bench: RealisticBench, payloads: dict) -> dict:
+    """The ``setup`` of the results (``wall_s`` is added at the end)."""
+    gap = bench.gap
+    return {"quick": bench.quick, "seed": bench.seed, "gap": {
+        "seed": gap.seed, "mass_rel": gap.mass_rel,
+        "inertia_rel": gap.inertia_rel, "com_abs": gap.com_abs,
+        "friction_factor": list(gap.friction_factor or ()),
+        "offset_std": gap.offset_std},
+        "calibration_noise_seed": CAL_NOISE_BASE + bench.seed,
+        "sensor": {"sigma_q": DEFAULT_SENSOR.sigma_q, "sigma_dq": DEFAULT_SENSOR.sigma_dq,
+                   "sigma_tau": DEFAULT_SENSOR.sigma_tau},
+        "payloads": {k: (None if p is None else p.name) for k, p in payloads.items()},
+        "family": bench.family, "training_payloads": len(bench.tandem),
+        "change": {"to": CHANGE_TO, "at_s": bench.change_at / 1000.0},
+        "new_path_s": bench.new_path.duration}
 
 
 def configure(parser) -> None:
