@@ -81,9 +81,6 @@ def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
 def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dict | None,
          fault_seed: int, log) -> dict:
     """One run: the controller process, the service here; what it estimated and wrote."""
-    from firmware_bridge.errors import LinkError
-
-    from .config import config_from_dict
     from .service import Service
     from .status import StatusLine
 
@@ -97,51 +94,15 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
             if not pty.startswith("/dev/"):
                 raise RuntimeError(f"sim-controller did not announce its pty: {pty!r}; "
                                    f"{proc.stderr.read()[-2000:]}")
-            config = config_from_dict({
-                "link": {"kind": "slcan", "channel": pty, "profile": "fd",
-                         "silence_timeout_s": 0.2},
-                "gate": {"allow_without_uncertainty": model.name == "IEM"},  # the paper's IEM
-                "model": {"path": str(FsPath(tmp) / "model.msgpack"),
-                          "checkpoint_period_s": 3600.0},
-                "log": {"status_line": "off"},
-            }, where="bench faults")
-            service = Service(config, model=model, status=StatusLine(False))
+            service = Service(_cell_config(pty, model, tmp), model=model,
+                              status=StatusLine(False))
             cycles: list[tuple[float, float, np.ndarray, np.ndarray]] = []
             writes: list[tuple[float, object]] = []
             service.on_cycle.append(lambda rec: cycles.append(
                 (time.monotonic(), rec.state.t, rec.smoothed, rec.raw.phi, rec.state.cycle)))
-            try:
-                service.open()
-                send = service.link.send
-
-                def recorded_send(payload):
-                    writes.append((time.monotonic(), payload))
-                    return send(payload)
-
-                service.link.send = recorded_send
-                log(f"bench faults: {'faulty' if faults else 'clean'} run, {seconds:g} s, "
-                    f"controller in process {proc.pid} behind slcan on {pty}")
-
-                def done() -> bool:  # the controller has ended and the link is quiet
-                    quiet = not cycles or time.monotonic() - cycles[-1][0] > 0.5
-                    return proc.poll() is not None and quiet
-
-                try:
-                    summary = service.run(until=done)
-                except LinkError as exc:
-                    # the controller ended and took its pty with it (the reader gets EIO)
-                    try:
-                        proc.wait(timeout=5)
-                    except subprocess.TimeoutExpired:
-                        raise exc from None  # the adapter is still there: a real failure
-                    summary = service.summary()
-            finally:
-                try:
-                    service.close()
-                except LinkError:
-                    if proc.poll() is None:
-                        raise  # the adapter is still there: a real failure
-                    # the controller has ended and taken its pty with it: nothing to close
+            summary = _serve(service, proc, cycles, writes, lambda: log(
+                f"bench faults: {'faulty' if faults else 'clean'} run, {seconds:g} s, "
+                f"controller in process {proc.pid} behind slcan on {pty}"))
         finally:
             if proc.poll() is None:
                 proc.terminate()
@@ -152,6 +113,58 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
                 controller = {}
     return _figures(cycles, writes, summary, service, controller, truth, seconds,
                     faults is not None)
+
+
+def _cell_config(pty: str, model, tmp: str):
+    """The cell of a run: slcan on the controller's pty, the model checkpointed in ``tmp``."""
+    from .config import config_from_dict
+
+    return config_from_dict({
+        "link": {"kind": "slcan", "channel": pty, "profile": "fd",
+                 "silence_timeout_s": 0.2},
+        "gate": {"allow_without_uncertainty": model.name == "IEM"},  # the paper's IEM
+        "model": {"path": str(FsPath(tmp) / "model.msgpack"),
+                  "checkpoint_period_s": 3600.0},
+        "log": {"status_line": "off"},
+    }, where="bench faults")
+
+
+def _serve(service, proc, cycles: list, writes: list, announce) -> dict:
+    """The service until the controller process has ended and the link is quiet, each load
+    it sends recorded in ``writes`` (``announce()`` once it is open); its summary."""
+    from firmware_bridge.errors import LinkError
+
+    try:
+        service.open()
+        send = service.link.send
+
+        def recorded_send(payload):
+            writes.append((time.monotonic(), payload))
+            return send(payload)
+
+        service.link.send = recorded_send
+        announce()
+
+        def done() -> bool:  # the controller has ended and the link is quiet
+            quiet = not cycles or time.monotonic() - cycles[-1][0] > 0.5
+            return proc.poll() is not None and quiet
+
+        try:
+            return service.run(until=done)
+        except LinkError as exc:
+            # the controller ended and took its pty with it (the reader gets EIO)
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                raise exc from None  # the adapter is still there: a real failure
+            return service.summary()
+    finally:
+        try:
+            service.close()
+        except LinkError:
+            if proc.poll() is None:
+                raise  # the adapter is still there: a real failure
+            # the controller has ended and taken its pty with it: nothing to close
 
 
 def _figures(cycles, writes, summary, service, controller, truth, seconds, faulty) -> dict:

@@ -49,14 +49,12 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     Without the extras it needs (``sim``: MuJoCo; ``plots``: matplotlib) it stops at once
     with :class:`iem.errors.MissingExtraError`, before a minute of simulation."""
     from iem.extras import require
-    from iem.metrics import mae_groups
 
     require("mujoco", "iem demo (the simulated Panda)")
     require("matplotlib", "iem demo (its figures)")
     from sim.family import default_test_payload
 
-    from .config import config_from_dict
-    from .inprocess import simulated_cell, virtual_channel
+    from .inprocess import simulated_cell
     from .status import StatusLine
     from .training import best_model_kind
 
@@ -68,18 +66,7 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     path, phases = demo_path()
     model_file = out / "model.msgpack"
     model_file.unlink(missing_ok=True)  # the demo always starts from the excitation path
-    config = config_from_dict({
-        "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
-        "model": {"path": str(model_file), "kind": kind, "seed": seed,
-                  "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
-        # the demo's plant without an arm file is the nominal model itself: the sensor's
-        # noise is all its equations carry; with one, the arm's measured noise
-        "arm": {"noise": "arm" if arm_file else "sensor"},
-        # the paper's IEM reports no uncertainty: the demo lets it write, as a cell must
-        "gate": {"allow_without_uncertainty": kind == "IEM"},
-        "log": {"status_line": "on" if status else "off"},
-        "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
-    }, where="demo")
+    config = _demo_config(model_file, kind, seed, arm_file, status, cpu_dma_latency_us)
     log(f"iem demo: payload {payload.name} ({payload.mass:.3f} kg), path {path.duration:.0f} s "
         f"(excitation, transfer, new task), model {kind}")
     rows: list[tuple] = []
@@ -106,19 +93,8 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     t = np.array([r[0] for r in rows])
     est = np.array([r[2] for r in rows])
     bags = np.array([r[1] for r in rows])
-    summary.update({
-        "mae_groups": mae_groups(est, truth),
-        "mae_groups_by_phase": {
-            name: mae_groups(est[(t >= a) & (t < b)], truth) for name, a, b in phases
-            if np.any((t >= a) & (t < b))},
-        "final_estimate": {"phi": est[-1].tolist(), "truth": truth.tolist()},
-        "estimates_per_s": summary["estimates"] / wall if wall > 0 else None,
-        "controller": controller.stats(),
-        "controller_load": None if controller.plant.controller_load is None else {
-            "mass": controller.plant.controller_load.mass,
-            "com": list(controller.plant.controller_load.com)},
-        "payload": payload.name,
-    })
+    summary.update(_figures_of_the_run(t, est, truth, phases, wall, summary, controller))
+    summary["payload"] = payload.name
     _figures(out, t, est, bags, truth, phases, service, rows)
     text = json.dumps(summary, indent=2, default=float)
     (out / "summary.json").write_text(text + "\n")
@@ -126,6 +102,47 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
         FsPath(json_path).write_text(text + "\n")
     _print_summary(summary, out, log)
     return summary
+
+
+def _demo_config(model_file, kind: str, seed: int, arm_file, status: bool,
+                 cpu_dma_latency_us: int):
+    """The demo cell's configuration: the virtual bus, a model trained afresh at
+    ``model_file``, the gate as a cell of that model kind needs it."""
+    from .config import config_from_dict
+    from .inprocess import virtual_channel
+
+    return config_from_dict({
+        "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
+        "model": {"path": str(model_file), "kind": kind, "seed": seed,
+                  "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
+        # the demo's plant without an arm file is the nominal model itself: the sensor's
+        # noise is all its equations carry; with one, the arm's measured noise
+        "arm": {"noise": "arm" if arm_file else "sensor"},
+        # the paper's IEM reports no uncertainty: the demo lets it write, as a cell must
+        "gate": {"allow_without_uncertainty": kind == "IEM"},
+        "log": {"status_line": "on" if status else "off"},
+        "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
+    }, where="demo")
+
+
+def _figures_of_the_run(t, est, truth, phases, wall: float, summary: dict,
+                        controller) -> dict:
+    """What the demo adds to the service's summary: the MAE over the run and per phase, the
+    final estimate, the estimate rate, the simulated controller's figures and its load."""
+    from iem.metrics import mae_groups
+
+    load = controller.plant.controller_load
+    return {
+        "mae_groups": mae_groups(est, truth),
+        "mae_groups_by_phase": {
+            name: mae_groups(est[(t >= a) & (t < b)], truth) for name, a, b in phases
+            if np.any((t >= a) & (t < b))},
+        "final_estimate": {"phi": est[-1].tolist(), "truth": truth.tolist()},
+        "estimates_per_s": summary["estimates"] / wall if wall > 0 else None,
+        "controller": controller.stats(),
+        "controller_load": None if load is None else {"mass": load.mass,
+                                                      "com": list(load.com)},
+    }
 
 
 def _print_summary(s: dict, out, log) -> None:

@@ -109,18 +109,25 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     if estimate.unverified:
         return ("unverified", "the estimate starts from a payload file and has not yet been "
                               "tested against enough live data")
-    std = estimate.std
-    if std is not None:
-        band = 2.0 * float(np.asarray(std, dtype=float).reshape(-1)[0])
-        if not band <= config.max_mass_2sigma_kg:
-            return ("uncertain", f"2-sigma band on the mass {band:.4g} kg > "
-                                 f"{config.max_mass_2sigma_kg:g} kg")
-        radius = com_2sigma(estimate.phi, std)
-        if not radius <= config.max_com_2sigma_m:
-            return ("uncertain", f"2-sigma radius of the CoM {radius * 1e3:.3g} mm > "
-                                 f"{config.max_com_2sigma_m * 1e3:g} mm")
+    if estimate.std is not None:
+        wide = _too_uncertain(estimate.phi, estimate.std, config)
+        if wide is not None:
+            return ("uncertain", wide)
     nis = estimate.nis
     if nis is not None and not math.isnan(nis) and not nis <= config.max_nis:
         return ("data_disagree", f"normalised innovation squared {nis:.3g} per degree of "
                                  f"freedom > {config.max_nis:g}: the data disagree with the model")
+    return None
+
+
+def _too_uncertain(phi, std, config: GateConfig) -> str | None:
+    """Why the 2-sigma band on the mass or the 2-sigma radius of the CoM is wider than the
+    gate's limit (or not a number), or None if neither is."""
+    band = 2.0 * float(np.asarray(std, dtype=float).reshape(-1)[0])
+    if not band <= config.max_mass_2sigma_kg:
+        return f"2-sigma band on the mass {band:.4g} kg > {config.max_mass_2sigma_kg:g} kg"
+    radius = com_2sigma(phi, std)
+    if not radius <= config.max_com_2sigma_m:
+        return (f"2-sigma radius of the CoM {radius * 1e3:.3g} mm > "
+                f"{config.max_com_2sigma_m * 1e3:g} mm")
     return None

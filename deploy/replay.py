@@ -157,7 +157,6 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     """
     from firmware_bridge.links import open_link
     from firmware_bridge.recordings import recording_link
-    from iem.metrics import mae_groups
     from iem.persistence import save_model
     from sim.family import DEPLOY_FAMILY
 
@@ -189,12 +188,19 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
                         {"log_file": str(log_file), "format": fmt,
                          "profile": profile if fmt == "can" else None})
     if truth is not None:
-        sm = estimates.smoothed_array()
-        summary["payload"] = truth.name
-        summary["mae_groups"] = mae_groups(sm, truth.to_phi())
-        summary["coverage_2sigma"] = estimates.coverage_2sigma(truth.to_phi())
-        summary["final_estimate"] = {"phi": sm[-1].tolist(), "truth": truth.to_phi().tolist()}
+        summary.update(_against(estimates, truth))
     return summary, estimates
+
+
+def _against(estimates: Estimates, truth) -> dict:
+    """The estimates scored against the true payload: its name, the MAE of the smoothed
+    estimate, the raw one's 2-sigma coverage, the final estimate beside the truth."""
+    from iem.metrics import mae_groups
+
+    sm = estimates.smoothed_array()
+    return {"payload": truth.name, "mae_groups": mae_groups(sm, truth.to_phi()),
+            "coverage_2sigma": estimates.coverage_2sigma(truth.to_phi()),
+            "final_estimate": {"phi": sm[-1].tolist(), "truth": truth.to_phi().tolist()}}
 
 
 def _replay_service(link, kind: str, channel: str, profile: str, model, save_model_to,
