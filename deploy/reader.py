@@ -11,20 +11,23 @@ the last before it).
   estimating: while the estimator is slow (a learning step, a host under load) the link keeps
   being drained and every frame keeps its arrival time (the link's receive time stamp). The
   hand-over (a queue put, a wake-up of the service's thread) happens once a block, not once
-  a frame. The reader itself wakes about twice a block, not once a frame: after a frame
-  that leaves ``k >= 3`` frames of its block to come, it sleeps until ``k - 2`` frame
-  periods after that frame's arrival (:data:`SLEEP_MARGIN`; frames already waiting are read
-  at once) while the link's own buffer (the kernel's socket buffer, the
-  serial line's, python-can's queue) holds what arrives, then reads them at once and waits
-  for the block's last frame as it comes, so that frame's latency is what it was. Each
-  wake-up of a thread costs far more than decoding a frame (the reader thread took 0.066 of
-  a core at 1 kHz, a frame's decoding 18 µs of it). If the estimator falls so far behind
-  that the queue is full, the oldest block is dropped and counted in ``skipped``: never lost
-  silently (the estimator's gap rule then bridges or restarts).
+  a frame. The reader itself wakes a few times a block, not once a frame: after a block's
+  first frame it sleeps until :data:`SLEEP_MARGIN` frame periods before the block's last
+  frame is due, while the link's own buffer (the kernel's socket buffer, the serial line's,
+  python-can's queue) holds what arrives, then reads those at once and waits for the last
+  frames as they come, so the block's last frame's latency is what it was. It sleeps once a
+  block, from when it read the first frame, never from a frame's own time stamp: an adapter
+  without hardware time stamps stamps a frame when it is read, and sleeping after every
+  such frame fell behind until the adapter dropped frames. Behind by more than the margin,
+  the frames after the first are already waiting and the lag shrinks by the margin a
+  block. Each wake-up of a thread costs far more than decoding a frame (the reader thread
+  took 0.066 of a core at 1 kHz, a frame's decoding 18 µs of it). If the estimator falls so
+  far behind that the queue is full, the oldest block is dropped and counted in
+  ``skipped``: never lost silently (the estimator's gap rule then bridges or restarts).
 - :class:`BatchReader` (a replay) reads in the service's thread, ``chunk`` frames at a time
   into preallocated arrays, forms their blocks in one vectorised call
-  (:meth:`iem.signals.blocks.BlockFormer.push_many`) and hands them over as fast as the estimator
-  takes them: the same blocks as frame by frame, to the bit, and nothing is dropped.
+  (:meth:`iem.signals.blocks.BlockFormer.push_many`) and hands them over as fast as the
+  estimator takes them: the same blocks as frame by frame, to the bit, and nothing is dropped.
 
 An item's ``frame_time`` is the arrival (``time.time()``, epoch s) of the block's last frame
 and ``first_time`` that of its first (0.0 where the link has none, as a recording).
@@ -126,13 +129,10 @@ class LinkReader:
                     put(Item("state", point, arrived if ends_here else self._last, first))
                     first = arrived
                 self._last = arrived
-                left = frames - former.pending  # frames of the open block still to come
-                if self.sleep and former.pending and left >= margin and arrived > 0:
-                    # until SLEEP_MARGIN periods before the last is due (frames already
-                    # waiting in the link's buffer are due in the past: read at once)
-                    wait = arrived + (left - SLEEP_MARGIN) * period - time.time()
-                    if wait > 0.0:
-                        time.sleep(wait)
+                if self.sleep and former.pending == 1 and frames - 1 >= margin:
+                    # the block's first frame: asleep until SLEEP_MARGIN periods before
+                    # its last is due; the frames between wait in the link's buffer
+                    time.sleep((frames - 1 - SLEEP_MARGIN) * period)
         finally:
             self.cpu_s = time.thread_time() - cpu0
 
