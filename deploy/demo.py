@@ -155,15 +155,16 @@ def _print_summary(s: dict, out, log) -> None:
         log(f"    {name:10s} mass {pg['mass']:.4f} kg, com {pg['com']:.4f} kg·m, "
             f"inertia {pg['inertia']:.5f} kg·m²")
     lat = s["latency_us"]
-    log(f"  bags {s['bags']}; {s['estimates']} estimates ({s['estimates_per_s']:.0f} per s); "
-        f"latency frame to estimate p50 {lat['p50']:.0f} µs, p99 {lat['p99']:.0f} µs")
+    log(f"  bags {s['bags']}; {s['estimates']} estimates, one per block point "
+        f"({s['estimates_per_s']:.0f} per s); block to estimate p50 {lat['p50']:.0f} µs, "
+        f"p99 {lat['p99']:.0f} µs")
     w = s["writes"]
     log(f"  writes: {w['sent']} sent, {w['acked']} acknowledged, {w['rejected']} rejected by "
         f"the gate, {w['refused_by_controller']} refused by the controller")
     f = s["frames"]
     drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
     log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}; "
-        f"{s['unlearnt']} cycles estimated without learning to stay current, "
+        f"{s['unlearnt']} block points estimated without learning to stay current, "
         f"{f['skipped']} skipped")
     if s["controller_load"]:
         cl = s["controller_load"]
