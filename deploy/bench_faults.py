@@ -33,8 +33,9 @@ Figures (``--json FILE`` writes them with these keys):
   not read its pty in time (0 unless the host starves the reader; such a frame counts as
   lost in ``expected``, and a delayed one is accounted at its release cycle, so then the
   match can be off by the few such frames).
-- ``gaps``: what the estimator's gap rule made of the faulty stream (cycles bridged, samples
-  skipped, restarts).
+- ``gaps``: what the one gap rule made of the faulty stream: frames bridged into block
+  points and frames skipped (not newer) by the reader's block former, and restarts of the
+  estimator's filters.
 
 Targets (issue 10): faulty mass MAE <= 1.5x the clean run's (floor 0.001 kg); every written
 load within 0.01 kg and 5 mm of CoM of the truth; no write during the silence; counters as
@@ -189,14 +190,20 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
     counters = service.link.counters.as_dict()
     out["counters"] = counters
     out["injected"] = controller.get("faults_by_message", {})
-    seen = (cycles[0][4], cycles[-1][4]) if cycles else (0, -1)
+    # the cycles read: a record's cycle is its block point's last frame's, and the first
+    # block of the stream holds block_frames frames (no gap can come before its first)
+    first = cycles[0][4] - (service.config.estimate.block_frames - 1) if cycles else 0
+    seen = (first, cycles[-1][4]) if cycles else (0, -1)
     failures = [tuple(f) for f in controller.get("send_failures", [])]
     out["adapter_dropped"] = len(failures)
     out["expected"] = expected_counters(controller.get("fault_events", []), *seen, failures)
     out["controller"] = {k: v for k, v in controller.items()
                          if k not in ("faults_by_message", "fault_events")}
-    gaps = service.online.state_filter.gaps
-    out["gaps"] = {"bridged": gaps.bridged, "skipped": gaps.skipped, "restarts": gaps.restarts}
+    # the reader's block former bridges lost frames and skips stale ones; the point-rate
+    # rule restarts the filters after a longer gap
+    former, points = service.reader_former, service.online.state_filter.gaps
+    out["gaps"] = {"bridged": former.bridged, "skipped": former.skipped,
+                   "restarts": points.restarts}
     return out
 
 
@@ -345,7 +352,7 @@ def run(args) -> int:
         + (f" ({f['adapter_dropped']} frames the adapter dropped because the reader fell "
            "behind are counted as lost)" if f["adapter_dropped"] else ""))
     g = f["gaps"]
-    print(f"gap rule (faulty run): {g['bridged']} cycles bridged, {g['skipped']} samples "
+    print(f"gap rule (faulty run): {g['bridged']} frames bridged, {g['skipped']} frames "
           f"skipped, {g['restarts']} restarts")
     if args.json:
         FsPath(args.json).write_text(json.dumps(f, indent=2, default=str) + "\n")

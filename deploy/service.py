@@ -130,6 +130,8 @@ class Service:
         self.skipped = 0
         self.reader_skipped = 0
         self.not_newer_frames = 0
+        self.reader_former = None
+        """The last run's reader's block former (its bridged and skipped frames)."""
         """Frames the last run's reader did not use: not newer than the last one used."""
         self.pace = LearningPace()
         self.cpu_s = 0.0
@@ -276,6 +278,7 @@ class Service:
                                   "checkpoint": self.checkpointer.cpu_s - save0}
         self.cpu_s = sum(parts.values())
         self.not_newer_frames = reader.former.skipped
+        self.reader_former = reader.former
         self.status.clear()
         self.notifier.stopping()
 
