@@ -25,14 +25,20 @@ FORBIDDEN = {
 KNOWN: dict[str, set[str]] = {}
 
 
-def _imports(path: Path) -> set[str]:
+def imported(path: Path) -> set[str]:
+    """The top-level modules a source file imports (every import, function-level ones too;
+    relative ones left out)."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
             out |= {a.name.split(".")[0] for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             out.add(node.module.split(".")[0])
-    return out & set(PACKAGES)
+    return out
+
+
+def _imports(path: Path) -> set[str]:
+    return imported(path) & set(PACKAGES)
 
 
 def _rules(rel: str) -> tuple[str, ...]:

@@ -2,27 +2,14 @@
 numba twins of the per-sample numerics saved under 0.01 of a core and cost about 100 MB, so
 they went; nothing may bring back a second implementation chosen per call."""
 
-import ast
-from pathlib import Path
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _modules_imported(path: Path) -> set[str]:
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Import):
-            out |= {a.name.split(".")[0] for a in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            out.add(node.module.split(".")[0])
-    return out
+from tests.test_layers import REPO, imported
 
 
 def test_no_compiled_twins():
     sources = [p for pkg in ("iem", "deploy", "sim", "firmware_bridge")
                for p in (REPO / pkg).rglob("*.py")]
     assert sources
-    assert not [p for p in sources if "numba" in _modules_imported(p)]
+    assert not [p for p in sources if "numba" in imported(p)]
     assert not [p for p in sources if p.stem == "kernels"]
     assert not [p for p in sources if "IEM_KERNELS" in p.read_text(encoding="utf-8")]
     assert "numba" not in (REPO / "pyproject.toml").read_text(encoding="utf-8")
