@@ -27,7 +27,7 @@ The rules:
   bag's learner never changes again, so nothing learnt is overwritten.
 - Closing a bag: a learner trained one point at a time follows the path and ends fitted to
   the bag's last stretch (re-running a learnt path through such bags gave a mass MAE of
-  0.3-0.46 kg against 0.004 kg on the first pass). So the open bag keeps a uniform sample of
+  0.3-0.46 kg against 0.004 kg the first time through). So the open bag keeps a uniform sample of
   its points' tandem samples (:class:`iem.ensemble.reservoir.Reservoir`, ``reservoir``
   points), and when it closes its learner is trained on that sample once more, by the
   offline training of the initial bags (``fit_epochs``), before it is frozen. The estimates

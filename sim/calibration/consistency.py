@@ -57,7 +57,7 @@ def consistent_map(theta_map: np.ndarray, precision: np.ndarray, eps: float = 1e
 def consistent(params: np.ndarray, nominal: np.ndarray, eps: float = 1e-7
                ) -> tuple[np.ndarray, list[int]]:
     """``params`` (7 x 10) with each body whose pseudo-inertia is not positive definite
-    moved back toward ``nominal`` (bisection on the segment, which stays in the convex set
+    moved back toward ``nominal`` (halving the step along the segment, which stays in the convex set
     of consistent bodies) until it is; returns the bodies and the 1-based joints moved. The
     last resort, after :func:`consistent_map`: it changes the torques."""
     out = np.array(params, dtype=float).reshape(7, 10)
