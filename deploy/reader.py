@@ -90,6 +90,7 @@ class LinkReader:
         self._queue: queue.SimpleQueue[Item] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._last = 0.0  # arrival of the frame before this one
 
     def start(self) -> LinkReader:
         self._thread = threading.Thread(target=self._loop, name="iem-reader", daemon=True)
@@ -102,8 +103,9 @@ class LinkReader:
         cpu0 = time.thread_time()
         link, former, put = self.link, self.former, self._put
         first = 0.0
-        period = 1.0 / former.rate_hz
-        frames, margin = former.frames, SLEEP_MARGIN + 1
+        # after a block's first frame: asleep until SLEEP_MARGIN periods before its last is
+        # due (none for blocks too short to gain from it)
+        nap = (former.frames - 1 - SLEEP_MARGIN) / former.rate_hz if self.sleep else 0.0
         try:
             while not self._stop.is_set():
                 try:
@@ -129,14 +131,10 @@ class LinkReader:
                     put(Item("state", point, arrived if ends_here else self._last, first))
                     first = arrived
                 self._last = arrived
-                if self.sleep and former.pending == 1 and frames - 1 >= margin:
-                    # the block's first frame: asleep until SLEEP_MARGIN periods before
-                    # its last is due; the frames between wait in the link's buffer
-                    time.sleep((frames - 1 - SLEEP_MARGIN) * period)
+                if nap > 0.0 and former.pending == 1:  # the frames between wait in the
+                    time.sleep(nap)  # link's buffer
         finally:
             self.cpu_s = time.thread_time() - cpu0
-
-    _last = 0.0  # arrival of the frame before this one
 
     def _flush(self, first: float) -> None:
         point = self.former.flush()

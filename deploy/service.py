@@ -40,7 +40,7 @@ import numpy as np
 
 from iem.online import OnlineIdentifier
 from iem.signals.blocks import BlockFormer
-from iem.signals.filters import StateFilter
+from iem.signals.filters import StateFilter, usable_cutoff
 from iem.signals.smoothing import ExponentialSmoother
 
 from .arm_watch import ArmWatch
@@ -129,10 +129,9 @@ class Service:
         self.silences = 0
         self.skipped = 0
         self.reader_skipped = 0
-        self.not_newer_frames = 0
-        self.reader_former = None
-        """The last run's reader's block former (its bridged and skipped frames)."""
-        """Frames the last run's reader did not use: not newer than the last one used."""
+        self.reader_former: BlockFormer | None = None
+        """The last run's reader's block former: the frames it bridged and those it did not
+        use (not newer than the last one used)."""
         self.pace = LearningPace()
         self.cpu_s = 0.0
         self.cpu_parts = {"cycle": 0.0, "reader": 0.0, "learning": 0.0, "checkpoint": 0.0}
@@ -180,7 +179,7 @@ class Service:
         self.online = OnlineIdentifier(
             self.model, self.kinematics.flange_position, self.tandem.samples,
             learn=est.learn,
-            state_filter=StateFilter(min(est.filter_cutoff_hz, 0.45 * self.point_rate_hz),
+            state_filter=StateFilter(usable_cutoff(est.filter_cutoff_hz, self.point_rate_hz),
                                      self.point_rate_hz),
             smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s,
                                          dt=1.0 / self.point_rate_hz),
@@ -277,7 +276,6 @@ class Service:
                                   "learning": self.model.learning_cpu_s - learn0,
                                   "checkpoint": self.checkpointer.cpu_s - save0}
         self.cpu_s = sum(parts.values())
-        self.not_newer_frames = reader.former.skipped
         self.reader_former = reader.former
         self.status.clear()
         self.notifier.stopping()

@@ -46,7 +46,8 @@ def summary_of(service) -> dict:
                    "send_errors": service.gate.send_errors},
         "frames": {"received": c.received, "dropped": c.dropped(), "lost": c.lost,
                    "skipped": service.skipped + service.reader_skipped,
-                   "not_newer": service.online.skipped + service.not_newer_frames},
+                   "not_newer": service.online.skipped + (
+                       0 if service.reader_former is None else service.reader_former.skipped)},
         "unlearnt": service.unlearnt,
         "learnt": service.online.learned_points,
         "gate": gate["decisions"],

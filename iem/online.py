@@ -51,7 +51,7 @@ import numpy as np
 
 from .base import Estimator
 from .signals.blocks import BlockFormer
-from .signals.filters import DEFAULT_CUTOFF_HZ, StateFilter
+from .signals.filters import DEFAULT_CUTOFF_HZ, StateFilter, usable_cutoff
 from .signals.gaps import RESTART, SKIP
 from .signals.smoothing import ExponentialSmoother
 from .types import JointState, PayloadEstimate
@@ -86,7 +86,7 @@ class OnlineIdentifier:
         self.flange_position = flange_position
         self.tandem = tandem
         self.learn = learn
-        self.state_filter = (StateFilter(min(DEFAULT_CUTOFF_HZ, 0.4 * rate), rate)
+        self.state_filter = (StateFilter(usable_cutoff(DEFAULT_CUTOFF_HZ, rate), rate)
                              if state_filter is None else state_filter)
         self.smoother = ExponentialSmoother(dt=1.0 / rate) if smoother is None else smoother
         self.raw: PayloadEstimate | None = None

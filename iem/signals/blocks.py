@@ -84,6 +84,13 @@ def _means(T: np.ndarray, X: np.ndarray, starts: np.ndarray, counts: np.ndarray
             np.add.reduceat(X, starts, axis=0) / n[:, None])
 
 
+def _bridged(t0: float, x0: np.ndarray, t: float, x: np.ndarray, steps: int):
+    """The ``steps - 1`` lost frames between ``(t0, x0)`` and ``(t, x)``, linearly
+    interpolated (the one arithmetic :meth:`BlockFormer.push` and ``push_many`` share)."""
+    for j in range(1, steps):
+        yield t0 + (t - t0) * (j / steps), x0 + (x - x0) * (j / steps)
+
+
 class BlockFormer:
     """Forms block points from controller frames.
 
@@ -173,9 +180,8 @@ class BlockFormer:
             if self._n:
                 out.append(self._close())  # the frames before the gap
         elif steps > 1:  # lost frames: bridged into the block
-            t0, x0 = self._prev
-            for j in range(1, steps):
-                self._add(t0 + (t - t0) * (j / steps), x0 + (row - x0) * (j / steps), out)
+            for tj, xj in _bridged(*self._prev, t, row, steps):
+                self._add(tj, xj, out)
         self._cycle = cycle
         self._prev = (t, row)
         self._add(t, row, out)
@@ -205,10 +211,8 @@ class BlockFormer:
             if steps == RESTART:
                 plan.close_early()
             elif steps > 1:
-                t0, x0 = prev
-                row = X[i]
-                for j in range(1, steps):
-                    plan.bridge(t0 + (t - t0) * (j / steps), x0 + (row - x0) * (j / steps))
+                for tj, xj in _bridged(*prev, t, X[i], steps):
+                    plan.bridge(tj, xj)
             plan.frame(i)
             prev = (t, X[i])
         self._prev = None if prev is None else (prev[0], np.array(prev[1]))

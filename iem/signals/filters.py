@@ -114,6 +114,18 @@ class LowPass2:
         return y
 
 
+USABLE_SHARE = 0.45
+"""The largest cut-off :class:`StateFilter` is given, as a share of its rate (below Nyquist,
+with room for the bilinear transform's warping)."""
+
+
+def usable_cutoff(cutoff_hz: float, rate_hz: float) -> float:
+    """``cutoff_hz``, or :data:`USABLE_SHARE` of ``rate_hz`` if that is lower: the cut-off a
+    state filter at ``rate_hz`` can have (a configured 50 Hz at 100 block points a second is
+    45 Hz)."""
+    return min(float(cutoff_hz), USABLE_SHARE * float(rate_hz))
+
+
 class StateFilter:
     """Causal estimate of ``(q, dq, ddq)`` from measured ``q, dq`` at a nominal rate.
 
