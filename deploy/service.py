@@ -117,6 +117,7 @@ class Service:
         """Says once when the mass stays clearly below zero (a wrong arm model)."""
         self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s)
         self.writer: LoadWriter | None = None
+        self._publish = None  # the link's publish_estimate, if it has one (set by run)
         self.on_cycle: list[Callable[[CycleRecord], None]] = []
         self._stop = threading.Event()
         self.latencies = LatencyWindow()
@@ -208,6 +209,7 @@ class Service:
             self.open()
         model = self.model
         self.writer = LoadWriter(self.gate, self.link, self.write)  # the link as it is now
+        self._publish = getattr(self.link, "publish_estimate", None)  # a link with topics
         started = time.monotonic()
         before = (time.thread_time(), model.learning_cpu_s, self.checkpointer.cpu_s)
         self.checkpointer.start(started)
@@ -296,9 +298,8 @@ class Service:
                 return None
             self._pace(lag, max_lag)
         raw, smoothed = self.online.step_block(state)
-        publish = getattr(self.link, "publish_estimate", None)
-        if publish is not None:  # the ros2 link: the estimate on its topics, at its own rate
-            publish(raw, smoothed)
+        if self._publish is not None:  # the ros2 link: the estimate on its topics, at its
+            self._publish(raw, smoothed)  # own rate
         done = time.time()
         latency = done - arrived if arrived > 0 else math.nan
         age = (done - 0.5 * (arrived + item.first_time) if arrived > 0 and item.first_time > 0

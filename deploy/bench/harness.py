@@ -37,8 +37,7 @@ CHANGE_TO = "test-4w"
 def rollout_blocks(rollout) -> Blocks:
     """A rollout's frames formed into block points as the plug-in's reader forms them (the
     last, incomplete block is left out)."""
-    X = np.hstack((rollout.q, rollout.dq, rollout.tau))
-    return BlockFormer(rate_hz=NOMINAL_RATE_HZ).push_many(rollout.t, X,
+    return BlockFormer(rate_hz=NOMINAL_RATE_HZ).push_many(rollout.t, rollout.features,
                                                           np.arange(len(rollout)))
 
 
