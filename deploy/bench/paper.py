@@ -293,10 +293,10 @@ def _timing(bench: Bench, runs: dict, cycle: dict | None, paced: dict | None) ->
             timing[f"phys_cycle_paced_us_{key}"] = paced[key]
         timing["phys_cycle_paced_cpu_us_mean"] = paced["cpu_mean"]
         bench.log(f"timing     IEM+phys per sample, learning inline "
-                  f"{timing['phys_us_per_sample_median']:.0f} µs (median); one cycle, "
+                  f"{timing['phys_us_per_sample_median']:.0f} µs (median); one block point, "
                   f"training in the worker: back to back {cycle['median']:.0f} / "
                   f"{cycle['p99']:.0f} µs (median / p99), CPU {cycle['cpu_mean']:.0f} µs "
-                  f"(mean); at 1 kHz {paced['median']:.0f} / {paced['p99']:.0f} µs, CPU "
+                  f"(mean); one every 10 ms {paced['median']:.0f} / {paced['p99']:.0f} µs, CPU "
                   f"{paced['cpu_mean']:.0f} µs")
     return timing
 

@@ -249,14 +249,14 @@ def _timing(results) -> list[str]:
         lines.append(f"| IEM+phys, learn (inline) and estimate per sample on the new path "
                      f"(median) | {t['phys_us_per_sample_median']:.0f} µs | |")
     if "phys_cycle_us_median" in t:
-        lines.append(f"| IEM+phys, one cycle as the plug-in runs it (learning in the worker) "
+        lines.append(f"| IEM+phys, one block point as the plug-in runs it (learning in the worker) "
                      f"on the new path, median / p99 | {t['phys_cycle_us_median']:.0f} / "
                      f"{t['phys_cycle_us_p99']:.0f} µs | |")
     if "phys_cycle_paced_us_median" in t:
-        lines.append(f"| the same cycle fed at 1 kHz, as a cell feeds it (idle between "
-                     f"cycles), median / p99 | {t['phys_cycle_paced_us_median']:.0f} / "
+        lines.append(f"| the same points fed one every 10 ms, as a 1 kHz cell's blocks come (idle "
+                     f"between them), median / p99 | {t['phys_cycle_paced_us_median']:.0f} / "
                      f"{t['phys_cycle_paced_us_p99']:.0f} µs | |")
-        lines.append(f"| its thread CPU per cycle, mean: back to back / at 1 kHz | "
+        lines.append(f"| its thread CPU per point, mean: back to back / one every 10 ms | "
                      f"{t['phys_cycle_cpu_us_mean']:.0f} / "
                      f"{t['phys_cycle_paced_cpu_us_mean']:.0f} µs | |")
     return lines
