@@ -9,7 +9,9 @@
 At the top, what everything imports: the value types and errors (:mod:`iem.types`,
 :mod:`iem.payload`, :mod:`iem.errors`), the estimator protocol (:mod:`iem.base`), the sensor
 model, the online loop, model files (:mod:`iem.persistence`, :mod:`iem.migrations`,
-:mod:`iem.atomic_file`), metrics and the shared check suite.
+:mod:`iem.atomic_file`, and the table of factories they may name, :mod:`iem.factories`),
+metrics and the shared check suite.
 
-numpy only: nothing here imports hardware, MuJoCo or Pinocchio.
+numpy, scipy (LAPACK for the small solves, the offline chain's filters) and msgpack (model
+files); nothing here imports hardware, MuJoCo or Pinocchio.
 """

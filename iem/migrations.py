@@ -1,16 +1,17 @@
-"""Model-file schema versions, the steps between them, and the table of moved module paths.
+"""Model-file schema versions, the steps between them, and the table of moved names.
 
 A model file records the schema ``version`` it was written at (:mod:`iem.persistence`), and
 is always written at :data:`VERSION`. Each change to what a model's state holds, or means,
-adds a version and one step here: a pure function ``step(kind, state) -> state`` from
-version ``n`` to ``n + 1`` (:data:`STEPS`), on the unpacked plain data (dicts, lists,
-numbers, str) of a model of ``kind`` (the file's ``kind``), that returns the new state and
-leaves its argument as it was. :func:`migrate` applies the steps from a file's version to
-:data:`VERSION` in order, so that a model's ``from_state`` reads the newest layout alone. A
-step writes out the values and rules that held at its version (it imports no model code,
-whose defaults may change later); a kind it does not name passes unchanged (the arm file,
-:mod:`sim.arm`, shares the versions: its state is its identity, recorded by CRC in the
-models trained for it, so no step may change it).
+adds a version and one step here: a pure function ``step(kind, state, records=None) ->
+state`` from version ``n`` to ``n + 1`` (:data:`STEPS`), on the unpacked plain data (dicts,
+lists, numbers, str) of a model of ``kind`` (the file's ``kind``), given the maps the file
+holds beside the state (``records``: ``{"arm": <its arm record or None>}``), that returns
+the new state and leaves its argument as it was. :func:`migrate` applies the steps from a
+file's version to :data:`VERSION` in order, so that a model's ``from_state`` reads the
+newest layout alone. A step writes out the values and rules that held at its version (it
+imports no model code, whose defaults may change later); a kind it does not name passes
+unchanged (the arm file, :mod:`sim.arm`, shares the versions: its state is its identity,
+recorded by CRC in the models trained for it, so no step may change it).
 
 The steps:
 
@@ -28,11 +29,19 @@ The steps:
         which filtered frames, takes the default block of 10 frames: ``rate_hz := rate_hz
         / 10``, ``point_frames := 10`` (its filter state restarts).
 
-A file names code by module path: its kind's class (:data:`iem.persistence.MODELS`,
-``"module:Class"``) and the factories in its state (``coverage``, ``reversal``, ``dynamics``:
-``"module:function[@ARG]"``). These go through :data:`ALIASES` at load (:func:`current_path`,
-:func:`with_current_paths`): a module that moves adds one row, old -> new, and the files
-that name it keep loading (and name the new path when saved again).
+3 -> 4  (:func:`content_references`) a model names the files it was made with by content,
+        never by path (:mod:`iem.factories`): a spec ``...@/path/arm.msgpack`` of the
+        physics' dynamics or the learners' reversal becomes ``...@arm:CRC32``, the arm the
+        file records (its ``arm`` record, :func:`iem.persistence.check_arm`); the nominal
+        arm carrying a tool file (``sim.arm:nominal_dynamics@/path/tool.toml``) becomes
+        ``sim.arm:arm_dynamics@arm:CRC32`` too, that arm as the file records it (the record
+        of a model trained with a tool is the nominal arm carrying it).
+
+A file names its kind's class (:data:`iem.persistence.MODELS`, ``"module:Class"``) and the
+factories in its state (``coverage``, ``reversal``, ``dynamics``: names of
+:data:`iem.factories.FACTORIES`). These go through :data:`ALIASES` at load
+(:func:`current_path`, :func:`with_current_paths`): a name that changes adds one row, old ->
+new, and the files that hold it keep loading (and hold the new one when saved again).
 """
 
 from __future__ import annotations
@@ -40,8 +49,10 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 
 from .errors import InvalidInputError
+from .factories import SPEC_KEYS
 
-Step = Callable[[str, dict], dict]
+Step = Callable[..., dict]
+"""``step(kind, state, records=None) -> state``."""
 
 ALIASES: dict[str, str] = {
     # iem's modules into sub-packages: the estimators' classes (iem.persistence.MODELS)
@@ -54,10 +65,6 @@ ALIASES: dict[str, str] = {
 """Module paths that moved: ``"old.module" -> "new.module"`` (every name in it) or
 ``"old.module:name" -> "new.module:name"`` (one name). A row may name a path that moved
 again (rows chain). Add a row when a module that model files name moves."""
-
-SPEC_KEYS = ("coverage", "reversal", "dynamics")
-"""The state's keys whose str values are ``"module:function[@ARG]"`` factory specs."""
-
 
 def current_path(path: str) -> str:
     """``path`` (``"module"``, ``"module:name"``, optionally ``@ARG``) where it lives now:
@@ -162,7 +169,7 @@ def _physics_v1(state: dict) -> dict:
     return out
 
 
-def fill_version_1(kind: str, state: dict) -> dict:
+def fill_version_1(kind: str, state: dict, records: Mapping | None = None) -> dict:
     """Version 1 -> 2: a version-1 state of any age in the full version-1 layout.
 
     What a version-1 file may lack, and what it then meant:
@@ -197,7 +204,7 @@ def fill_version_1(kind: str, state: dict) -> dict:
 
 
 # -- 2 -> 3 ------------------------------------------------------------------------------
-def equations_per_point(kind: str, state: dict) -> dict:
+def equations_per_point(kind: str, state: dict, records: Mapping | None = None) -> dict:
     """Version 2 -> 3: block points instead of frames (see the module docstring). Params
     without them had the version-2 defaults: 1000 Hz, and 10 frames per equation for
     IEM+phys."""
@@ -225,16 +232,65 @@ def equations_per_point(kind: str, state: dict) -> dict:
     return state
 
 
-STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point}
+# -- 3 -> 4 ------------------------------------------------------------------------------
+NAMED_END_EFFECTORS = ("franka_hand", "none")
+"""End effectors a version-3 ``nominal_dynamics`` spec named by name (any other was a path)."""
+BY_CONTENT = ("arm_dynamics", "reversed_velocities")
+"""The version-3 factories whose ``@ARG`` was an arm file's path."""
+
+
+def content_references(kind: str, state: dict, records: Mapping | None = None) -> dict:
+    """Version 3 -> 4: every factory spec that names a file by path names its arm by content
+    (see the module docstring); ``records["arm"]`` is the arm the file records.
+
+    Raises:
+        InvalidInputError: a spec names a file by path, and the file records no arm.
+    """
+    arm = (records or {}).get("arm")
+
+    def by_content(key: str, spec: str) -> str:
+        target, at, arg = spec.partition("@")
+        function = current_path(target).partition(":")[2]
+        if not at or (function == "nominal_dynamics" and arg in NAMED_END_EFFECTORS):
+            return spec
+        if function not in (*BY_CONTENT, "nominal_dynamics"):
+            return spec
+        if arm is None:
+            raise InvalidInputError(f"{key} {spec!r} names a file by its path and the model "
+                                    f"file records no arm to name it by content; make the "
+                                    f"model again with 'iem train --arm ARM --out MODEL'")
+        ref = f"arm:{int(arm['crc32']) & 0xFFFFFFFF:08x}"
+        if function == "nominal_dynamics":  # the nominal arm carrying a tool: that arm
+            return f"sim.arm:arm_dynamics@{ref}"
+        return f"{target}@{ref}"
+
+    def walk(m: dict) -> dict:
+        out = None
+        for key, value in m.items():
+            new = value
+            if isinstance(value, dict):
+                new = walk(value)
+            elif key in SPEC_KEYS and isinstance(value, str):
+                new = by_content(key, value)
+            if new is not value:
+                out = dict(m) if out is None else out
+                out[key] = new
+        return m if out is None else out
+
+    return walk(state)
+
+
+STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point, 3: content_references}
 """``version -> step`` to ``version + 1``."""
 
 VERSION = 1 + len(STEPS)
 """The schema version files are written at: the last step's."""
 
 
-def migrate(kind: str, state: dict, version: int) -> dict:
+def migrate(kind: str, state: dict, version: int, records: Mapping | None = None) -> dict:
     """The state of a file of ``version`` (1 to :data:`VERSION`) at :data:`VERSION`: every
-    step from ``version`` on, in order; ``state`` is left as it was.
+    step from ``version`` on, in order, each given the file's ``records`` (``{"arm": ...}``);
+    ``state`` is left as it was.
 
     Raises:
         InvalidInputError: ``version`` is not one of 1 to :data:`VERSION`.
@@ -242,5 +298,5 @@ def migrate(kind: str, state: dict, version: int) -> dict:
     if type(version) is not int or not 1 <= version <= VERSION:
         raise InvalidInputError(f"schema version {version!r} is not one of 1 to {VERSION}")
     for v in range(version, VERSION):
-        state = STEPS[v](kind, state)
+        state = STEPS[v](kind, state, records)
     return state

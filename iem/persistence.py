@@ -26,10 +26,16 @@ the class rebuilds itself with ``Class.from_state(state)``.
 ``version`` is the schema version the file was written at; files are written at
 :data:`VERSION`. A file of an older version is loaded through the steps of
 :mod:`iem.migrations`, which bring its state to the newest layout before ``from_state`` sees
-it; a file of a newer version than this build knows is refused. The module paths a file
-names (its kind's class, the factory specs ``coverage``, ``reversal``, ``dynamics`` in its
-state) go through :data:`iem.migrations.ALIASES` at load, so that a module that moves keeps
-its files loading.
+it; a file of a newer version than this build knows is refused. The names a file holds (its
+kind's class, the factory specs ``coverage``, ``reversal``, ``dynamics`` in its state) go
+through :data:`iem.migrations.ALIASES` at load, so that a name that changes keeps its files
+loading.
+
+A model file holds data only: its kind and factory specs are looked up in fixed tables
+(:data:`MODELS`, :data:`iem.factories.FACTORIES`), and a spec the table lacks is refused
+with nothing imported. It names no path: the arm a model runs on is referenced by content
+(``...@arm:CRC32``, its ``arm`` record's CRC) and given at run time, ``load_model(path,
+resources={"arm": arm})``; without it, or with another, the file is refused naming both.
 
 A file is written atomically (:mod:`iem.atomic_file`: a crash or an error at any point leaves
 either the old file or the new one). Every problem with a file, on saving or on loading,
@@ -48,6 +54,7 @@ import msgpack
 
 from .atomic_file import write_atomically
 from .errors import InvalidInputError, ModelFileError
+from .factories import parse, provide, referenced, specs_in
 from .migrations import VERSION, current_path, migrate, with_current_paths
 
 SCHEMA = "iem-payload-model"
@@ -183,8 +190,13 @@ def check_arm(model, arm_record: dict | None, where: str = "model") -> None:
         ModelFileError: the model was trained for another arm (or for none).
     """
     have = getattr(model, "trained_arm", None)
-    if (have or {}).get("crc32") == (arm_record or {}).get("crc32"):
-        return
+    if (have or {}).get("crc32") != (arm_record or {}).get("crc32"):
+        raise ModelFileError(_arm_mismatch(have, arm_record, where))
+
+
+def _arm_mismatch(have: dict | None, given: dict | None, where: str) -> str:
+    """What :func:`check_arm` says of a model trained for the arm ``have`` run with
+    ``given`` (records; None: the nominal arm)."""
 
     def say(r):
         if r is None:
@@ -194,9 +206,38 @@ def check_arm(model, arm_record: dict | None, where: str = "model") -> None:
             return f"the nominal arm with {ee} (no arm file)"
         return f"arm file {r['source']} (CRC32 {r['crc32'] & 0xFFFFFFFF:#010x}, {ee})"
 
-    raise ModelFileError(f"{where} was trained for {say(have)} but is run with {say(arm_record)}; "
-                         f"use the arm it was trained with, or make a model for this arm with "
-                         f"'iem train --arm ARM --out MODEL'")
+    return (f"{where} was trained for {say(have)} but is run with {say(given)}; use the arm "
+            f"it was trained with ([model] arm and [arm] end_effector, --arm and "
+            f"--end-effector), or make a model for this arm with 'iem train --arm ARM --out "
+            f"MODEL'")
+
+
+def _given_resources(state: dict, arm: dict | None, resources: Mapping, where: str) -> dict:
+    """The resources of ``resources`` that the specs of ``state`` reference, checked: every
+    spec is one of :data:`iem.factories.FACTORIES` (nothing is imported), every resource it
+    references was given with that content (an arm: the file's record ``arm``, else refused
+    naming both, as :func:`check_arm` does)."""
+    needed = {}
+    for key, spec in specs_in(state):
+        try:
+            parse(spec, key.rpartition(".")[2])
+        except InvalidInputError as exc:
+            raise ModelFileError(f"{where}: {exc}") from exc
+        ref = referenced(spec)
+        if ref is None:
+            continue
+        kind, crc = ref
+        given = resources.get(kind)
+        have = getattr(given, "crc32", None)
+        if kind == "arm" and (arm is None or have != arm["crc32"]):
+            record = None if given is None else given.record()
+            raise ModelFileError(_arm_mismatch(arm, record, where))
+        if have != crc:
+            raise ModelFileError(f"{where}: its {key} {spec!r} references the {kind} of CRC32 "
+                                 f"{crc:#010x}, but is given "
+                                 f"{'none' if given is None else f'CRC32 {have:#010x}'}")
+        needed[kind] = given
+    return needed
 
 
 def _unpack(data: bytes, failure: str):
@@ -208,12 +249,15 @@ def _unpack(data: bytes, failure: str):
 
 
 def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>",
-          schema: str = SCHEMA, label: str = "model"):
+          schema: str = SCHEMA, label: str = "model", resources: Mapping | None = None):
     """The model in the bytes of a model file; ``source`` names them in error messages,
-    ``schema`` is the schema expected and ``label`` what the file is called in them.
+    ``schema`` is the schema expected and ``label`` what the file is called in them;
+    ``resources`` as for :func:`load_model`.
 
     Raises:
-        ModelFileError: the bytes are not a valid model file of a registered kind.
+        ModelFileError: the bytes are not a valid model file of a registered kind, a spec in
+            it is not one of :data:`iem.factories.FACTORIES`, or a resource it references
+            was not given, or given with other content.
     """
     where = f"{label} file {source}"
     head = _checked_head(data, where, schema)
@@ -228,10 +272,12 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
     try:
-        state = with_current_paths(migrate(head["kind"], state, version))
+        state = with_current_paths(migrate(head["kind"], state, version, {"arm": arm}))
     except Exception as exc:  # any failure to bring the state up is a bad file
         raise ModelFileError(f"{where}: the state of version {version} cannot be brought to "
                              f"version {VERSION}: {type(exc).__name__}: {exc}") from exc
+    for kind, resource in _given_resources(state, arm, resources or {}, where).items():
+        provide(kind, resource)
     try:
         model = cls.from_state(state)
     except Exception as exc:  # any failure to rebuild from the file is a bad file
@@ -322,7 +368,7 @@ def save_model(model, path, schema: str = SCHEMA, label: str = "model") -> None:
 
 
 def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SCHEMA,
-               label: str = "model"):
+               label: str = "model", resources: Mapping | None = None):
     """The model saved at ``path``.
 
     Args:
@@ -330,10 +376,16 @@ def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SC
         registry: ``kind -> "module:Class"`` to resolve the model's kind (default
             :data:`MODELS`).
         schema, label: as for :func:`loads` (the arm file has its own).
+        resources: what the model runs on, given at run time: ``{"arm": arm}``
+            (:class:`sim.arm.ArmParams`: the configured arm file, or the nominal arm
+            carrying the configured tool; None: the nominal arm). A model whose specs
+            reference an arm (``...@arm:CRC32``) needs the arm of that content, which is
+            then provided to the factories (:mod:`iem.factories` says why so).
 
     Raises:
         ModelFileError: the file is missing, unreadable, empty, truncated, corrupt, of an
-            unknown schema, version or kind, or its state does not rebuild a model.
+            unknown schema, version or kind, its state does not rebuild a model, or as
+            :func:`loads` says.
     """
     path = Path(path)
     try:
@@ -343,4 +395,5 @@ def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SC
     except OSError as exc:
         raise ModelFileError(f"{label} file {path} cannot be read: "
                              f"{exc.strerror or exc}") from exc
-    return loads(data, registry=registry, source=str(path), schema=schema, label=label)
+    return loads(data, registry=registry, source=str(path), schema=schema, label=label,
+                 resources=resources)

@@ -25,14 +25,16 @@ the plant, the tandem simulators and the estimators' regression use one arm mode
 
 The arm file is the model file's format (:mod:`iem.persistence`: msgpack, schema
 :data:`ARM_SCHEMA`, versioned, CRC32-checked, written atomically). Estimators name the arm
-by their dynamics spec (:mod:`iem.physics.regression`):
-``"sim.arm:arm_dynamics@/path/arm.msgpack"``.
+by content in their dynamics spec (:mod:`iem.physics.regression`, :mod:`iem.factories`):
+``"sim.arm:arm_dynamics@arm:CRC32"`` (:func:`arm_spec`), the CRC32 of its state; the arm
+itself is given at run time (``load_model(path, resources={"arm": arm})``), never named by
+path.
 """
 
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path as FsPath
 from typing import ClassVar
 
@@ -207,6 +209,8 @@ class ArmParams:
             (:class:`iem.physics.torque_noise.TorqueNoise` as a dict, measured by ``iem calibrate``
             on traffic it did not fit); None: not measured (the nominal arm's conservative
             default applies).
+        source: the name of the arm file it was read from (:func:`load_arm`; not part of
+            its state or CRC), for messages; None: made in memory.
     """
 
     link_params: np.ndarray
@@ -215,6 +219,7 @@ class ArmParams:
     report: dict = field(default_factory=dict)
     end_effector: str = "franka_hand"
     noise: dict | None = None
+    source: str | None = field(default=None, repr=False)
 
     name: ClassVar[str] = "arm"
     """The kind recorded in the arm file."""
@@ -269,6 +274,11 @@ class ArmParams:
         """CRC32 of the state, as the arm file records it: the arm's identity."""
         return zlib.crc32(msgpack.packb(self.to_state(), use_bin_type=True))
 
+    def record(self) -> dict:
+        """What a model file records of this arm (:func:`arm_record`; the
+        :class:`iem.factories.Resource` protocol)."""
+        return arm_record(self)
+
 
 def save_arm(arm: ArmParams, path) -> None:
     """Write the arm file (atomically; :func:`iem.persistence.save_model`'s format)."""
@@ -285,8 +295,9 @@ def load_arm(path) -> ArmParams:
     """
     from iem.persistence import load_model
 
-    return load_model(path, registry={ArmParams.name: "sim.arm:ArmParams"},
-                      schema=ARM_SCHEMA, label="arm")
+    arm = load_model(path, registry={ArmParams.name: "sim.arm:ArmParams"},
+                     schema=ARM_SCHEMA, label="arm")
+    return replace(arm, source=FsPath(path).name)
 
 
 def arm_record(arm: ArmParams | None, path=None) -> dict | None:
@@ -295,17 +306,25 @@ def arm_record(arm: ArmParams | None, path=None) -> dict | None:
     ``source`` "nominal"; the end effector is recorded when it is not the hand."""
     if arm is None:
         return None
-    record = {"crc32": arm.crc32,
-              "source": FsPath(path).name if path else ("nominal" if arm.report.get(
-                  "source") == "nominal" else "<memory>")}
+    if path:
+        source = FsPath(path).name
+    elif arm.source:
+        source = arm.source
+    else:
+        source = "nominal" if arm.report.get("source") == "nominal" else "<memory>"
+    record = {"crc32": arm.crc32, "source": source}
     if arm.end_effector != "franka_hand":
         record["end_effector"] = arm.end_effector
     return record
 
 
-def arm_spec(path) -> str:
-    """The dynamics spec that names the arm file ``path`` (absolute) for the estimators."""
-    return f"sim.arm:arm_dynamics@{FsPath(path).resolve()}"
+def arm_spec(arm: ArmParams) -> str:
+    """The dynamics spec of ``arm`` for the estimators, ``"sim.arm:arm_dynamics@arm:CRC32"``
+    (:mod:`iem.factories`: the arm by content, never by path); the arm is provided to this
+    process's factories (:func:`iem.factories.provide`), so the spec can be built at once."""
+    from iem.factories import provide
+
+    return f"sim.arm:arm_dynamics@{provide('arm', arm)}"
 
 
 class ArmDynamics:
@@ -327,21 +346,24 @@ class ArmDynamics:
 
 
 def nominal_spec(end_effector) -> str:
-    """The dynamics spec of the nominal arm carrying ``end_effector`` (a name, or a tool file
-    whose path is made absolute)."""
-    spec = str(end_effector)
-    if spec not in ("franka_hand", "none"):
-        spec = str(FsPath(spec).resolve())
-    return f"sim.arm:nominal_dynamics@{spec}"
+    """The dynamics spec of the nominal arm carrying ``end_effector`` (a name, or a tool
+    file): a named one by its name, ``"sim.arm:nominal_dynamics@NAME"``; a tool file by the
+    content of the nominal arm carrying it (:func:`arm_spec`), never by its path."""
+    from .end_effector import NAMED
+
+    spec = str(end_effector or "franka_hand")
+    if spec in NAMED:
+        return f"sim.arm:nominal_dynamics@{spec}"
+    return arm_spec(ArmParams.nominal(spec))
 
 
 def nominal_dynamics(end_effector: str | None = None) -> ArmDynamics:
-    """The robot-model factory of ``"sim.arm:nominal_dynamics@END_EFFECTOR"``: the nominal
-    arm with that end effector (:mod:`sim.end_effector`), no friction, no offsets."""
+    """The robot-model factory of ``"sim.arm:nominal_dynamics@NAME"``: the nominal arm with
+    the named end effector (:mod:`sim.end_effector`), no friction, no offsets."""
     return ArmDynamics(ArmParams.nominal(end_effector))
 
 
-def arm_dynamics(path: str | None = None) -> ArmDynamics:
-    """The robot-model factory of the dynamics spec ``"sim.arm:arm_dynamics@PATH"``: the arm
-    of the arm file ``PATH`` (no path: the nominal arm)."""
-    return ArmDynamics(None if path is None else load_arm(path))
+def arm_dynamics(arm: ArmParams | None = None) -> ArmDynamics:
+    """The robot-model factory of ``"sim.arm:arm_dynamics@arm:CRC32"``: the arm given at run
+    time with that content (:mod:`iem.factories`; none: the nominal arm)."""
+    return ArmDynamics(arm)

@@ -16,7 +16,8 @@ even in the velocities (``M(q) ddq + h(q, dq)``, ``h`` quadratic in ``dq``, and 
 regressor likewise), so the reversed sample's torques are the sample's own, up to the arm's
 friction, which is odd: with an arm (an arm file), its joint torque at ``dq`` is replaced by
 that at ``-dq``. Exact, no simulation; the ensemble adds them to a bag's training
-(``reversal="sim.coverage:reversed_velocities"``, ``...@ARM_FILE`` for a calibrated arm).
+(``reversal="sim.coverage:reversed_velocities"``, ``...@arm:CRC32`` for a calibrated arm,
+given at run time: :mod:`iem.factories`).
 Training on random other velocities instead (``other_velocities``) cost the closed bags
 their fit to their own motion: its single-layer learners read the first minute of
 ``iem bench longrun`` (seed 1) 0.20 kg off driven forwards and backwards alike, against
@@ -74,27 +75,22 @@ class ReversedVelocities:
         return out
 
 
-def reversed_velocities(arm_file: str | None = None) -> ReversedVelocities:
+def reversed_velocities(arm=None) -> ReversedVelocities:
     """The factory the ensemble names: ``"sim.coverage:reversed_velocities"`` (the nominal
-    arm) or ``"sim.coverage:reversed_velocities@ARM_FILE"`` (the arm of an arm file).
-
-    Raises:
-        iem.errors.ModelFileError: the arm file is missing, unreadable or not an arm file.
-    """
-    if arm_file is None:
-        return ReversedVelocities()
-    from .arm import load_arm
-
-    return ReversedVelocities(load_arm(arm_file))
+    arm) or ``"sim.coverage:reversed_velocities@arm:CRC32"`` (``arm``, the
+    :class:`sim.arm.ArmParams` of that content given at run time)."""
+    return ReversedVelocities(arm)
 
 
-def reversal_spec(arm_file=None) -> str:
-    """The ensemble's ``reversal`` for the arm of ``arm_file`` (None: the nominal arm)."""
-    if arm_file is None:
+def reversal_spec(arm=None) -> str:
+    """The ensemble's ``reversal`` for ``arm`` (a :class:`sim.arm.ArmParams`, referenced by
+    content and provided to this process, :func:`iem.factories.provide`; None: the nominal
+    arm)."""
+    if arm is None:
         return "sim.coverage:reversed_velocities"
-    from pathlib import Path
+    from iem.factories import provide
 
-    return f"sim.coverage:reversed_velocities@{Path(arm_file).resolve()}"
+    return f"sim.coverage:reversed_velocities@{provide('arm', arm)}"
 
 
 def other_velocities() -> OtherVelocities:

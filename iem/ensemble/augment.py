@@ -4,6 +4,9 @@ Both are off by default (the paper's rule) and apply where a bag's learner is tr
 batch of kept samples: the initial bags' fit and the refit when a bag closes
 (:class:`iem.ensemble.IncrementalEnsemble`).
 
+Each is a spec of :data:`iem.factories.FACTORIES` (nothing else is accepted, nothing else
+imported):
+
 - ``coverage``: ``"module:function"`` of a factory of ``f(q, phi (K, 10), rng) -> X (K,
   21)``, the training family's samples at pose ``q`` with another velocity and acceleration
   (``"sim.coverage:other_velocities"``): each kept point adds ``draws`` such states, so the
@@ -12,19 +15,20 @@ batch of kept samples: the initial bags' fit and the refit when a bag closes
   path").
 - ``reversal``: ``"module:function[@ARG]"`` of a factory of ``f(X (N, 21)) -> X (N, 21)``,
   the samples of the same motion driven backwards (``"sim.coverage:reversed_velocities"``,
-  ``...@ARM_FILE`` on a calibrated arm; exact for rigid-body torques, :mod:`sim.coverage`):
+  ``...@arm:CRC32`` on a calibrated arm, given at run time; exact for rigid-body torques,
+  :mod:`sim.coverage`):
   every sample, covered ones included, is added driven backwards, so a pose met again the
   other way reads as it did the first.
 
-The factories are code, not data: a copy shares the reversal (immutable, and building it may
-read an arm file), and a pickle holds only the specs and builds them again.
+The factories are code, not data: a copy shares the reversal (immutable), and a pickle holds
+only the specs and builds them again (in a process the arm it references was given to).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..base import load_factory
+from ..factories import build, parse
 
 __all__ = ["TrainingAugment"]
 
@@ -33,19 +37,25 @@ class TrainingAugment:
     """The coverage and reversal of one ensemble's training batches.
 
     Args:
-        coverage: the coverage factory's spec, or None.
+        coverage: the coverage factory's spec, or None (checked now, built when first
+            needed).
         draws: other states per kept point (coverage).
-        reversal: the reversal factory's spec, or None (built now: a bad spec or arm file
-            fails here, not at the first refit).
+        reversal: the reversal factory's spec, or None (built now: a bad spec or an arm not
+            given fails here, not at the first refit).
+
+    Raises:
+        InvalidInputError: a spec is not one of :data:`iem.factories.FACTORIES`, or the arm
+            the reversal references was not given.
     """
 
     def __init__(self, coverage: str | None = None, draws: int = 1,
                  reversal: str | None = None) -> None:
-        self.coverage = None if coverage is None else str(coverage)
+        if coverage is not None:
+            parse(coverage, "coverage")
+        self.coverage = coverage
         self.draws = int(draws)
-        self.reversal = None if reversal is None else str(reversal)
-        self.reverse = (None if self.reversal is None
-                        else load_factory(self.reversal, "reversal"))
+        self.reversal = reversal
+        self.reverse = None if reversal is None else build(reversal, "reversal")
         self._cover = None  # the coverage sampler, built when first needed
 
     def __call__(self, X: np.ndarray, Y: np.ndarray, batch: int, seed) -> tuple:
@@ -55,7 +65,7 @@ class TrainingAugment:
         if self.coverage is None or self.draws <= 0:
             return self.reversed(X, Y)
         if self._cover is None:
-            self._cover = load_factory(self.coverage, "coverage")
+            self._cover = build(self.coverage, "coverage")
         rng = np.random.default_rng(seed)
         n = X.shape[0]
         # filled in place, not stacked from a list: a bag's samples are tens of MB, and a

@@ -63,7 +63,7 @@ class IncrementalEnsemble(BagTraining, BaseEstimator):
             training velocities go together) is out of distribution too; None: not scored.
         reversal: ``"module:function[@ARG]"`` of a factory of ``f(X (N, 21)) -> X (N, 21)``,
             the samples of the same motion driven backwards
-            (``"sim.coverage:reversed_velocities"``, ``...@ARM_FILE`` on a calibrated arm:
+            (``"sim.coverage:reversed_velocities"``, ``...@arm:CRC32`` on a calibrated arm:
             :mod:`sim.coverage`), or None: each bag's learner is then also trained (at fit
             and at close, after any coverage) on those, so a pose met again the other way
             reads as it did the first.

@@ -24,10 +24,12 @@ equations are withheld until it has decayed (:func:`settle_samples`).
 
 The robot model is given by the caller, the core names none; it is named, not passed, so
 that estimators stay plain data for persistence (a model file stores the name it was given):
-``dynamics = "module:function[@ARG]"`` names a factory returning ``f(q, dq, ddq) ->
-(tau_robot (7,), Y (7, 10), M (7, 7))`` (optionally with a method ``payload_mass_matrix(q,
-phi)``, else the payload's share is taken from ``Y``), imported only when the first equation
-is formed; the simulator's nominal Panda is ``sim.robot.PANDA_DYNAMICS``.
+``dynamics`` is a spec of :data:`iem.factories.FACTORIES` (``"module:function[@ARG]"``), a
+factory returning ``f(q, dq, ddq) -> (tau_robot (7,), Y (7, 10), M (7, 7))`` (optionally
+with a method ``payload_mass_matrix(q, phi)``, else the payload's share is taken from
+``Y``), built only when the first equation is formed; the simulator's nominal Panda is
+``sim.robot.PANDA_DYNAMICS``, a calibrated arm ``"sim.arm:arm_dynamics@arm:CRC32"`` (the arm
+given at run time, :mod:`iem.factories`).
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ import math
 
 import numpy as np
 
-from ..base import load_factory
 from ..errors import InvalidInputError
+from ..factories import build, parse, valid_specs
 from ..sensor import DEFAULT_SENSOR
 from ..signals.filters import LowPass2, butterworth2
 from ..signals.gaps import RESTART, SKIP
@@ -97,28 +99,30 @@ def correlation_weight(cutoff_hz: float, rate_hz: float, every: int = 1) -> floa
 
 
 def required_dynamics(dynamics, who: str):
-    """``dynamics`` if it names a robot model (a ``"module:function[@ARG]"`` spec, or the
-    dynamics callable itself); ``who`` names the estimator in the error.
+    """``dynamics`` if it names a robot model (a spec of :data:`iem.factories.FACTORIES`, or
+    the dynamics callable itself); ``who`` names the estimator in the error.
 
     Raises:
-        InvalidInputError: it is None or not such a spec.
+        InvalidInputError: it is None, or a spec the table does not hold (nothing is
+            imported for it).
     """
-    if callable(dynamics) or (isinstance(dynamics, str)
-                              and dynamics.partition("@")[0].count(":") == 1):
+    if callable(dynamics):
         return dynamics
-    raise InvalidInputError(f"{who} needs dynamics, the robot's model: the 'module:function"
-                            f"[@ARG]' spec of its factory (the simulator's nominal Panda is "
-                            f"sim.robot.PANDA_DYNAMICS) or the dynamics callable; got "
-                            f"{dynamics!r}")
+    if isinstance(dynamics, str):
+        try:
+            parse(dynamics, "dynamics")
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{who} needs dynamics, the robot's model: {exc}") from exc
+        return dynamics
+    raise InvalidInputError(f"{who} needs dynamics, the robot's model: the spec of its factory "
+                            f"(the simulator's nominal Panda is sim.robot.PANDA_DYNAMICS; valid "
+                            f"are {valid_specs()}) or the dynamics callable; got {dynamics!r}")
 
 
 def load_dynamics(spec: str):
-    """Resolve ``"module:function"`` and call the factory: the dynamics callable.
-
-    ``"module:function@ARG"`` calls ``function(ARG)`` instead: e.g.
-    ``"sim.arm:arm_dynamics@/path/arm.msgpack"``, the calibrated arm of an arm file.
-    """
-    return load_factory(spec, "dynamics")
+    """The dynamics callable of ``spec`` (:func:`iem.factories.build`): e.g.
+    ``"sim.arm:arm_dynamics@arm:CRC32"``, the calibrated arm given at run time."""
+    return build(spec, "dynamics")
 
 
 class PayloadRegression:

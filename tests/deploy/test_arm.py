@@ -4,11 +4,10 @@ replay and the service refuse a model trained for another arm."""
 import numpy as np
 import pytest
 
-from deploy.calibrate import record_rollout
 from deploy.cli import main
 from deploy.config import config_from_dict, load_config
 from deploy.replay import CSV_HEADER
-from iem.errors import ModelFileError
+from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import check_arm, load_model
 from iem.physics.regression import load_dynamics
 from sim.arm import ArmParams, arm_record, arm_spec, load_arm, save_arm
@@ -16,6 +15,7 @@ from sim.family import default_test_payload
 from sim.paths import calibration_path, new_task_path
 from sim.plant import PandaPlant, RealityGap
 from sim.robot import PandaModel
+from tests.can_logs import write_log
 
 GAP = RealityGap(seed=3)
 
@@ -23,11 +23,11 @@ GAP = RealityGap(seed=3)
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("arm")
-    record_rollout(PandaPlant(gap=GAP, seed=21).follow(calibration_path()), d / "bare.blf")
+    write_log(PandaPlant(gap=GAP, seed=21).follow(calibration_path()), d / "bare.blf")
     p = default_test_payload()
     loaded = PandaPlant(gap=GAP, seed=22, payload=p, controller_load=p).follow(
         new_task_path().slice(0, 2.0))
-    record_rollout(loaded, d / "loaded.blf")
+    write_log(loaded, d / "loaded.blf")
     assert main(["calibrate", str(d / "bare.blf"), "--out", str(d / "arm.msgpack")]) == 0
     assert main(["train", "--kind", "IEM+phys", "--arm", str(d / "arm.msgpack"),
                  "--out", str(d / "model.msgpack")]) == 0
@@ -36,10 +36,10 @@ def files(tmp_path_factory):
 
 
 def test_model_records_its_arm_and_names_it_in_its_physics(files):
-    model = load_model(files / "model.msgpack")
     arm = load_arm(files / "arm.msgpack")
+    model = load_model(files / "model.msgpack", resources={"arm": arm})
     assert model.trained_arm == arm_record(arm, files / "arm.msgpack")
-    assert model.dynamics == arm_spec(files / "arm.msgpack")
+    assert model.dynamics == arm_spec(arm) == f"sim.arm:arm_dynamics@arm:{arm.crc32:08x}"
     check_arm(model, arm_record(arm, "anywhere/arm.msgpack"))  # same content: accepted
     with pytest.raises(ModelFileError, match="nominal arm"):
         check_arm(model, None)
@@ -49,15 +49,15 @@ def test_model_records_its_arm_and_names_it_in_its_physics(files):
 
 def test_dynamics_spec_carries_the_arm_file(files):
     arm = load_arm(files / "arm.msgpack")
-    f = load_dynamics(arm_spec(files / "arm.msgpack"))
+    f = load_dynamics(arm_spec(arm))
     plain = load_dynamics("sim.robot:panda_dynamics")
     q, dq, ddq = PandaModel().random_state(np.random.default_rng(0))
     tau, Y, _ = f(q, dq, ddq)
     np.testing.assert_allclose(tau, PandaModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
     np.testing.assert_allclose(Y, plain(q, dq, ddq)[1], atol=1e-12)  # kinematics only
     assert not np.allclose(tau, plain(q, dq, ddq)[0], atol=1e-3)
-    with pytest.raises(ModelFileError, match="does not exist"):
-        load_dynamics("sim.arm:arm_dynamics@" + str(files / "missing.msgpack"))
+    with pytest.raises(InvalidInputError, match="arm:00000000, which was not given"):
+        load_dynamics("sim.arm:arm_dynamics@arm:00000000")
 
 
 def test_replay_with_the_arm_and_refusal_with_another(files, capsys):
@@ -106,32 +106,26 @@ def trained_on_a_copy_of_the_arm(files, tmp_path, kind: str):
     shutil.copy(files / "arm.msgpack", arm_file)
     assert main(["train", "--kind", kind, "--arm", str(arm_file),
                  "--out", str(tmp_path / "model.msgpack")]) == 0
-    model = load_model(tmp_path / "model.msgpack")
+    model = load_model(tmp_path / "model.msgpack", resources={"arm": load_arm(arm_file)})
     record = arm_record(load_arm(arm_file), arm_file)
     check_model_arm(model, record)
     return model, arm_file, record
-
-
-def test_a_model_whose_arm_file_moved_is_refused_before_it_runs(files, tmp_path):
-    from deploy.training import check_model_arm
-
-    model, arm_file, record = trained_on_a_copy_of_the_arm(files, tmp_path, "IEM+phys")
-    arm_file.unlink()
-    with pytest.raises(ModelFileError, match="names the arm file"):
-        check_model_arm(model, record)
 
 
 def test_the_learners_reversal_is_the_arms_and_a_changed_arm_file_is_refused(files, tmp_path):
     from deploy.training import check_model_arm
     from sim.coverage import reversal_spec
 
-    model, arm_file, record = trained_on_a_copy_of_the_arm(files, tmp_path, "IEM")
-    assert model.reversal == reversal_spec(arm_file)
-    assert load_model(files / "model.msgpack").ensemble_model.reversal == reversal_spec(
-        files / "arm.msgpack")
+    model, arm_file, _ = trained_on_a_copy_of_the_arm(files, tmp_path, "IEM")
+    arm = load_arm(arm_file)
+    assert model.reversal == reversal_spec(arm)  # by content: the copy's is the original's
+    assert load_model(files / "model.msgpack", resources={"arm": arm}).ensemble_model.reversal \
+        == reversal_spec(load_arm(files / "arm.msgpack"))
     save_arm(ArmParams.nominal(), arm_file)  # same path, another arm
-    with pytest.raises(ModelFileError, match=r"reversal names the arm file .*content differs"):
-        check_model_arm(model, record)
-    arm_file.unlink()
-    with pytest.raises(ModelFileError, match="does not exist"):
-        load_model(tmp_path / "model.msgpack")
+    other = load_arm(arm_file)
+    with pytest.raises(ModelFileError, match=rf"trained for arm file arm\.msgpack \(CRC32 "
+                                             rf"{arm.crc32:#010x}.* but is run with arm file "
+                                             rf"arm\.msgpack \(CRC32 {other.crc32:#010x}"):
+        load_model(tmp_path / "model.msgpack", resources={"arm": other})
+    with pytest.raises(ModelFileError, match=r"trained for arm file arm\.msgpack"):
+        check_model_arm(model, arm_record(other, arm_file))

@@ -11,16 +11,20 @@ import pickle
 import numpy as np
 import pytest
 
-from iem.base import load_factory
 from iem.ensemble import IncrementalEnsemble
-from iem.errors import InvalidInputError, ModelFileError
-from sim.arm import save_arm
+from iem.errors import InvalidInputError
+from iem.factories import build
 from sim.coverage import OtherVelocities, reversal_spec, reversed_velocities
-from sim.family import default_test_payload, training_phi
+from sim.family import default_test_payload, training_payloads
 from sim.paths import excitation_path
 from sim.plant import RealityGap
 from sim.robot import PandaModel
 from sim.tandem import TandemSimulators
+
+
+def training_phi() -> np.ndarray:
+    """The 77 training payloads' phi, ``(77, 10)``, paper order."""
+    return np.array([p.to_phi() for p in training_payloads()])
 
 
 def test_samples_are_the_family_torques_at_a_state_within_the_limits():
@@ -62,18 +66,14 @@ def test_coverage_is_a_hyper_parameter_and_changes_only_training():
 
 
 @pytest.mark.parametrize("gap", [None, 3])
-def test_reversed_samples_are_the_tandem_at_the_reversed_state(gap, tmp_path):
+def test_reversed_samples_are_the_tandem_at_the_reversed_state(gap):
     """Against the tandem simulators (Pinocchio's RNEA, the arm's friction and offsets) at
     (q, -dq, ddq): on the nominal arm and on a calibrated-style arm with friction."""
     arm = None if gap is None else RealityGap(seed=gap).realise()
     model = PandaModel(arm=arm)
     phi = training_phi()[:6]
     tandem = TandemSimulators(phi, model=model)
-    if arm is None:
-        reverse = reversed_velocities()
-    else:
-        save_arm(arm, tmp_path / "arm.msgpack")
-        reverse = load_factory(reversal_spec(tmp_path / "arm.msgpack"), "reversal")
+    reverse = reversed_velocities() if arm is None else build(reversal_spec(arm), "reversal")
     rng = np.random.default_rng(1)
     for _ in range(3):
         q, dq, ddq = model.random_state(rng)
@@ -84,7 +84,7 @@ def test_reversed_samples_are_the_tandem_at_the_reversed_state(gap, tmp_path):
             assert np.abs(back[:, 14:] - X[:, 14:]).max() > 0.05
 
 
-def test_reversal_is_a_hyper_parameter_that_doubles_the_training(tmp_path):
+def test_reversal_is_a_hyper_parameter_that_doubles_the_training():
     spec = "sim.coverage:reversed_velocities"
     ens = IncrementalEnsemble(seed=0, reversal=spec)
     assert ens.params()["reversal"] == spec
@@ -103,8 +103,10 @@ def test_reversal_is_a_hyper_parameter_that_doubles_the_training(tmp_path):
     np.testing.assert_array_equal(Yr, np.vstack([Y, Y]))
     with pytest.raises(InvalidInputError, match=r"reversal 'sim\.coverage:nothing'"):
         IncrementalEnsemble(reversal="sim.coverage:nothing")
-    with pytest.raises(ModelFileError, match="does not exist"):
-        IncrementalEnsemble(reversal=reversal_spec(tmp_path / "missing.msgpack"))
+    with pytest.raises(InvalidInputError, match=r"reversal .*arm:00000000'.*was not given"):
+        IncrementalEnsemble(reversal="sim.coverage:reversed_velocities@arm:00000000")
+    with pytest.raises(InvalidInputError, match=r"never by path"):
+        IncrementalEnsemble(reversal="sim.coverage:reversed_velocities@/an/arm.msgpack")
 
 
 def test_a_bag_trained_with_the_reversal_reads_the_motion_driven_backwards():

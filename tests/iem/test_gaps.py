@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from iem.base import BaseEstimator
+from iem.factories import register_factory
 from iem.online import OnlineIdentifier
 from iem.physics.regression import PayloadRegression
 from iem.signals.filters import LowPass2, StateFilter
@@ -101,6 +102,7 @@ def _fake_dynamics():
 
 
 FAKE = "tests.iem.test_gaps:_fake_dynamics"
+register_factory(FAKE)  # a model may name it (iem.factories)
 
 
 def test_regression_equations_across_lost_cycles_match_the_whole_stream():

@@ -714,12 +714,14 @@ def test_an_estimator_without_dynamics_refuses_saying_what_it_needs(build):
     from iem.errors import InvalidInputError
     from sim.robot import PANDA_DYNAMICS
 
-    for missing in (None, "sim.robot.panda_dynamics", 3):
-        with pytest.raises(InvalidInputError, match=r"needs dynamics, the robot's model: the "
-                                                    r"'module:function\[@ARG\]' spec"):
+    for missing in (None, "sim.robot.panda_dynamics", 3, PANDA_DYNAMICS + "@ARG",
+                    "sim.arm:arm_dynamics@/abs/arm.msgpack", "os:system@true"):
+        with pytest.raises(InvalidInputError, match=r"needs dynamics, the robot's model: .*"
+                                                    r"valid are .*sim\.robot:panda_dynamics"):
             build(missing)
     assert build(PANDA_DYNAMICS).dynamics == PANDA_DYNAMICS
-    assert build(PANDA_DYNAMICS + "@ARG").dynamics == PANDA_DYNAMICS + "@ARG"
+    named = "sim.arm:nominal_dynamics@none"
+    assert build(named).dynamics == named
 
 
 def test_a_model_file_stores_the_dynamics_it_was_given():
