@@ -1,4 +1,4 @@
-"""The paper benchmark's checks that can fail (issue 11, from a review of the benchmark).
+"""The paper benchmark's checks that can fail.
 
 - **Forgetting, by the weights.** An after/before MAE ratio of 1.00 can hide a learner that
   changed and happens to score alike. :func:`fingerprints` hashes every bag's learner (its

@@ -16,8 +16,9 @@ Set-up (seed ``S``; the paper benchmark's machinery, :class:`deploy.bench.harnes
   ``iem train`` makes them; the paper benchmark keeps the paper's 77): ``IEM``
   and ``IEM+phys`` on the nominal arm (the tandem simulators and the physics' dynamics);
   ``IEM+cal`` and ``IEM+phys+cal`` the same on the calibrated arm (tandem simulators of the
-  calibrated arm, the physics' dynamics spec ``sim.arm:arm_dynamics@DIR/arm.msgpack``).
-- **Batch models** (issue 16): ``batch+bare`` identifies each scenario's recording offline
+  calibrated arm, the physics' dynamics spec ``sim.arm:arm_dynamics@arm:CRC32``, that arm
+  by content).
+- **Batch models**: ``batch+bare`` identifies each scenario's recording offline
   with a bare recording of the same motion (noise seed ``seed + BARE_NOISE``), ``batch+arm``
   with the calibrated arm instead (:func:`sim.identify.identify`); one estimate per run.
 - **Scenarios**, each on the paper's new task path (6 s), each model from its trained state,
@@ -25,7 +26,8 @@ Set-up (seed ``S``; the paper benchmark's machinery, :class:`deploy.bench.harnes
   test payload), ``bare_arm`` (nothing mounted: truth zero), ``light_tool`` (0.4 kg),
   ``heavy_tool`` (2.8 kg, CoM 0.1 m off the flange axis), ``payload_change`` (the test
   payload switched to ``test-4w`` at mid-path, the controller not told; the figures after
-  the switch, against the new payload).
+  the switch, against the new payload), ``offaxis_tool`` (``sim/payloads/offaxis-tool.toml``,
+  2.7 kg, CoM 5 cm off the flange axis and 8 cm out: the tool ``iem bench real`` adds too).
 
 results.json: ``scenarios.<scenario>.<model>`` with ``mae_groups`` (smoothed, as the plug-in
 writes it), ``mae_groups_raw``, ``coverage_2sigma`` and ``coverage_2sigma_groups`` (share of
@@ -58,7 +60,8 @@ BATCH_MODELS = ("batch+bare", "batch+arm")
 whole recording: with a bare recording of the same motion, or with the calibrated arm."""
 BARE_NOISE = 90
 """The bare recording of the batch models has noise seed ``seed + BARE_NOISE``."""
-SCENARIOS = ("new_path", "bare_arm", "light_tool", "heavy_tool", "payload_change")
+SCENARIOS = ("new_path", "bare_arm", "light_tool", "heavy_tool", "payload_change",
+             "offaxis_tool")
 GAP_SEED_BASE = 1000
 """The plant's reality gap has seed ``GAP_SEED_BASE + seed``."""
 CAL_NOISE_BASE = 500
@@ -66,20 +69,22 @@ CAL_NOISE_BASE = 500
 SCENARIO_NOISE = {name: 10 * (i + 1) for i, name in enumerate(SCENARIOS)}
 """Each scenario's sensor-noise seed is ``seed + SCENARIO_NOISE[name]``."""
 
-TARGETS = {  # issue 11, IEM+phys+cal unless noted
+TARGETS = {  # the bench's targets: IEM+phys+cal unless noted
     ("new_path", "IEM+phys+cal"): {"mass": 0.003, "com": 0.002, "inertia": 0.0005},
     ("bare_arm", "IEM+phys+cal"): {"mass": 0.01},
     ("light_tool", "IEM+phys+cal"): {"mass": 0.005, "com": 0.004},
     ("heavy_tool", "IEM+phys+cal"): {"mass": 0.005, "com": 0.004},
     ("new_path", "IEM+cal"): {"mass": 0.014},
-    ("new_path", "batch+bare"): {"mass": 0.0005, "com": 0.0003, "inertia": 0.0003},  # issue 16
+    ("new_path", "batch+bare"): {"mass": 0.0005, "com": 0.0003, "inertia": 0.0003},
     ("new_path", "batch+arm"): {"mass": 0.002, "com": 0.001},
 }
 
 
 def tools() -> dict:
-    """The tools of the ``light_tool`` and ``heavy_tool`` scenarios (outside the family)."""
-    from sim.payload import Payload
+    """The tools of the ``light_tool``, ``heavy_tool`` and ``offaxis_tool`` scenarios
+    (outside the family)."""
+    from sim.family import PAYLOAD_DIR
+    from sim.payload import Payload, load_payload
 
     # light: an aluminium cylinder r 0.03 m, h 0.1 m, its CoM 1 cm off-axis
     m, r, h = 0.4, 0.03, 0.10
@@ -91,7 +96,8 @@ def tools() -> dict:
     heavy = Payload("heavy-tool", m, (0.08, 0.06, 0.06),
                     (m * 2 * b * b / 12, 0.0, 0.0, m * (a * a + b * b) / 12, 0.0,
                      m * (a * a + b * b) / 12))
-    return {"light_tool": light, "heavy_tool": heavy}
+    return {"light_tool": light, "heavy_tool": heavy,
+            "offaxis_tool": load_payload(PAYLOAD_DIR / "offaxis-tool.toml")}
 
 
 class RealisticBench(Bench):
@@ -152,14 +158,15 @@ class RealisticBench(Bench):
         q = self.quick
         common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
                   "fit_stride": 20 if q else 10}
+        arm = load_arm(arm_file)
         return {
             "IEM": IncrementalEnsemble(**common),
             "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=PANDA_DYNAMICS),
             "IEM+cal": IncrementalEnsemble(**common),
             # the calibrated arm, with the noise iem calibrate measured on it (iem train)
             "IEM+phys+cal": PhysicsInformedEnsemble(
-                ensemble=common, dynamics=arm_spec(arm_file),
-                torque_noise=arm_torque_noise(load_arm(arm_file))),
+                ensemble=common, dynamics=arm_spec(arm),
+                torque_noise=arm_torque_noise(arm)),
         }
 
 

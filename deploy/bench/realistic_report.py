@@ -92,8 +92,8 @@ def _scenario(name: str, by_model: dict) -> list[str]:
 
 
 def _targets(results: dict) -> list[str]:
-    """Each target against what was measured (issues 11 and 16)."""
-    lines = ["## Targets (issues 11 and 16)", "",
+    """Each target against what was measured."""
+    lines = ["## Targets", "",
               "| scenario.model | group | target | measured | met |",
               "| --- | --- | --- | --- | --- |"]
     for key, groups in results["targets"].items():

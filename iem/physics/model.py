@@ -56,7 +56,9 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
             ``std`` enters ``R`` (the weights, the NIS, the change detector), its ``weight``
             how much one equation counts, and its ``offset_std`` one torque offset per joint
             carried as a marginalised state (:class:`iem.physics.posterior.EquationWindow`); its
-            ``bias_std`` is a floor under the estimates' standard deviations.
+            ``bias_std`` is a floor under the estimates' standard deviations, and its
+            ``gain_std`` a torque-sensor gain error considered per joint: what it would do to
+            the estimate widens the standard deviations, in proportion to the payload.
         project_budget: Newton steps of the consistency projection per sample (0: a
             refreshed posterior is projected at once, in the sample that needs it). With a
             budget (:attr:`spread`, a live link: :meth:`go_live` sets
@@ -118,7 +120,8 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         self._floor = np.square(PRIOR_FLOOR)
         self.ensemble_prior = EnsemblePrior(self._ens)
         """The ensemble as the prior: its bags' calibration and the summary since a change."""
-        self._window = EquationWindow(None if noise is None else np.square(noise.offset_std))
+        self._window = EquationWindow(None if noise is None else np.square(noise.offset_std),
+                                      None if noise is None else np.square(noise.gain_std))
         self._bias_var = None if noise is None or not any(noise.bias_std) else np.square(
             noise.bias_std)
         self._observed_x = np.full(21, math.nan)  # the last sample observed (a copy) and
@@ -294,22 +297,34 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         extra = {"change": True, "reset": True} if self._changed else {}
         unverified = self._initial is not None and self._window.m < DETECT_AFTER
         shown, phi = self._schedule.show(post)
+        extra["mean_mass"] = float(shown.mean[0])  # before the projection: may be < 0
         # the prior alone is already the mean of the ensemble's estimates since the change,
         # and the first estimate with the physics supersedes it: the caller's smoothing
         # restarts at each of them (it would add only lag to a mean)
         if not self._data_shown:
             extra["reset"] = True
             self._data_shown = bool(shown.equations)
-        std = shown.std
+        var = np.square(shown.std) + shown.gain_var  # the sensors' gain error on the load
         if self._bias_var is not None:  # what the arm model's error reads as payload
-            std = np.sqrt(np.square(std) + self._bias_var)
+            var = var + self._bias_var
+        std = np.sqrt(var)
+        cov = np.array(shown.cov, dtype=float)  # with the same terms, uncorrelated
+        np.fill_diagonal(cov, var)
         # the physics is the estimate: the learners' out-of-distribution inputs inflate the
         # prior instead of flagging it; the NIS is NaN until the first equation is tested
-        return PayloadEstimate(t=t, phi=phi, std=std, bag=bag, learning=learning,
+        return PayloadEstimate(t=t, phi=phi, std=std, cov=cov, bag=bag, learning=learning,
                                nis=self._innovation.nis, ood=False, unverified=unverified,
-                               determined=tuple(g for g in GROUPS
-                                                if g not in self._undetermined),
+                               determined=self._determined(unverified),
                                extra=extra)
+
+    def _determined(self, unverified: bool) -> tuple[str, ...]:
+        """The groups the estimate does not take from a guess: those the window's equations
+        determine, and, once the live data have tested it, all of a known payload's (a
+        payload file or a restored state, :meth:`start_from`): a measurement, not the
+        ensemble's guess."""
+        if self._initial is not None and not unverified:
+            return tuple(GROUPS)
+        return tuple(g for g in GROUPS if g not in self._undetermined)
 
     def predict_one(self, x, flange, t: float = 0.0) -> PayloadEstimate:
         x = np.asarray(x, dtype=float)

@@ -91,25 +91,41 @@ class EquationWindow:
             ``info_phi - S (sum W + P_o)^-1 S^T`` and likewise for ``eta`` (``S = sum Y^T
             W``, ``P_o`` the offsets' prior precision): what the data say about the payload
             once any constant offset within its prior is allowed for.
+        gain_var: variance (7, -) of a relative gain error per joint that scales the
+            payload's torque in every equation of the window, ``r = (I + diag(g)) Y phi +
+            o + e`` (:attr:`iem.physics.torque_noise.TorqueNoise.gain_std` squared), or
+            None: none. The gains are considered, not estimated: the window keeps
+            ``sum Y^T W diag(Y e_b)`` and ``sum W diag(Y e_b)`` per parameter ``b`` (linear
+            in ``phi``), from which :meth:`gain_sensitivity` gives what a unit gain error
+            adds to ``eta``, and :func:`combine` the covariance the gains add to the
+            estimate (:attr:`Posterior.gain_var`).
     """
 
-    def __init__(self, offset_var=None) -> None:
+    def __init__(self, offset_var=None, gain_var=None) -> None:
         self.offset_prec = (None if offset_var is None else
                             1.0 / np.asarray(offset_var, dtype=float).reshape(7))
+        self.gain_var = (None if gain_var is None or not np.any(gain_var) else
+                         np.asarray(gain_var, dtype=float).reshape(7))
         self._info = np.zeros((10, 10))
         self._eta = np.zeros(10)
         self._cross = np.zeros((10, 7))
         self._w = np.zeros((7, 7))
         self._eta_o = np.zeros(7)
-        self._marginal: tuple[np.ndarray, np.ndarray] | None = None
+        self._gain = np.zeros((10, 7, 10))  # sum Y^T W diag(Y e_b), b the last axis
+        self._gain_o = np.zeros((7, 7, 10))  # sum W diag(Y e_b)
+        self._marginal: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.m = 0
         """Equations in the window."""
 
     def clear(self) -> None:
-        for a in (self._info, self._eta, self._cross, self._w, self._eta_o):
+        for a in self._sums():
             a[:] = 0.0
         self._marginal = None
         self.m = 0
+
+    def _sums(self) -> tuple[np.ndarray, ...]:
+        return (self._info, self._eta, self._cross, self._w, self._eta_o, self._gain,
+                self._gain_o)
 
     def add(self, Y: np.ndarray, r: np.ndarray, R: np.ndarray, weight: float = 1.0) -> None:
         """Add ``r = Y phi + e``, ``e ~ N(0, R)``, counted as ``1 / weight`` independent
@@ -118,21 +134,38 @@ class EquationWindow:
         YtRi = Y.T @ W
         self._info += YtRi @ Y
         self._eta += YtRi @ r
+        if self.gain_var is not None:
+            self._gain += YtRi[:, :, None] * Y[None, :, :]
         if self.offset_prec is not None:
             self._cross += YtRi
             self._w += W
             self._eta_o += W @ r
+            if self.gain_var is not None:
+                self._gain_o += W[:, :, None] * Y[None, :, :]
             self._marginal = None
         self.m += 1
 
-    def _marginalised(self) -> tuple[np.ndarray, np.ndarray]:
+    def _marginalised(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(info, eta, S G)`` with the offsets marginalised (``S G``: the cross sums times
+        the offsets' posterior covariance, what carries an offset's share to ``phi``)."""
         if self._marginal is None:
             A = self._w + np.diag(self.offset_prec)
             G = sym_inv(0.5 * (A + A.T))
             SG = self._cross @ G
             info = self._info - SG @ self._cross.T
-            self._marginal = (0.5 * (info + info.T), self._eta - SG @ self._eta_o)
+            self._marginal = (0.5 * (info + info.T), self._eta - SG @ self._eta_o, SG)
         return self._marginal
+
+    def gain_sensitivity(self, phi: np.ndarray) -> np.ndarray | None:
+        """What a unit gain error of each joint adds to :attr:`eta` if the payload is
+        ``phi`` (10x7; the estimate moves by the posterior covariance times it), with the
+        offsets marginalised; None without gains."""
+        if self.gain_var is None:
+            return None
+        K = self._gain @ phi
+        if self.offset_prec is not None:
+            K = K - self._marginalised()[2] @ (self._gain_o @ phi)
+        return K
 
     def offsets(self, phi: np.ndarray) -> np.ndarray | None:
         """The torque offsets (7, N·m) the window's equations give for the payload ``phi``
@@ -170,13 +203,14 @@ class EquationWindow:
         return np.sqrt(var)
 
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self._info, self._eta, self._cross, self._w,
-                                      self._eta_o))
+        return sum(a.nbytes for a in self._sums())
 
     def to_state(self) -> dict:
         state = {"info": self._info.tolist(), "eta": self._eta.tolist(), "m": self.m}
         if self.offset_prec is not None:
             state["offsets"] = [self._cross.tolist(), self._w.tolist(), self._eta_o.tolist()]
+        if self.gain_var is not None:
+            state["gains"] = [self._gain.tolist(), self._gain_o.tolist()]
         return state
 
     def set_state(self, state: dict) -> None:
@@ -191,6 +225,12 @@ class EquationWindow:
             self._eta_o = np.array(offsets[2], dtype=float).reshape(7)
         elif self.offset_prec is not None and self.m:  # a window of equations without
             self.clear()  # offset sums cannot be marginalised: start it again
+        gains = state.get("gains")
+        if self.gain_var is not None and gains is not None:
+            self._gain = np.array(gains[0], dtype=float).reshape(10, 7, 10)
+            self._gain_o = np.array(gains[1], dtype=float).reshape(7, 7, 10)
+        elif self.gain_var is not None and self.m:  # without its gain sums a window
+            self.clear()  # cannot say what the gains do to its estimate: start it again
 
 
 @dataclass
@@ -203,6 +243,9 @@ class Posterior:
         precision: its inverse (10x10), the projection's metric.
         inflation: the factor the data put on the prior's covariance (1: they agree).
         equations: how many equations it holds (0: the prior alone).
+        gain_var: the variance per parameter (10) the torque sensors' gain errors add to
+            the estimate (:class:`EquationWindow`'s ``gain_var``; zeros without). Not
+            saved: the window's sums are, and the next refresh makes it again.
     """
 
     mean: np.ndarray
@@ -211,6 +254,7 @@ class Posterior:
     inflation: float = 1.0
     eps: float = EPS
     equations: int = 0
+    gain_var: np.ndarray = field(default_factory=lambda: np.zeros(10))
     _phi: np.ndarray | None = field(default=None, repr=False)
     _std: np.ndarray | None = field(default=None, repr=False)
 
@@ -233,10 +277,10 @@ class Posterior:
 
     @staticmethod
     def nbytes(n: int = 10) -> int:
-        """Bytes a posterior of ``n`` parameters holds: mean, projected phi and std (``n``
-        floats each), covariance and precision (``n x n`` each); what a model reserves for
-        one whether it has been made yet or not."""
-        return np.dtype(float).itemsize * (3 * n + 2 * n * n)
+        """Bytes a posterior of ``n`` parameters holds: mean, projected phi, std and gain
+        variance (``n`` floats each), covariance and precision (``n x n`` each); what a
+        model reserves for one whether it has been made yet or not."""
+        return np.dtype(float).itemsize * (4 * n + 2 * n * n)
 
     def to_state(self) -> dict:
         return {"mean": self.mean.tolist(), "cov": self.cov.tolist(),
@@ -260,7 +304,10 @@ class Posterior:
 def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
             eps: float = EPS) -> Posterior:
     """The posterior of the prior ``N(mu_p, C_p)`` (its covariance inflated by
-    :func:`prior_inflation` if the data contradict it) and the window's equations."""
+    :func:`prior_inflation` if the data contradict it) and the window's equations, with the
+    variance the window's considered gain errors add to its mean (``J = cov K``, ``K`` the
+    window's :meth:`~EquationWindow.gain_sensitivity` at the mean: ``gain_var = sum_j
+    g_j² J[:, j]²``)."""
     inflation = 1.0
     if not window.empty:
         inflation = prior_inflation(mu_p, c_p, window.info, window.eta)
@@ -270,4 +317,9 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
     precision = 0.5 * (precision + precision.T)
     cov = sym_inv(precision)
     mean = cov @ (prec_p @ mu_p + window.eta)
-    return Posterior(mean, cov, precision, inflation, eps, window.m)
+    gain_var = np.zeros(10)
+    K = None if window.empty else window.gain_sensitivity(mean)
+    if K is not None:
+        J = cov @ K
+        gain_var = np.square(J) @ window.gain_var
+    return Posterior(mean, cov, precision, inflation, eps, window.m, gain_var=gain_var)

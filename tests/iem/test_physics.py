@@ -12,6 +12,7 @@ import pytest
 from iem.base import BaseEstimator
 from iem.baselines.least_squares import RecursiveLeastSquares
 from iem.errors import InvalidInputError
+from iem.factories import register_factory
 from iem.online import OnlineIdentifier
 from iem.physics import MODEL_ERROR_GAIN, PRIOR_FLOOR, PhysicsInformedEnsemble, prior_inflation
 from iem.physics.change import ChangeDetector, chi_square
@@ -30,6 +31,7 @@ _RNG = np.random.default_rng(11)
 _Y0 = _RNG.normal(0.0, 3.0, (7, 10))
 _YQ = _RNG.normal(0.0, 3.0, (7, 7, 10))
 FAKE = f"{__name__}:linear_dynamics"
+register_factory(FAKE)  # a model may name it (iem.factories)
 PHI = test_payloads()["test-3w"].to_phi()
 
 
@@ -102,8 +104,9 @@ def test_estimate_is_the_projected_posterior_with_its_std():
     np.testing.assert_allclose(est.std, np.sqrt(np.diag(cov)))
     np.testing.assert_allclose(est.phi, project(mean, np.linalg.inv(cov)), rtol=1e-9)
     # the first estimate with equations restarts the smoothing; the next says only its NIS
-    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"reset"}
-    assert set(model.predict_one(X[-1], None).extra) == set()
+    assert is_consistent(est.phi) and est.t == 0.6 and set(est.extra) == {"reset", "mean_mass"}
+    assert est.extra["mean_mass"] == mean[0]  # before the projection
+    assert set(model.predict_one(X[-1], None).extra) == {"mean_mass"}
     assert 0.0 < est.nis < 3.0  # the hand-made data fit the model
     assert est.ood is False and est.std is not None  # what the gate needs, reported
 
@@ -371,7 +374,7 @@ def test_a_posterior_saved_as_a_list_still_loads_and_its_size_is_what_it_holds()
         np.testing.assert_array_equal(back.mean, PHI)
         assert back.inflation == 2.0 and back.equations == equations
     # phi and std are made on first use; the size a model reserves counts them
-    held = (post.mean, post.cov, post.precision, post.phi, post.std)
+    held = (post.mean, post.cov, post.precision, post.phi, post.std, post.gain_var)
     assert Posterior.nbytes() == sum(a.nbytes for a in held)
 
 
