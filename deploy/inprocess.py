@@ -24,10 +24,12 @@ def virtual_channel(tag: str) -> str:
 
 @contextlib.contextmanager
 def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed: int = 0,
-                   faults=None, model=None, status=None):
+                   faults=None, model=None, status=None, **options):
     """Open ``config``'s service (its link must be ``virtual``) and a controller on the same
     channel; yield ``(controller, service)`` with the service open and the controller not yet
     started (so the service's start-up, e.g. training, does not count against the run).
+    ``options``: more of :class:`deploy.sim_controller.SimController`'s options
+    (``drop_commands``, ``payload_schedule``, ``refuse_while_moving``, ``gap``).
 
     On the way out: the controller is stopped (its error, if any, re-raised), the service
     closed (final checkpoint), the bus closed and the switch interval restored.
@@ -47,7 +49,8 @@ def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed:
     sys.setswitchinterval(0.0005)
     port, _ = open_port("virtual", link.channel, link.profile, faults,
                         record_faults=faults is not None)
-    controller = SimController(port, path=path, payload=payload, once=once, seed=seed)
+    controller = SimController(port, path=path, payload=payload, once=once, seed=seed,
+                              **options)
     service = Service(config, model=model,
                       status=StatusLine(False) if status is None else status)
     try:

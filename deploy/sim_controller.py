@@ -7,16 +7,22 @@ rest at its end (``once=True``). Each cycle it
 
 1. takes the payload commands received (``port.poll_commands``), applies each with
    ``plant.set_controller_load`` if it is physically consistent, and acknowledges with the
-   load now in force (a refused one keeps the previous load);
-2. steps the plant and publishes the measured joint state (``port.publish``);
-3. sends a heartbeat every ``heartbeat_period`` s.
+   load now in force (a refused one keeps the previous load); the first ``drop_commands``
+   are lost instead, as on a bad wire: neither applied nor acknowledged;
+2. mounts the payloads ``payload_schedule`` has due (``plant.set_payload``: what the arm
+   carries, not what the controller believes), steps the plant and publishes the measured
+   joint state (``port.publish``);
+3. sends a heartbeat every ``heartbeat_period`` s, with the sequence number of the load in
+   force (``load_seq``: the last command applied; a lost or refused one leaves it).
 
 In real time (the default) a deadline loop keeps the 1 kHz: sleep most of the interval, spin
 the last ``spin_us`` µs on ``perf_counter``; a cycle that ends after its deadline counts as an
 overrun, and more than ``MAX_LAG`` cycles behind the schedule restarts it from now (counted
 in ``skips``) rather than running a burst. With ``realtime=False`` it runs as fast as it can
 (tests). The true payload on the plant is ``payload`` (default
-:func:`sim.family.default_test_payload`); the controller starts with no load set.
+:func:`sim.family.default_test_payload`) until ``payload_schedule`` changes it (an entry at
+0 s replaces it from the start); the controller starts with no load set. ``stats()`` is its
+own record: counts, the load in force, every command applied and every payload mounted.
 
 It is usable in-process (``start()`` runs it in a thread, ``stop()`` ends it), which is how
 the demo and end-to-end benchmarks put it on the ``virtual`` bus beside the plug-in, and from
@@ -30,45 +36,16 @@ import sys
 import threading
 import time
 
-import numpy as np
-
 from firmware_bridge.controller_port import fault_spec, open_port
+from firmware_bridge.errors import BridgeConfigError
 from firmware_bridge.messages import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
 from firmware_bridge.protocol import PROFILES
 
+from .path_player import PathPlayer
+from .payload_schedule import SPEC_HELP, PayloadSchedule, parse_schedule
+
 MAX_LAG = 20
 """Cycles behind schedule after which the loop stops catching up and restarts its clock."""
-
-
-class PathPlayer:
-    """Reference ``(q, dq, ddq)`` at controller cycle ``k``: the path forward, backward, ...
-
-    With ``once`` the path is played once and then its last sample held at rest.
-    """
-
-    def __init__(self, path, once: bool = False) -> None:
-        self.path = path
-        self.once = once
-        self.n = len(path)
-        self._zeros = np.zeros(path.q.shape[1])
-
-    def at(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        p, n = self.path, self.n
-        if n == 1:
-            return p.q[0], self._zeros, self._zeros
-        if self.once:
-            if k >= n - 1:
-                return p.q[-1], self._zeros, self._zeros
-            return p.q[k], p.dq[k], p.ddq[k]
-        period = 2 * (n - 1)
-        i = k % period
-        if i < n - 1:
-            return p.q[i], p.dq[i], p.ddq[i]
-        j = period - i  # backward: q(T - t), dq -> -dq, ddq unchanged
-        return p.q[j], -p.dq[j], p.ddq[j]
-
-    def holding(self, k: int) -> bool:
-        return self.once and k >= self.n - 1
 
 
 class SimController:
@@ -89,11 +66,19 @@ class SimController:
             rest, as a real Franka refuses setLoad while a controller runs: the ack says
             applied=False with the error "command not possible in the current mode (the arm
             is moving)" and the load stays.
+        drop_commands: the first this many load commands received are lost: neither applied
+            nor acknowledged (counted in ``dropped_commands``).
+        payload_schedule: ``[(t, Payload | None), ...]``: at controller time ``t`` s the
+            plant carries that payload (None: nothing); see
+            :mod:`deploy.payload_schedule`.
+        gap: the plant's reality gap (:class:`sim.plant.RealityGap`: an arm that departs
+            from its model as a real one does); None: the ideal plant, the nominal model.
     """
 
     def __init__(self, port, *, path=None, payload=None, once: bool = False, seed: int = 0,
                  sensor=None, realtime: bool = True, heartbeat_period: float = 0.1,
-                 spin_us: float = 200.0, refuse_while_moving: bool = False) -> None:
+                 spin_us: float = 200.0, refuse_while_moving: bool = False,
+                 drop_commands: int = 0, payload_schedule=(), gap=None) -> None:
         from iem.extras import require
         from sim.family import default_test_payload
         from sim.paths import excitation_path
@@ -101,11 +86,19 @@ class SimController:
         require("mujoco", "the simulated controller")
         from sim.plant import DT, PandaPlant
 
+        if isinstance(drop_commands, bool) or not isinstance(drop_commands, int) \
+                or drop_commands < 0:
+            raise BridgeConfigError(f"drop_commands {drop_commands!r}: valid is an integer "
+                                    ">= 0")
+        self.schedule = PayloadSchedule(payload_schedule, DT)
         self.port = port
         self.path = excitation_path() if path is None else path
         self.payload = default_test_payload() if payload is None else payload
+        at_start, first = self.schedule.at_start()
+        if at_start:
+            self.payload = first
         self.player = PathPlayer(self.path, once=once)
-        self.plant = PandaPlant(payload=self.payload, sensor=sensor, seed=seed)
+        self.plant = PandaPlant(payload=self.payload, sensor=sensor, seed=seed, gap=gap)
         self.plant.reset(self.path.q[0], self.path.dq[0])
         self.period = DT
         self.realtime = realtime
@@ -117,7 +110,11 @@ class SimController:
         self.load_seq = 0
         self.refuse_while_moving = refuse_while_moving
         self.refused_moving = 0
+        self.drop_commands = drop_commands
+        self.dropped_commands = 0
         self.commands: list[tuple[LoadCommand, bool]] = []
+        self.applied: list[dict] = []
+        """Every command applied: ``{"t": controller time s, "seq", "mass", "com"}``."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
@@ -139,6 +136,9 @@ class SimController:
         if ok:
             self.plant.set_controller_load(load)
             self.load_seq = cmd.seq
+            mass, com, _ = _set_load_args(load)
+            self.applied.append({"t": k * self.period, "seq": cmd.seq, "mass": mass,
+                                 "com": com})
         self.commands.append((cmd, ok))
         self.port.send_ack(LoadAck(seq=cmd.seq, applied=ok, load=self.plant.controller_load,
                                    error=error))
@@ -148,7 +148,12 @@ class SimController:
         k = self.cycles
         self.port.tick(k, k * self.period)
         for cmd in self.port.poll_commands():
+            if self.dropped_commands < self.drop_commands:
+                self.dropped_commands += 1  # lost on the wire: no load, no ack
+                continue
             self._apply(cmd, k)
+        for payload in self.schedule.due(k):
+            self.plant.set_payload(payload)
         state = self.plant.step(*self.player.at(k))
         self.port.publish(state)
         if k % self.hb_every == 0:
@@ -216,11 +221,23 @@ class SimController:
         self.close()
 
     def stats(self) -> dict:
+        """The controller's counts and its own record (docs/outputs.md lists the keys):
+        ``load_in_force`` (``{"mass", "com", "inertia"}``, inertia 9 numbers column-major
+        about the CoM, or None), ``applied`` (every command applied) and ``mounted`` (every
+        payload the schedule mounted)."""
         port = self.port
+        load = self.plant.controller_load
+        in_force = None
+        if load is not None:
+            mass, com, inertia = _set_load_args(load)
+            in_force = {"mass": mass, "com": com, "inertia": inertia}
         return {"cycles": self.cycles, "overruns": self.overruns, "skips": self.skips,
                 "commands": len(self.commands),
                 "refused": sum(1 for _, ok in self.commands if not ok),
                 "refused_moving": self.refused_moving,
+                "dropped_commands": self.dropped_commands,
+                "load_seq": self.load_seq, "load_in_force": in_force,
+                "applied": list(self.applied), "mounted": list(self.schedule.mounted),
                 "sent": getattr(port, "sent", 0), "send_errors": getattr(port, "send_errors", 0),
                 "saturated": getattr(port, "saturated", 0),
                 "faults": dict(port.faults.counts) if getattr(port, "faults", None) else {},
@@ -228,6 +245,14 @@ class SimController:
                                       if getattr(port, "faults", None) else {}),
                 "fault_events": list(port.faults.events) if getattr(port, "faults", None) else [],
                 "send_failures": list(getattr(port, "send_failures", []))}
+
+
+def _set_load_args(load) -> tuple[float, list[float], list[float]]:
+    """libfranka's ``setLoad`` arguments of ``load`` as plain floats (None: mass 0, zeros)."""
+    if load is None:
+        return 0.0, [0.0] * 3, [0.0] * 9
+    mass, com, inertia = load.set_load_args()
+    return float(mass), [float(v) for v in com], [float(v) for v in inertia]
 
 
 # -- command line --------------------------------------------------------------------------
@@ -243,7 +268,15 @@ def configure(parser) -> None:
                         help="wire profile on CAN (default fd)")
     parser.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
     parser.add_argument("--payload", metavar="FILE",
-                        help="true payload TOML (default: the default test payload)")
+                        help="true payload TOML, mounted from the start (default: the default "
+                             "test payload) until --payload-schedule changes it")
+    parser.add_argument("--payload-schedule", metavar="SPEC", type=_schedule_arg,
+                        help="change the payload mounted on the plant at controller times: "
+                             f"{SPEC_HELP}. With --payload, --payload is mounted until the "
+                             "first change; an entry at 0 wins over it")
+    parser.add_argument("--drop-commands", metavar="N", type=_count_arg, default=0,
+                        help="lose the first N load commands received: neither applied nor "
+                             "acknowledged (default 0)")
     parser.add_argument("--once", action="store_true",
                         help="play the path once, then hold its end at rest")
     parser.add_argument("--duration", type=float, help="stop after this many s")
@@ -264,7 +297,31 @@ def configure(parser) -> None:
                         "as a real Franka refuses setLoad while a controller runs")
     parser.add_argument("--stats-json", metavar="FILE",
                         help="at exit, write the controller's counts (cycles, overruns, "
-                             "commands, faults injected per message) as JSON")
+                             "commands, dropped_commands, faults injected per message) and "
+                             "its own record (load_in_force, applied, mounted) as JSON")
+
+
+def _schedule_arg(text: str):
+    import argparse
+
+    from iem.errors import PayloadError
+
+    try:
+        return parse_schedule(text)
+    except PayloadError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _count_arg(text: str) -> int:
+    import argparse
+
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: valid is an integer >= 0")
+    return n
 
 
 def run(args) -> int:
@@ -280,7 +337,9 @@ def run(args) -> int:
     payload = load_payload(args.payload) if args.payload else None
     port, announce = open_port(args.interface, args.channel, args.profile, fault_spec(args))
     controller = SimController(port, path=path, payload=payload, once=args.once, seed=args.seed,
-                               refuse_while_moving=args.refuse_while_moving)
+                               refuse_while_moving=args.refuse_while_moving,
+                               drop_commands=args.drop_commands,
+                               payload_schedule=args.payload_schedule or ())
 
     def _stop(signum, frame):
         controller._stop.set()
@@ -291,7 +350,10 @@ def run(args) -> int:
         print(announce, flush=True)
     print(f"sim-controller: {args.interface} {announce or args.channel!r}, profile "
           f"{args.profile}, path {controller.path.name!r} "
-          f"({'once' if args.once else 'back and forth'}), payload {controller.payload.name!r}",
+          f"({'once' if args.once else 'back and forth'}), payload "
+          f"{getattr(controller.payload, 'name', None)!r}"
+          + (f", {len(controller.schedule.entries)} payload changes scheduled"
+             if controller.schedule.entries else ""),
           file=sys.stderr, flush=True)
     try:
         controller.run(duration=args.duration)
@@ -300,7 +362,8 @@ def run(args) -> int:
         stats = controller.stats()
         print("sim-controller: " + ", ".join(f"{k} {v}" for k, v in stats.items()
                                              if k not in ("faults_by_message", "fault_events",
-                                                          "send_failures")),
+                                                          "send_failures", "load_in_force",
+                                                          "applied", "mounted")),
               file=sys.stderr, flush=True)
         if args.stats_json:
             import json

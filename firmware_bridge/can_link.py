@@ -236,6 +236,10 @@ class CanLink(FramedLink):
         owns_bus: close the bus with the link.
     """
 
+    profile: WireProfile
+    """Its wire profile: the gate checks a load against the DBC signals' ranges before it is
+    sent (:class:`~firmware_bridge.links.WireProfiled`)."""
+
     def __init__(self, bus: can.BusABC, profile: str = "fd", *, silence_timeout: float = 0.1,
                  window: int = 16, name: str | None = None, owns_bus: bool = True) -> None:
         self.bus = bus

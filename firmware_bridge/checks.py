@@ -5,7 +5,7 @@ A link is checked through a :class:`Harness`: a link of one kind of
 controller that publishes joint states and answers payload commands, or a recording that
 holds them. :func:`check_link` runs every ``check_*`` function of this module (listed in
 :data:`CHECKS`, so a test can parametrise over them) on a factory of harnesses, each check on
-a fresh one. A check that fails raises :class:`CheckFailed` (an :class:`AssertionError`)
+a fresh one. A check that fails raises :class:`~iem.errors.CheckFailed` (an :class:`AssertionError`)
 saying what was expected and what was found.
 
 What every link does (the protocols of :mod:`firmware_bridge.links`):
@@ -26,7 +26,9 @@ What every link does (the protocols of :mod:`firmware_bridge.links`):
   the other end's acknowledgement arrives through ``wait_ack`` (and ``last_ack``) with the
   load in force; an impossible payload is refused before anything is sent
   (:class:`~iem.errors.PayloadError`, no number used); an acknowledgement that does not come
-  is :class:`~firmware_bridge.errors.AckTimeout`;
+  is :class:`~firmware_bridge.errors.AckTimeout`; after an applied command, ``load_report``
+  names the load in force by sequence number or values, as ``LINKS[kind].load_report`` says
+  the kind carries (None where it carries none);
 - an unknown option names the kind's options (:class:`~firmware_bridge.errors.BridgeConfigError`,
   before anything opens), and a channel that cannot be opened raises the kind's documented
   error.
@@ -44,28 +46,26 @@ from collections.abc import Callable
 
 import numpy as np
 
-from iem.errors import IemError, PayloadError
+from iem.errors import CheckFailed, PayloadError
 from iem.payload import Payload
 from iem.types import JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, EndOfStream
 from .link_harness import N_STATES, READ_TIMEOUT_S, Harness
 from .links import LINKS, JointStateSource, LinkCounters, PayloadSink, open_link, rate_hz
-from .messages import LoadAck
+from .messages import LoadAck, LoadReport
 from .reassembly import CYCLE_MOD
 
 SILENCE_S = 0.05
 """The ``read`` timeout a check gives when nothing was sent."""
 ACK_TIMEOUT_S = 10.0
 """How long a check waits for an acknowledgement, serving the other end meanwhile."""
+REPORT_TIMEOUT_S = 3.0
+"""How long a check waits, after the acknowledgement, for the report of the load in force."""
 TOOL = Payload("tool", 0.73, (0.01, -0.02, 0.06), (2e-3, 1e-4, -2e-4, 3e-3, 3e-4, 1.5e-3))
 """A physically consistent load for the sink checks."""
 IMPOSSIBLE = Payload("impossible", -1.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 1.0, 0.0, 1.0))
 """A load no sink may send: negative mass."""
-
-
-class CheckFailed(IemError, AssertionError):
-    """A link broke one of the shared checks."""
 
 
 def _fail(check: str, kind: str, message: str) -> CheckFailed:
@@ -258,6 +258,53 @@ def check_send_and_ack(make) -> None:
                 raise _fail(name, h.kind, f"last_ack is {last!r} after the ack of {seq}")
 
 
+def _report_names(kind: str, report, seq: int, load: Payload | None) -> bool:
+    carries = LINKS[kind].load_report
+    if report is None or not isinstance(report, LoadReport):
+        return False
+    if carries == "seq":
+        return report.seq == seq
+    return report.has_values and _same_load(report.load, load)
+
+
+def check_load_report(make) -> None:
+    """A sink: ``load_report`` is None before the controller said anything; after an applied
+    command it names the load in force, by sequence number or by values as the kind carries
+    (``LINKS[kind].load_report``), after a clear too; a kind that carries none keeps it
+    None."""
+    name = "load report"
+    with make() as h:
+        if not LINKS[h.kind].sink:
+            return
+        link, carries = h.link, LINKS[h.kind].load_report
+        if link.load_report is not None:
+            raise _fail(name, h.kind, f"load_report {link.load_report!r} before anything was "
+                                      "read")
+        h.publish(N_STATES)
+        _read(h, name, N_STATES)
+        for load in (TOOL, None):
+            seq = link.send(load)
+            _await_ack(h, name, seq)
+            deadline = time.monotonic() + REPORT_TIMEOUT_S
+            while not _report_names(h.kind, link.load_report, seq, load):
+                if not carries and link.load_report is None:
+                    break
+                if time.monotonic() > deadline:
+                    raise _fail(name, h.kind, f"after command {seq} ({load}) was applied, "
+                                              f"load_report is {link.load_report!r}; it "
+                                              f"carries {carries or 'nothing'}")
+                h.serve()
+                _read(h, name, len(h.publish(1) or [None]))
+            if not carries and link.load_report is not None:
+                raise _fail(name, h.kind, f"load_report {link.load_report!r}: LINKS says the "
+                                          "kind carries none")
+            report = link.load_report
+            if report is not None and not (isinstance(report.t, float)
+                                           and abs(report.t - time.perf_counter()) < 600):
+                raise _fail(name, h.kind, f"load_report.t {report.t!r}: expected a "
+                                          "time.perf_counter() of now")
+
+
 def check_refuses_impossible_payload(make) -> None:
     """A sink refuses a load that is not physically consistent before sending it:
     PayloadError, and no sequence number used."""
@@ -326,12 +373,14 @@ CHECKS: tuple[Callable[..., None], ...] = (
     check_silence_or_end,
     check_close_idempotent,
     check_send_and_ack,
+    check_load_report,
     check_refuses_impossible_payload,
     check_ack_timeout,
     check_bad_options,
 )
 """Every check, in the order :func:`check_link` runs them."""
-SINK_CHECKS = (check_send_and_ack, check_refuses_impossible_payload, check_ack_timeout)
+SINK_CHECKS = (check_send_and_ack, check_load_report, check_refuses_impossible_payload,
+               check_ack_timeout)
 """The checks of a sink; on a link that is none they check nothing."""
 
 

@@ -11,7 +11,7 @@ implements only its hooks:
 - ``_transmit(seq, payload)``: put one payload command on the wire;
 - ``_shutdown()``: release the transport;
 - ``decoder``: an object with ``counters``, ``acks``, ``last_ack``, ``last_heartbeat``,
-  ``resync()`` and ``diagnosis()``.
+  ``resync()`` and ``diagnosis()``; ``load_report`` comes from ``last_heartbeat``.
 
 :class:`FramedControllerPort` is the controller's end (used by the simulated controller): the
 fault injector (drop, corrupt, duplicate, delay, silence) and the send counters; a backend
@@ -29,7 +29,7 @@ from iem.types import JointState
 from .errors import AckTimeout, ControllerSilent
 from .faults import MAX_EVENTS, FaultInjector, FaultSpec
 from .links import BUFFERED_CYCLES, LinkCounters
-from .messages import Heartbeat, LoadAck
+from .messages import Heartbeat, LoadAck, LoadReport
 
 ACK_POLL_S = 0.01
 """Longest single wait of ``wait_ack`` on the transport, s."""
@@ -57,6 +57,8 @@ class FramedLink:
         last: where frame-to-estimate latency starts."""
         self._seq = 0
         self._closed = False
+        self._report_of: Heartbeat | None = None
+        self._report: LoadReport | None = None
 
     # -- hooks -----------------------------------------------------------------------------
     def _receive(self, timeout: float) -> None:  # pragma: no cover - every backend has one
@@ -105,6 +107,18 @@ class FramedLink:
     @property
     def last_ack(self) -> LoadAck | None:
         return self.decoder.last_ack
+
+    @property
+    def load_report(self) -> LoadReport | None:
+        """The load in force as the last heartbeat reports it: its sequence number
+        (``LoadSeq``; the heartbeat carries no values), or None before a heartbeat."""
+        hb = self.decoder.last_heartbeat
+        if hb is None:
+            return None
+        if self._report_of is not hb:  # one report per heartbeat, built when asked for
+            self._report_of = hb
+            self._report = LoadReport(t=hb.t, seq=hb.load_seq, load=None, has_values=False)
+        return self._report
 
     def send(self, payload) -> int:
         """Send a payload command (``None`` clears the load); return its sequence number."""

@@ -32,6 +32,10 @@ How:
   a command that has not returned after ``load_timeout`` s (default 2 s, well below the
   unit's WatchdogSec=5) is acknowledged as refused with that reason, and its late outcome, if
   any, replaces it in ``last_ack``.
+- The load in force: every robot state reports it (``m_load``, ``F_x_Cload``, ``I_load``,
+  inertia about the CoM column-major; mass 0: none), and ``load_report`` is the last one's
+  values (a :class:`~firmware_bridge.messages.LoadReport` without a sequence number: a
+  Franka numbers no commands).
 - Errors are matched by class, against the classes of the pylibfranka module that made the
   robot: ``NetworkException`` is :class:`~firmware_bridge.errors.ControllerSilent`,
   ``InvalidOperationException`` (FCI held elsewhere) and the rest are
@@ -52,7 +56,7 @@ from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
 from .links import BUFFERED_CYCLES, LinkCounters
-from .messages import LoadAck
+from .messages import LoadAck, LoadReport
 from .reassembly import CYCLE_MOD, Sequencer
 
 LOAD_TIMEOUT_S = 2.0
@@ -112,6 +116,8 @@ class FrankaLink:
         # received after the command returned (the load it reports)
         self._load = None  # the load in the last state, as reported by the robot
         self._load_key: tuple | None = None
+        self._load_t: float | None = None  # perf_counter() when that state was taken
+        self._report = None
         self._seq = 0
         self._owns_robot = owns_robot
         self._stop = threading.Event()
@@ -186,6 +192,7 @@ class FrankaLink:
             self._load_key = key
             self._load = None if key[0] == 0.0 else Payload.from_set_load(
                 key[0], list(key[1]), list(key[2]), name="robot")
+        self._load_t = time.perf_counter()
         t = float(rs.time.to_sec())
         cycle = round(t * NOMINAL_RATE_HZ) % CYCLE_MOD
         verdict = self._order.judge(cycle)
@@ -254,6 +261,18 @@ class FrankaLink:
         return state
 
     # -- sink ------------------------------------------------------------------------------
+    @property
+    def load_report(self) -> LoadReport | None:
+        """The load in force as the last robot state reports it (``m_load``, ``F_x_Cload``,
+        ``I_load``: values, no sequence number), or None before a state."""
+        t = self._load_t
+        if t is None:
+            return None
+        report = self._report
+        if report is None or report.t != t:  # built when asked for, not at 1 kHz
+            report = self._report = LoadReport(t=t, seq=None, load=self._load, has_values=True)
+        return report
+
     def send(self, payload: Payload | None) -> int:
         """Queue ``set_load`` for the command thread; return the command's number at once."""
         if payload is not None:

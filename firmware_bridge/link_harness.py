@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from iem.types import JointState
 
 from .links import LINKS, open_link
-from .messages import LoadAck
+from .messages import Heartbeat, LoadAck
 
 N_STATES = 20
 """Joint states a check has the other end send (a few frames: a pty's buffer holds them)."""
@@ -80,7 +80,8 @@ class ControllerHarness(Harness):
     """A kind the simulated controller serves, its other end the controller's port
     (:func:`firmware_bridge.controller_port.open_port`) publishing ``states`` (a function
     ``states(n, stride, start) -> [JointState]`` of cycles ``start, start + stride, ...``)
-    and acknowledging every command with the load it carries.
+    and acknowledging every command with the load it carries (then a heartbeat with its
+    sequence number, the load in force).
 
     Args:
         kind: the link kind.
@@ -109,6 +110,7 @@ class ControllerHarness(Harness):
             self.port.close()
             raise
         self._next = 0
+        self.load_seq = 0
         self._wait_open()
 
     def _wait_open(self) -> None:
@@ -128,8 +130,15 @@ class ControllerHarness(Harness):
         return out
 
     def serve(self) -> None:
-        for cmd in self.port.poll_commands():
+        """Acknowledge every command received as applied, then say so in a heartbeat (the
+        sequence number of the load in force)."""
+        commands = self.port.poll_commands()
+        for cmd in commands:
             self.port.send_ack(LoadAck(seq=cmd.seq, applied=True, load=cmd.load))
+            self.load_seq = cmd.seq
+        if commands:
+            self.port.heartbeat(Heartbeat(state="running", load_seq=self.load_seq,
+                                          cycle=max(0, self._next - self.stride), overruns=0))
 
     def close(self) -> None:
         try:

@@ -10,7 +10,13 @@ pylibfranka robot, a replayed log):
   and call ``read`` again.
 - :class:`PayloadSink`: ``send(payload) -> seq`` writes a load with libfranka ``setLoad``
   semantics (None clears it); the controller's acknowledgement arrives as ``last_ack``
-  (processed while ``read`` runs) or is awaited with ``wait_ack(seq, timeout)``.
+  (processed while ``read`` runs) or is awaited with ``wait_ack(seq, timeout)``; the load in
+  force, as the controller reports it, is ``load_report``.
+
+Three more declare what some links do beyond that, so that a caller asks ``isinstance``
+rather than probing for a method: :class:`DiagnosticsSink` and :class:`EstimatePublisher`
+(the ``ros2`` link's status and estimate topics) and :class:`WireProfiled` (a link whose
+loads travel in DBC signals with ranges).
 
 :data:`LINKS` is the one table of link kinds (:class:`LinkKind`): the configuration, the
 service, the simulated controller and the recorder take their kinds from it. Every kind is
@@ -25,11 +31,14 @@ from __future__ import annotations
 import importlib
 import inspect
 from dataclasses import dataclass, fields
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import BridgeConfigError
+
+if TYPE_CHECKING:
+    from .protocol import WireProfile
 
 DROP_KINDS = ("crc", "malformed", "duplicate", "out_of_order", "stale", "implausible",
               "orphaned")
@@ -163,12 +172,64 @@ class PayloadSink(Protocol):
         """The latest :class:`~firmware_bridge.protocol.LoadAck`, or None."""
         ...
 
+    @property
+    def load_report(self):
+        """The latest :class:`~firmware_bridge.messages.LoadReport`: the load in force as the
+        controller itself reports it (updated while ``read`` runs), or None until the
+        controller said anything about it, and always on a link whose controller does not
+        report it (``LINKS[kind].load_report`` says what each kind carries). An
+        acknowledgement says what a command did; the report says what is in force now,
+        whatever happened since (a restart, a load set by another client)."""
+        ...
+
     def wait_ack(self, seq: int, timeout: float = 1.0):
         """Read until the acknowledgement of ``seq`` arrives; raise ``AckTimeout`` after
         ``timeout`` s."""
         ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class DiagnosticsSink(Protocol):
+    """A link that reports the safety gate's verdict to the robot's own monitoring (the
+    ``ros2`` link: ``diagnostic_msgs/msg/DiagnosticArray`` on ``/diagnostics``)."""
+
+    def publish_diagnostics(self, verdict: dict) -> bool:
+        """Publish ``verdict`` (``SafetyGate.verdict()``: at least ``reason``, ``detail``,
+        ``load_in_force`` and the command counts) now (the caller paces it); True if it went
+        out, False if the link has nowhere to publish it."""
+        ...
+
+
+@runtime_checkable
+class EstimatePublisher(Protocol):
+    """A link with topics for the estimate (the ``ros2`` link: ``/iem/payload`` and its
+    standard deviations), which the service hands every estimate."""
+
+    def publish_estimate(self, estimate, phi=None) -> bool:
+        """Publish ``estimate`` (a :class:`iem.types.PayloadEstimate`; ``phi``: the values to
+        publish instead of its own, e.g. the smoothed ones) at the link's own rate; True if
+        it went out."""
+        ...
+
+
+@runtime_checkable
+class WireProfiled(Protocol):
+    """A link whose loads travel as the DBC signals of a wire profile (the CAN links, a
+    replayed CAN log): the gate checks a load against the signals' ranges before it is sent
+    (:func:`firmware_bridge.protocol.payload_wire_error`).
+
+    Attributes:
+        profile: the link's :class:`~firmware_bridge.protocol.WireProfile`.
+    """
+
+    profile: WireProfile
+
+
+LOAD_REPORTS = ("seq", "values", "")
+"""What a sink's controller reports of the load in force: its command's sequence number
+(the CAN and serial heartbeats), its values (libfranka's robot state), or nothing."""
 
 
 @dataclass(frozen=True)
@@ -193,6 +254,8 @@ class LinkKind:
         sink: the link also writes loads (a :class:`PayloadSink`).
         fixed_rate_hz: joint states per second the link delivers whatever the profile; None:
             the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
+        load_report: what a sink's ``load_report`` carries (one of :data:`LOAD_REPORTS`):
+            ``"seq"``, ``"values"``, or ``""`` (it stays None).
     """
 
     module: str
@@ -204,30 +267,33 @@ class LinkKind:
     pty: bool = False
     sink: bool = True
     fixed_rate_hz: float | None = None
+    load_report: str = ""
 
 
 LINKS: dict[str, LinkKind] = {
     "virtual": LinkKind("firmware_bridge.can_link", "open_can_link",
                         "python-can's in-process virtual bus (tests, the in-process demo)",
-                        bus="virtual", controller=True),
+                        bus="virtual", controller=True, load_report="seq"),
     "socketcan": LinkKind("firmware_bridge.can_link", "open_can_link",
                           "Linux SocketCAN: can0 on a robot-cell PC, vcan0 for tests",
-                          bus="socketcan", controller=True),
+                          bus="socketcan", controller=True, load_report="seq"),
     "slcan": LinkKind("firmware_bridge.can_link", "open_can_link",
                       "a serial-line CAN adapter (slcan/LAWICEL; CANable 2.0 for CAN FD): any "
                       "pyserial URL or device",
                       bus="slcan", bus_class="firmware_bridge.slcan_buffered:BufferedSlcanBus",
-                      controller=True, pty=True),
+                      controller=True, pty=True, load_report="seq"),
     "serial": LinkKind("firmware_bridge.serial_link", "open_serial_link",
                        "msgpack messages over a serial line (COBS + CRC32 framing): any "
-                       "pyserial URL", controller=True, pty=True, fixed_rate_hz=NOMINAL_RATE_HZ),
+                       "pyserial URL", controller=True, pty=True, fixed_rate_hz=NOMINAL_RATE_HZ,
+                       load_report="seq"),
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
                        "0.10; exclusive FCI); channel: the robot's IP",
-                       fixed_rate_hz=NOMINAL_RATE_HZ),
+                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values"),
     "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
                      "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
-                     "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ),
+                     "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ,
+                     load_report="values"),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
                        sink=False),

@@ -1,6 +1,7 @@
 """The messages between the plug-in and the controller, whatever the link: a payload command,
-its acknowledgement and the controller's heartbeat, as frozen value types (every link kind
-reads and writes these; the CAN wire's codecs are :mod:`firmware_bridge.control_codecs`)."""
+its acknowledgement, the controller's heartbeat and its report of the load in force, as
+frozen value types (every link kind reads and writes these; the CAN wire's codecs are
+:mod:`firmware_bridge.control_codecs`)."""
 
 from __future__ import annotations
 
@@ -68,3 +69,27 @@ class Heartbeat:
     cycle: int
     overruns: int
     t: float = 0.0
+
+
+@dataclass(frozen=True)
+class LoadReport:
+    """The load in force, as the controller itself reports it (every payload sink keeps the
+    latest as ``load_report``, updated while ``read`` runs).
+
+    Attributes:
+        t: ``time.perf_counter()`` when the link took the report, s.
+        seq: sequence number of the load command in force, as the controller says (0: none
+            set by a command); None where the link carries no sequence (libfranka's robot
+            state).
+        load: the load in force (mass kg, CoM m in the flange frame, inertia kg·m² about the
+            CoM) where ``has_values``; None for the empty load (mass 0), or when the values
+            are not reported.
+        has_values: True when ``load`` is the controller's own report of the values
+            (libfranka's ``m_load``, ``F_x_Cload``, ``I_load``); False when only ``seq`` is
+            known (the CAN and serial heartbeats carry the sequence, not the values).
+    """
+
+    t: float
+    seq: int | None
+    load: Payload | None
+    has_values: bool

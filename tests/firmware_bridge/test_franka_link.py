@@ -1,7 +1,6 @@
 """The pylibfranka backend against a fake with pylibfranka 0.21's types and exceptions
-(checked against the real module where it is installed)."""
+(test_pylibfranka_binding.py checks the fake against the real binding)."""
 
-import inspect
 import sys
 import threading
 
@@ -157,23 +156,30 @@ def test_open_link_uses_pylibfranka_robot_and_realtime_config(monkeypatch):
         link.close()
 
 
-def test_the_fake_matches_the_real_pylibfranka():
-    """Class names, exception bases, the methods and fields the link uses: as in the real
-    binding (pylibfranka 0.21, ``pip install 'iem-payload[franka]'``)."""
-    real = pytest.importorskip("pylibfranka")
-    fake = franka_fake.module()
-    for name in ("FrankaException", "CommandException", "ControlException",
-                 "InvalidOperationException", "NetworkException", "RealtimeException"):
-        r, f = getattr(real, name), getattr(fake, name)
-        assert [c.__name__ for c in r.__mro__[1:]] == [c.__name__ for c in f.__mro__[1:]], name
-    for name in ("read_once", "set_load"):
-        assert callable(getattr(real.Robot, name))
-    doc = real.Robot.set_load.__doc__
-    assert "FixedSize(3)" in doc and "FixedSize(9)" in doc  # the arity the fake checks
-    for name in ("q", "dq", "tau_J", "time", "m_load", "F_x_Cload", "I_load"):
-        assert isinstance(inspect.getattr_static(real.RobotState, name), property), name
-    for name in ("q", "dq", "tau_J"):  # lists, as the fake returns them
-        assert "-> typing.Annotated[list[float], \"FixedSize(7)\"]" in \
-            getattr(real.RobotState, name).fget.__doc__
-    assert callable(real.Duration.to_sec)
-    assert hasattr(real.RealtimeConfig, "kIgnore") and hasattr(real.RealtimeConfig, "kEnforce")
+def test_the_load_report_is_the_robot_states_own_load(fake, link):
+    """``load_report`` carries the values the robot reports in each state (``m_load``,
+    ``F_x_Cload``, ``I_load`` column-major about the CoM), no sequence number; mass 0 is
+    the empty load."""
+    from firmware_bridge.messages import LoadReport
+
+    assert link.load_report is None  # no state yet
+    fake.release()
+    link.read()
+    first = link.load_report
+    assert isinstance(first, LoadReport)
+    assert (first.seq, first.load, first.has_values) == (None, None, True)
+    p = default_test_payload()
+    ack_of(link, fake, link.send(p))
+    fake.release()
+    link.read()
+    report = link.load_report
+    assert report.has_values and report.seq is None and report.t > first.t
+    mass, com, inertia = fake.load  # what the robot holds, column-major
+    assert report.load.mass == mass and list(report.load.com) == com
+    np.testing.assert_allclose(report.load.inertia_matrix,
+                               np.reshape(inertia, (3, 3), order="F"))
+    np.testing.assert_allclose(report.load.inertia_matrix, p.inertia_matrix)
+    ack_of(link, fake, link.send(None))
+    fake.release()
+    link.read()
+    assert link.load_report.load is None and link.load_report.has_values

@@ -148,8 +148,10 @@ def _franka(tmp_path, monkeypatch):
 
 
 class Ros2Harness(Harness):
-    """The ros2 link on loopback DDS: a reliable JointState writer and a SetLoad service
-    (``firmware_bridge.ros2_peers``) in this process, on a topic of its own."""
+    """The ros2 link on loopback DDS: a reliable JointState writer, a SetLoad service
+    (``firmware_bridge.ros2_peers``) and a FrankaRobotState writer reporting the load the
+    service last set (as franka_ros2's broadcaster fills it) in this process, on topics of
+    its own."""
 
     kind, tolerance = "ros2", (0.0, 0.0, 0.0)
     bad_channel = ("conformance/joint_states", BridgeConfigError)  # not fully qualified
@@ -161,19 +163,24 @@ class Ros2Harness(Harness):
         from firmware_bridge.links import open_link
         from firmware_bridge.ros2_dds import cyclone_config, participant, qos
         from firmware_bridge.ros2_peers import SetLoadServer
-        from firmware_bridge.ros2_types import JointStateMsg, topic_name
+        from firmware_bridge.ros2_types import FrankaRobotState, JointStateMsg, topic_name
 
         n = next(_channels)
         self.channel, service = f"/conformance{n}/joint_states", f"/conformance{n}/set_load"
+        robot_state = f"/conformance{n}/robot_state"
         self.dp = dp = participant(DOMAIN, cyclone_config(**LOOPBACK))
         self.server = SetLoadServer(dp, service)
         self.writer = DataWriter(dp, Topic(dp, topic_name(self.channel), JointStateMsg),
                                  qos=qos(reliable=True, depth=100))
+        self.state_writer = DataWriter(dp, Topic(dp, topic_name(robot_state), FrankaRobotState),
+                                       qos=qos(reliable=True, depth=10))
         self.link = open_link("ros2", self.channel, domain_id=DOMAIN, set_load_service=service,
                               estimate_topic=f"/conformance{n}/payload",
-                              set_load_timeout_s=2.0, **LOOPBACK)
+                              robot_state_topic=robot_state, set_load_timeout_s=2.0,
+                              **LOOPBACK)
         deadline = time.monotonic() + 20.0
         while not (self.writer.get_matched_subscriptions()
+                   and self.state_writer.get_matched_subscriptions()
                    and not self.link.set_load.replier_problem()):
             if time.monotonic() > deadline:
                 self.close()
@@ -193,6 +200,28 @@ class Ros2Harness(Harness):
             out.append(JointState(t=t, q=m.position, dq=m.velocity, tau_J=m.effort,
                                   cycle=round(t * 1000.0) % 2**32))
         return out
+
+    def serve(self) -> None:
+        """Report the load the service last set (none yet: the empty load)."""
+        from firmware_bridge.ros2_types import (
+            FrankaRobotState,
+            Header,
+            Inertia,
+            InertiaStamped,
+            JointStateMsg,
+            Vector3,
+        )
+
+        mass, com, i9 = (self.server.requests[-1] if self.server.requests
+                         else (0.0, [0.0] * 3, [0.0] * 9))
+        inertia = Inertia(m=mass, com=Vector3(*com), ixx=i9[0], ixy=i9[1], ixz=i9[2],
+                          iyy=i9[4], iyz=i9[5], izz=i9[8])  # column-major, symmetric
+        names = [f"fr3_joint{i}" for i in range(1, 8)]
+        self.state_writer.write(FrankaRobotState(
+            measured_joint_state=JointStateMsg(name=names, position=[0.0] * 7,
+                                               velocity=[0.0] * 7, effort=[0.0] * 7),
+            inertia_load=InertiaStamped(header=Header(frame_id="fr3_link9"),
+                                        inertia=inertia)))
 
     def close(self) -> None:
         try:
@@ -291,8 +320,14 @@ def _numbers_refusals(link):
     return send
 
 
+def _reports_nothing(link):
+    return None
+
+
 BROKEN = [
     ({"close": _close_once}, checks.check_close_idempotent, "a second close raised"),
+    ({"load_report": _reports_nothing}, checks.check_load_report,
+     "load_report is None; it carries seq"),
     ({"read": _never_silent}, checks.check_silence_or_end, "nothing was sent, yet read"),
     ({"read": _stutters}, checks.check_reads_joint_states, "is followed by cycle 0 .*not "
                                                            "forward"),
