@@ -7,7 +7,9 @@ a wrong end effector (a bare arm through the Franka Hand's model reads about -0.
 refuses such estimates anyway (``inconsistent``); this says why, once, in the log (event
 ``arm_mismatch``) and in the summary.
 
-"Clearly" is: the smoothed mass below ``-max(MIN_NEGATIVE_KG, 2 std)`` (the raw estimate's
+The mass watched is the model's own before any projection onto possible bodies (IEM+phys's
+``mean_mass``: its projected estimate never goes below zero), else the smoothed one.
+"Clearly" is: that mass below ``-max(MIN_NEGATIVE_KG, 2 std)`` (the raw estimate's
 standard deviation, where the model gives one) for :data:`HOLD_S` seconds of controller time.
 """
 
@@ -15,6 +17,8 @@ from __future__ import annotations
 
 import logging
 import math
+
+from iem.types import PayloadEstimate
 
 log = logging.getLogger("iem.service")
 
@@ -43,8 +47,9 @@ class ArmWatch:
         """One estimate at controller time ``t`` (s): the smoothed phi and the raw estimate."""
         if self.finding is not None:
             return
-        mass = float(smoothed[0])
-        std = getattr(raw, "std", None)
+        extra = raw.extra if isinstance(raw, PayloadEstimate) else {}
+        mass = float(extra.get("mean_mass", smoothed[0]))  # IEM+phys: before its projection
+        std = raw.std if isinstance(raw, PayloadEstimate) else None
         sigma = 0.0 if std is None or not math.isfinite(std[0]) else float(std[0])
         if not mass < -max(self.min_negative_kg, 2.0 * sigma):
             self._since = None

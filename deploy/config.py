@@ -16,11 +16,21 @@ from pathlib import Path as FsPath
 from firmware_bridge.links import LINKS
 from firmware_bridge.protocol import PROFILES
 from iem.errors import InvalidInputError
+from iem.persistence import DEFAULT_MODEL
 from iem.signals.filters import DEFAULT_CUTOFF_HZ
 from iem.signals.smoothing import DEFAULT_TAU_S
-from iem.types import DEFAULT_BLOCK_FRAMES
 
-from .gate import GateConfig
+from .gate_config import RANGES as GATE_RANGES
+from .gate_config import GateConfig
+
+DERIVED_GATE_KEYS = ("end_effector_mass_kg",)
+"""``GateConfig`` fields that are not ``[gate]`` keys: the end effector's mass comes from
+``[arm] end_effector``."""
+RETIRED_GATE_KEYS = ("max_mass_2sigma_kg", "max_com_2sigma_m", "min_change_mass_kg",
+                     "min_change_com_m")
+"""``[gate]`` keys of a gate with fixed bands, which this gate does not have: it writes when a
+write helps (``write_margin``, ``min_torque_error_nm``); a file that sets them is refused with
+that said."""
 
 
 class ConfigError(InvalidInputError):
@@ -29,6 +39,8 @@ class ConfigError(InvalidInputError):
 
 LINK_KINDS = tuple(LINKS)  # the one table of link kinds (firmware_bridge.links)
 MODEL_KINDS = ("IEM", "IEM+phys")
+"""The model kinds a cell runs and ``iem train`` makes: those of :data:`iem.persistence.
+MODELS` that learn online; the default is :data:`iem.persistence.DEFAULT_MODEL`."""
 LOG_FORMATS = ("json", "text")
 LOG_LEVELS = ("debug", "info", "warning", "error")
 STATUS_MODES = ("auto", "on", "off")
@@ -49,7 +61,7 @@ class ModelConfig:
     """The model file and how a new model is made (``[model]``)."""
 
     path: str = "model.msgpack"
-    kind: str = "IEM+phys"
+    kind: str = DEFAULT_MODEL
     checkpoint_period_s: float = 60.0
     train_if_missing: bool = True
     family: str = "cell"
@@ -78,9 +90,10 @@ class ArmConfig:
 class EstimateConfig:
     """The online estimate (``[estimate]``)."""
 
-    block_frames: int = DEFAULT_BLOCK_FRAMES
+    block_frames: int = 0
     """Frames per block point: the estimator works on the means of this many consecutive
-    gap-free frames (:mod:`iem.signals.blocks`)."""
+    gap-free frames (:mod:`iem.signals.blocks`); 0: the link's rate over 100
+    (:func:`deploy.model_setup.block_frames_of`)."""
     smoothing_tau_s: float = DEFAULT_TAU_S
     filter_cutoff_hz: float = DEFAULT_CUTOFF_HZ
     learn: bool = True
@@ -110,6 +123,8 @@ class Ros2Config:
     ``domain_id`` -1: ``ROS_DOMAIN_ID`` from the environment, else 0;
     ``estimate_std_topic`` "": ``estimate_topic`` + ``_std``; ``joints``: "auto", "fr3",
     "panda" or 7 names; ``flange_frame`` "": ``<arm>_link8`` of the joints read;
+    ``robot_state_topic``: franka_ros2's robot state, whose ``inertia_load`` is the load in
+    force; ``diagnostics_topic``: where the gate's verdict goes;
     ``interface`` "" and ``peers`` (): Cyclone's configuration from ``CYCLONEDDS_URI``."""
 
     domain_id: int = -1
@@ -120,6 +135,8 @@ class Ros2Config:
     set_load_timeout_s: float = 2.0
     joints: str | tuple = "auto"
     flange_frame: str = ""
+    robot_state_topic: str = "/franka_robot_state_broadcaster/robot_state"
+    diagnostics_topic: str = "/diagnostics"
     interface: str = ""
     peers: tuple = ()
 
@@ -132,7 +149,9 @@ class Ros2Config:
                 "estimate_rate_hz": self.estimate_rate_hz,
                 "set_load_service": self.set_load_service,
                 "set_load_timeout_s": self.set_load_timeout_s,
-                "flange_frame": self.flange_frame, "interface": self.interface,
+                "flange_frame": self.flange_frame,
+                "robot_state_topic": self.robot_state_topic,
+                "diagnostics_topic": self.diagnostics_topic, "interface": self.interface,
                 "peers": list(self.peers)}
 
 
@@ -184,27 +203,13 @@ RANGES = {
     ("estimate", "max_lag_s"): (0.0, 60.0),
     ("log", "status_period_s"): (0.05, 60.0),
     ("log", "status_plain_period_s"): (0.0, 3600.0),
-    ("gate", "rated_mass_kg"): (0.01, 3.0),
-    ("gate", "max_com_radius_m"): (0.001, 1.0),
-    ("gate", "stable_window_s"): (0.0, 60.0),
-    ("gate", "stable_mass_kg"): (0.0, 3.0),
-    ("gate", "stable_com_m"): (0.0, 1.0),
-    ("gate", "min_change_mass_kg"): (0.0, 3.0),
-    ("gate", "min_change_com_m"): (0.0, 1.0),
-    ("gate", "max_rate_hz"): (0.001, 100.0),
-    ("gate", "ack_timeout_s"): (0.01, 60.0),
-    ("gate", "ack_retry_s"): (0.1, 3600.0),
-    ("gate", "decision_period_s"): (0.001, 10.0),
-    ("gate", "max_mass_2sigma_kg"): (0.0001, 3.0),
-    ("gate", "max_com_2sigma_m"): (0.0001, 1.0),
-    ("gate", "max_nis"): (1.0, 1e6),
-    ("gate", "refusal_retry_s"): (0.1, 3600.0),
-    ("gate", "refusal_retry_max_s"): (0.1, 3600.0),
     ("ros2", "estimate_rate_hz"): (0.1, 1000.0),
     ("ros2", "set_load_timeout_s"): (0.05, 4.0),  # below the unit's WatchdogSec=5
 }
+RANGES.update({("gate", key): valid for key, valid in GATE_RANGES.items()
+               if key not in DERIVED_GATE_KEYS})
 INT_RANGES = {
-    ("estimate", "block_frames"): (1, 100),  # frames per block point (iem.signals.blocks)
+    ("estimate", "block_frames"): (0, 100),  # frames per block point; 0: the link's rate / 100
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
     ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
     ("host", "cpu_dma_latency_us"): (-1, 1_000_000),  # µs; -1: no limit (deploy.host)
@@ -213,7 +218,8 @@ MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
                 ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm")}
 """String keys for which "" means "none" (the default the key's comment names)."""
 ROS_NAMES = {("ros2", "estimate_topic"), ("ros2", "estimate_std_topic"),
-             ("ros2", "set_load_service")}
+             ("ros2", "set_load_service"), ("ros2", "robot_state_topic"),
+             ("ros2", "diagnostics_topic")}
 ROS_NAME = re.compile(r"/[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
 """A fully qualified ROS 2 topic or service name."""
 
@@ -284,21 +290,25 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
         if not isinstance(table, dict):
             raise ConfigError(f"{where}: [{section}] must be a table, got {table!r}")
         defaults = cls()
-        names = {f.name for f in fields(cls)}
+        names = {f.name for f in fields(cls)} - (set(DERIVED_GATE_KEYS) if section == "gate"
+                                                 else set())
+        retired = sorted(set(table) & set(RETIRED_GATE_KEYS)) if section == "gate" else []
+        if retired:
+            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate, "
+                              "which writes when a write makes the controller's model better "
+                              "by its joint-torque error (write_margin, min_torque_error_nm; "
+                              "docs/configuration.md); remove them")
         bad = sorted(set(table) - names)
         if bad:
             raise ConfigError(f"{where}: unknown key(s) {bad} in [{section}]; valid keys are "
                               f"{', '.join(sorted(names))}")
         values = {k: _check(section, k, v, getattr(defaults, k), where)
                   for k, v in table.items()}
-        built[section] = cls(**{**{f.name: getattr(defaults, f.name) for f in fields(cls)},
-                                **values})
-    gate = built["gate"]
-    if gate.refusal_retry_max_s < gate.refusal_retry_s:
-        raise ConfigError(f"{where}: [gate] refusal_retry_max_s = {gate.refusal_retry_max_s!r} "
-                          f"is below refusal_retry_s = {gate.refusal_retry_s!r}; valid is "
-                          "refusal_retry_max_s >= refusal_retry_s (the longest wait between "
-                          "retries after refusals)")
+        try:
+            built[section] = cls(**{**{f.name: getattr(defaults, f.name) for f in fields(cls)},
+                                    **values})
+        except InvalidInputError as exc:  # a check across keys (GateConfig's own)
+            raise ConfigError(f"{where}: [{section}] {exc}") from exc
     link = built["link"]
     if link.kind == "ros2" and "channel" not in doc.get("link", {}):
         link = built["link"] = replace(link, channel="/franka/joint_states")
@@ -313,7 +323,25 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
         raise ConfigError(f"{where}: [arm] end_effector = {ee!r} is not valid; valid are "
                           "'franka_hand', 'none' or the path of a payload-style .toml file of "
                           "the tool on the flange")
-    return CellConfig(**built, source=where)
+    cfg = CellConfig(**built, source=where)
+    if ee in ("franka_hand", "none") or FsPath(ee).is_absolute():
+        cfg = _with_end_effector(cfg)  # a relative tool file: once load_config found it
+    return cfg
+
+
+def _with_end_effector(cfg: CellConfig) -> CellConfig:
+    """``cfg`` whose gate counts the declared end effector's mass against the rating."""
+    from sim.end_effector import end_effector
+
+    try:
+        mass = end_effector(cfg.arm.end_effector).mass
+    except (InvalidInputError, OSError) as exc:
+        raise ConfigError(f"{cfg.source}: [arm] end_effector = {cfg.arm.end_effector!r}: "
+                          f"{exc}") from exc
+    if mass + 0.01 > cfg.gate.rated_mass_kg:
+        raise ConfigError(f"{cfg.source}: [arm] end_effector weighs {mass:.3f} kg, which leaves "
+                          f"no payload within [gate] rated_mass_kg = {cfg.gate.rated_mass_kg:g}")
+    return replace(cfg, gate=replace(cfg.gate, end_effector_mass_kg=mass))
 
 
 def load_config(path) -> CellConfig:
@@ -345,6 +373,8 @@ def load_config(path) -> CellConfig:
     ee = cfg.arm.end_effector
     if ee not in ("franka_hand", "none") and not FsPath(ee).is_absolute():
         cfg = replace(cfg, arm=replace(cfg.arm, end_effector=str(path.parent / ee)))
+    if ee not in ("franka_hand", "none"):
+        cfg = _with_end_effector(cfg)  # the tool file, found from the file's folder
     initial = cfg.estimate.initial_payload
     if initial and not FsPath(initial).is_absolute():
         cfg = replace(cfg, estimate=replace(cfg.estimate,

@@ -1,51 +1,41 @@
 """The safety gate between the estimator and the controller's ``setLoad``.
 
-Every ``decision_period_s`` (default 50 ms) the gate looks at the smoothed estimate (and the
-raw estimate it came from, for its uncertainty) and decides whether to write it to the
-controller. In order, an estimate is refused if:
+The gate's state is the load in force, as the controller confirms it
+(:class:`deploy.load_state.LoadInForce`: acknowledgements, and the controller's own reports
+where the link carries them). Every ``decision_period_s`` (default 50 ms) it looks at the
+smoothed estimate (and the raw estimate it came from, for its uncertainty) and decides
+whether writing it makes the controller's model better. In order, it holds:
 
-1. ``not_finite``: any parameter is NaN or infinite;
-2. ``inconsistent``: it is not a physically possible rigid body (mass > 0, inertia about the
-   CoM positive definite, triangle inequality);
-3. ``over_rated``: the mass exceeds the robot's rated payload (3 kg for the Panda);
-4. ``com_too_far``: the centre of mass lies farther than ``max_com_radius_m`` from the flange;
-5. ``out_of_wire_range``: the link's wire format cannot carry a value (the link's range check,
-   e.g. an inertia beyond the CAN signal's range; links without one have no such check);
-6. ``controller_silent``: no joint state has arrived for the source's silence timeout;
-7. ``ack_missing``: an earlier write was not acknowledged within ``ack_timeout_s``; writes stay
-   stopped until an acknowledgement arrives, the controller returns from a silence, or,
-   after ``ack_retry_s``, one retry;
-8. ``refused``: the controller refused the last write (a Franka does while a controller
-   runs); the refused load is not the written one, and the gate retries after
-   ``refusal_retry_s``, doubling the wait after each further refusal up to
-   ``refusal_retry_max_s``, until the controller accepts;
-9. ``unreported``: the estimate does not say how good it is: it reports no standard
-   deviations (``std``), no verdict of its data (``nis``) or no out-of-distribution verdict
-   (``ood``), typed fields of :class:`iem.types.PayloadEstimate`. The gate fails closed:
-   only ``allow_without_uncertainty`` (default false; the paper's IEM, which has no
-   uncertainty, needs it) lets such an estimate through, its reported parts still checked;
-10. ``out_of_distribution``: the IEM alone estimated from an input far beyond its bag's
-    training inputs (``ood``); ``unverified``: the estimate started from a payload file
-    (``[estimate] initial_payload``) and the model has not yet tested it against enough live
-    data; ``uncertain``: the 2-sigma band on the mass, ``2 * std[0]``, is wider than
-    ``max_mass_2sigma_kg``, or the 2-sigma radius of the CoM (its standard deviations
-    through ``r = (m r) / m``) is wider than ``max_com_2sigma_m``; ``data_disagree``:
-    ``nis`` (the mean normalised innovation squared per degree of freedom over the model's
-    recent equations, about 1 when the data agree with the model) exceeds ``max_nis``;
-11. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
-    (hysteresis: it becomes stable when the spread is below the band and unstable again only
-    when the spread exceeds twice the band);
-12. ``no_change``: it differs from the last written load by less than the minimum change;
-13. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
+1. ``malformed``: the estimate breaks its contract (shapes, a negative or NaN ``std``, a
+   negative ``nis``, flags of the wrong type); ``stale``: it is older than ``max_age_s``;
+2. ``not_finite``, ``inconsistent`` (not a possible rigid body), ``over_rated`` (the payload
+   and the declared end effector beyond the arm's rated payload), ``com_too_far``,
+   ``out_of_wire_range`` (:mod:`deploy.gate_checks`). Not for the empty load: when the
+   mass's upper 2-sigma bound stays below ``empty_mass_kg`` over the stability window, the
+   candidate is the empty load (mass 0, as libfranka's ``setLoad`` takes it), so a removed
+   tool is cleared;
+3. ``controller_silent``: no joint state for the source's silence timeout;
+4. ``ack_missing``: a command awaits its answer; ``lost``: a command went unanswered for
+   ``ack_timeout_s``: the load in force stays as it was and the write is retried after a
+   back-off (``ack_retry_s`` doubling up to ``ack_retry_max_s``); ``refused``: the
+   controller refused the last command (a Franka does while a controller runs): retried
+   after ``refusal_retry_s`` doubling up to ``refusal_retry_max_s``;
+5. ``unreported``, ``out_of_distribution``, ``unverified`` (from a payload file or a restart,
+   not yet tested by live data), ``uncertain`` (no band, or the inertia's band too wide),
+   ``data_disagree`` (:func:`deploy.gate_checks.model_doubt`);
+6. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
+   (hysteresis: stable below the band, unstable again only above twice it);
+7. ``no_change``: the load in force lies within the estimate's band, or outside it by less
+   than ``min_torque_error_nm`` of joint torque (:mod:`deploy.write_rule`): holding is fine;
+   ``uncertain``: a write's worst case, in joint torque along the recent motion, is more than
+   ``write_margin`` of the least error the load in force has: the write is not sure to help;
+8. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
 
-Otherwise the decision is ``send``, whose log line names the groups the model's data do not
-determine (written as its prior has them; they never hold a write back). Checks 1-5, 9 and
-10 look at one estimate alone and live in
-:mod:`deploy.gate_checks`; this module keeps what depends on time and on the controller.
-Every decision is counted by reason; it is logged when its outcome or reason differs from
-the previous decision's (a steady state logs once), with the estimate that caused it.
-Refusals by the controller and loads the link could not encode are counted (``refusals``,
-``send_errors``) and logged each time.
+Otherwise ``send``; its detail names the groups the data do not determine (written as the
+prior has them). Every decision is counted by reason; while holding, the reason is logged at
+INFO at most once every :data:`HOLD_LOG_S` s, with its figures. :meth:`SafetyGate.verdict`
+gives the last decision and the load in force for the links' status (ROS 2 ``/diagnostics``)
+and the summary.
 """
 
 from __future__ import annotations
@@ -58,94 +48,44 @@ from dataclasses import dataclass
 import numpy as np
 
 from iem.payload import Payload
+from iem.types import PayloadEstimate
 
-from .gate_checks import WireCheck, check_estimate, model_doubt
+from .gate_checks import WireCheck, check_estimate, contract, model_doubt, upper_mass
+from .gate_config import GateConfig
+from .load_state import UNKNOWN, LoadInForce, describe, load_record
 from .time_window import TimeWindow
+from .write_rule import RecentMotion, Regressor, torque_errors
+
+__all__ = ["REASONS", "REJECTIONS", "Decision", "GateConfig", "SafetyGate"]
 
 log = logging.getLogger("iem.gate")
 
-REASONS = ("send", "not_finite", "inconsistent", "over_rated", "com_too_far",
-           "out_of_wire_range", "controller_silent", "ack_missing", "refused", "unreported",
-           "uncertain",
-           "data_disagree", "unverified", "out_of_distribution", "unstable", "no_change",
-           "rate_limited")
-REJECTIONS = ("not_finite", "inconsistent", "over_rated", "com_too_far", "out_of_wire_range")
+REASONS = ("send", "malformed", "stale", "not_finite", "inconsistent", "over_rated",
+           "com_too_far", "out_of_wire_range", "controller_silent", "ack_missing", "lost",
+           "refused", "unreported", "out_of_distribution", "unverified", "uncertain",
+           "data_disagree", "unstable", "no_change", "rate_limited")
+REJECTIONS = ("malformed", "not_finite", "inconsistent", "over_rated", "com_too_far",
+              "out_of_wire_range")
 """Reasons that say the estimate itself can never be written (counted in ``rejected``)."""
-
-
-def _mass_and_com(rows: np.ndarray) -> np.ndarray:
-    """``[m, m c]`` rows -> ``[m, c]`` rows."""
-    out = np.empty_like(rows)
-    out[:, 0] = rows[:, 0]
-    np.divide(rows[:, 1:4], rows[:, :1], out=out[:, 1:4])
-    return out
-
 
 SENT_LOADS_KEPT = 10_000
 """``send`` decisions :attr:`SafetyGate.sent_loads` keeps (a write a second: almost 3 h)."""
-_QUIET = ("unstable", "uncertain", "no_change", "rate_limited")
-"""Reasons that are a normal part of converging: logged at DEBUG, the others at INFO."""
-
-@dataclass(frozen=True)
-class GateConfig:
-    """Safety-gate settings (units in the names).
-
-    Attributes:
-        rated_mass_kg: largest mass ever written (the robot's rated payload).
-        max_com_radius_m: largest distance of the CoM from the flange origin.
-        stable_window_s: how long the estimate must stay within the band to count as stable.
-        stable_mass_kg, stable_com_m: the stability band (spread over the window) for the
-            mass and for each CoM coordinate.
-        min_change_mass_kg, min_change_com_m: the smallest change against the last written
-            load that is worth a write (mass, or any CoM coordinate).
-        max_rate_hz: at most this many writes per second.
-        ack_timeout_s: an acknowledgement must arrive within this time after a write.
-        ack_retry_s: after a missing acknowledgement, one retry is allowed after this time.
-        decision_period_s: how often the gate decides.
-        max_mass_2sigma_kg: no write while the model's 2-sigma band on the mass
-            (``2 * std[0]``, kg) is wider than this.
-        max_com_2sigma_m: no write while the model's 2-sigma radius of the CoM (m) is wider
-            than this: by default issue 10's 5 mm, the error a written load may have.
-        max_nis: no write while the model's ``nis`` (mean normalised innovation squared per
-            degree of freedom, dimensionless, about 1 when the data agree with the model)
-            exceeds this.
-        allow_without_uncertainty: write estimates that do not report ``std``, ``nis`` or
-            ``ood`` (the paper's IEM); by default they are held back (``unreported``).
-        refusal_retry_s: after the controller refuses a write, retry after this time (s);
-            the wait doubles with each further refusal in a row ...
-        refusal_retry_max_s: ... up to this (s).
-    """
-
-    rated_mass_kg: float = 3.0
-    max_com_radius_m: float = 0.15
-    stable_window_s: float = 0.5
-    stable_mass_kg: float = 0.02
-    stable_com_m: float = 0.004
-    min_change_mass_kg: float = 0.01
-    min_change_com_m: float = 0.002
-    max_rate_hz: float = 1.0
-    ack_timeout_s: float = 0.5
-    ack_retry_s: float = 5.0
-    decision_period_s: float = 0.05
-    max_mass_2sigma_kg: float = 0.02
-    max_com_2sigma_m: float = 0.005
-    max_nis: float = 3.0
-    allow_without_uncertainty: bool = False
-    refusal_retry_s: float = 1.0
-    refusal_retry_max_s: float = 10.0
+HOLD_LOG_S = 10.0
+"""While holding, the reason is logged at INFO at most once per this many seconds."""
 
 
 @dataclass(frozen=True)
 class Decision:
-    """What the gate decided at time ``t`` (s, monotonic) and why."""
+    """What the gate decided at time ``t`` (s) and why; ``payload`` is the load a ``send``
+    writes (None: the empty load)."""
 
     t: float
     reason: str
     payload: Payload | None = None
     detail: str = ""
     from_prior: tuple = ()
-    """Of a ``send``: the groups the model's data do not determine (not in its ``determined``),
-    written as its prior has them."""
+    """Of a ``send``: the groups the model's data do not determine, written as its prior
+    has them."""
 
     @property
     def send(self) -> bool:
@@ -153,198 +93,229 @@ class Decision:
 
 
 class SafetyGate:
-    """Decides which estimates reach the controller; counts and logs every decision.
+    """Decides which estimates reach the controller; counts every decision, logs refusals
+    and send failures, and a holding reason at most once per :data:`HOLD_LOG_S` s (the load
+    writer logs each send).
 
     Args:
         config: the settings (default :class:`GateConfig`).
-        wire_check: the link's range check of a load (``payload -> message or None``), e.g.
-            ``functools.partial(firmware_bridge.protocol.payload_wire_error, profile="fd")``;
-            None for a link whose wire has no ranges to check.
+        wire_check: the link's range check of a load (``payload -> message or None``); None
+            for a link whose wire has no ranges to check.
+        regressor: the arm's payload regressor ``(q, dq) -> Y`` for the torque bound along the
+            recent motion (:mod:`deploy.write_rule`); None: the bound at the arm's reach.
     """
 
-    def __init__(self, config: GateConfig | None = None,
-                 wire_check: WireCheck | None = None) -> None:
-        self.config = GateConfig() if config is None else config
+    def __init__(self, config: GateConfig | None = None, wire_check: WireCheck | None = None,
+                 regressor: Regressor | None = None) -> None:
+        self.config = c = GateConfig() if config is None else config
         self.wire_check = wire_check
+        self.commands = LoadInForce(c.ack_timeout_s, c.ack_retry_s, c.ack_retry_max_s,
+                                    c.refusal_retry_s, c.refusal_retry_max_s)
+        self.motion = RecentMotion(regressor)
         self.counts: Counter[str] = Counter()
-        self._history = TimeWindow(self.config.stable_window_s, 4)  # m, m·c per cycle
+        self._history = TimeWindow(c.stable_window_s, 5)  # m, m·c, the mass's upper bound
         self._stable = False
-        self._estimate = None  # the raw estimate last observed (its std and extra)
+        self._estimate = None  # the raw estimate last observed
+        self._newest = (-math.inf, -math.inf)  # (estimate time, gate time) of the newest
         self._last_decision_t = -math.inf
-        self._last_reason = ""
-        self._last_sent: Payload | None = None
-        self._last_sent_t = -math.inf
-        self._before_send: tuple[Payload | None, float] = (None, -math.inf)
-        self._command: tuple[int, Payload | None, float] | None = None  # seq, load before it
-        self._awaiting: tuple[int, float] | None = None  # (seq, sent at) without an ack yet
-        self._ack_failed_t: float | None = None
-        self._refusal: tuple[int, float, str] | None = None  # (seq, at, error) to retry after
-        self._refusals_in_row = 0
+        self._last: Decision | None = None
+        self._logged = (-math.inf, "")  # (t, reason) of the last holding log at INFO
+        self._last_send_t = -math.inf
+        self._proposed: Payload | None = None  # the load of the last send decision
         self._silent = False
-        self.acked = 0
-        self.sent = 0
-        self.refusals = 0
-        self.send_errors = 0
-        self.sent_loads: deque[tuple[float, Payload, tuple]] = deque(maxlen=SENT_LOADS_KEPT)
-        """The latest ``send`` decisions: ``(t, load, groups from the prior)``."""
+        self.sent_loads: deque[tuple[float, Payload | None, tuple]] = deque(
+            maxlen=SENT_LOADS_KEPT)
+        """The latest ``send`` decisions: ``(t, load or None for the empty load, groups
+        from the prior)``."""
 
     # -- inputs from the service ---------------------------------------------------------
     def controller_silent(self, silent: bool) -> None:
         self._silent = silent
         if not silent:
-            # the controller is back: an ack missed during the silence is explained by it,
-            # so a write may be tried again at once rather than after ack_retry_s
-            self._awaiting = None
-            self._ack_failed_t = None
+            self.commands.controller_back()
 
     def sent_command(self, seq: int, t: float) -> None:
-        """The service wrote the load of the last ``send`` decision as command ``seq``."""
-        self._awaiting = (seq, t)
-        self._command = (seq, *self._before_send)
-        self.sent += 1
+        """The link took the load of the last ``send`` decision as command ``seq``."""
+        self.commands.sent_command(seq, self._proposed, t)
 
-    def acknowledged(self, seq: int) -> None:
-        """The controller acknowledged (applied) command ``seq``."""
-        if self._awaiting is not None and self._awaiting[0] == seq:
-            self._awaiting = None
-            self.acked += 1
-        self._ack_failed_t = None
-        if self._command is not None and self._command[0] == seq:
-            self._command = None  # its load is the written one: no retry pending
-            self._refusal = None
-            self._refusals_in_row = 0
+    def acknowledged(self, seq: int, t: float | None = None, load=None,
+                     received: float = -math.inf) -> None:
+        """The controller applied command ``seq`` (``received``: when the link took the ack,
+        ``time.perf_counter()``)."""
+        self.commands.acknowledged(seq, self._last_decision_t if t is None else t, load,
+                                   received)
 
     def refused(self, seq: int, t: float, error: str = "") -> None:
-        """The controller answered command ``seq`` but did not apply it (``error``: its
-        reason, if it gave one). Counted and logged; the load before it stays the written
-        one, and the gate retries after ``refusal_retry_s`` (doubling up to
-        ``refusal_retry_max_s`` while refusals go on)."""
-        self.refusals += 1
-        if self._awaiting is not None and self._awaiting[0] == seq:
-            self._awaiting = None
-        self._ack_failed_t = None  # the controller answers: not an ack problem
-        ours = self._command is not None and self._command[0] == seq
-        if ours:
-            _, self._last_sent, self._last_sent_t = self._command
-            self._command = None
-            self._refusals_in_row += 1
-            self._refusal = (seq, t, error)
+        """The controller answered command ``seq`` but kept its load (``error``: why)."""
+        ours = self.commands.pending is not None and self.commands.pending.seq == seq
+        self.commands.refused_command(seq, t, error)
+        wait = self.commands.retry_wait() if ours else None
         log.warning("controller refused load command %d%s%s", seq,
                     f": {error}" if error else " (no reason given)",
-                    f"; retry in {self._retry_wait():.1f} s" if ours else "",
+                    "" if wait is None else f"; retry in {wait:.1f} s",
                     extra={"event": "load_refused", "seq": seq, "error": error,
-                           "refusals_in_row": self._refusals_in_row})
+                           "ours": ours})
 
-    def send_failed(self, error: str) -> None:
-        """The link could not write the load of the last ``send`` decision (``error``, e.g.
-        an ``EncodeError``): counted and logged; the load before it stays the written one."""
-        self.send_errors += 1
-        self._last_sent = self._before_send[0]
+    def send_failed(self, error: str, t: float | None = None) -> None:
+        """The link could not send the load of the last ``send`` decision: counted and
+        logged; the load in force stays, the write is retried after the lost back-off."""
+        self.commands.send_failed(self._last_decision_t if t is None else t, error)
         log.error("load not written, the link cannot send it: %s", error,
                   extra={"event": "load_send_failed", "error": error})
 
+    def controller_report(self, report, t: float) -> None:
+        """The controller's own report of the load in force
+        (:class:`firmware_bridge.messages.LoadReport`)."""
+        self.commands.report(report.seq, report.load, report.has_values, t, report.t)
+
+    @property
+    def in_force(self):
+        """The load in force: a :class:`Payload`, None (empty) or ``"unknown"``."""
+        return self.commands.load
+
     @property
     def last_sent(self) -> Payload | None:
-        """The last load written (sent and not refused), or None."""
-        return self._last_sent
+        """The load of the last ``send`` decision (None: none, or the empty load)."""
+        return self._proposed
+
+    sent = property(lambda self: self.commands.sent)
+    acked = property(lambda self: self.commands.acked)
+    lost = property(lambda self: self.commands.lost)
+    refusals = property(lambda self: self.commands.refused)
+    send_errors = property(lambda self: self.commands.send_errors)
 
     # -- the decision --------------------------------------------------------------------
     def due(self, t: float) -> bool:
         return t - self._last_decision_t >= self.config.decision_period_s
 
-    def observe(self, t: float, phi: np.ndarray, estimate=None) -> None:
-        """Add the smoothed estimate ``phi`` of one cycle to the stability window;
-        ``estimate`` is the raw :class:`iem.types.PayloadEstimate` it came from (its ``std``
-        and ``nis`` are checked by :meth:`decide`)."""
+    def observe(self, t: float, phi: np.ndarray, estimate=None, state=None) -> None:
+        """Add the smoothed estimate ``phi`` of one block point at gate time ``t`` to the
+        stability window; ``estimate`` is the raw :class:`iem.types.PayloadEstimate` it came
+        from, ``state`` the point's joint state (its pose, for the torque bound)."""
         if estimate is not None:
             self._estimate = estimate
-        if np.isfinite(phi).all():  # copied into the window's ring
-            self._history.push(t, phi[:4])
+            when = _typed(estimate).t if _typed(estimate) is not None else math.nan
+            if isinstance(when, int | float) and when >= self._newest[0]:
+                self._newest = (float(when), t)
+        if state is not None:
+            self.motion.observe(t, state.q, state.dq)
+        phi = _vector(phi)
+        if phi.shape == (10,) and np.isfinite(phi).all():
+            typed = _typed(estimate if estimate is not None else self._estimate)
+            std = _vector(None if typed is None else typed.std)
+            up = upper_mass(phi, std) if std.shape == (10,) else math.inf
+            self._history.push(t, (*phi[:4], up if not math.isnan(up) else math.inf))
         else:
             self._history.expire(t)
 
     def decide(self, t: float, phi: np.ndarray, estimate=None) -> Decision:
         """Decide on the estimate ``phi`` (paper order) at time ``t``; ``estimate`` is the
-        raw estimate (default: the one last given to :meth:`observe`)."""
+        raw estimate (default: the one last given to :meth:`observe`). Never raises for
+        what the estimate holds: a malformed one is refused with its reason."""
         if estimate is None:
             estimate = self._estimate
-        decision = self._decide(t, np.asarray(phi, dtype=float), estimate)
+        self.commands.tick(t)
+        decision = self._decide(t, _vector(phi), estimate)
         self._last_decision_t = t
+        self._last = decision
         self.counts[decision.reason] += 1
-        if decision.reason != self._last_reason:
-            level = logging.DEBUG if decision.reason in _QUIET else logging.INFO
-            log.log(level, "gate %s%s", decision.reason,
-                    f": {decision.detail}" if decision.detail else "",
-                    extra={"event": "gate", "reason": decision.reason,
-                           "detail": decision.detail})
-            self._last_reason = decision.reason
         if decision.send:
             self.sent_loads.append((t, decision.payload, decision.from_prior))
-            self._before_send = (self._last_sent, self._last_sent_t)
-            self._last_sent = decision.payload
-            self._last_sent_t = t
+            self._proposed = decision.payload
+            self._last_send_t = t
+        else:
+            self._log_hold(decision)
         return decision
 
     def _decide(self, t: float, phi: np.ndarray, estimate) -> Decision:
         c = self.config
-        payload, reason, detail = check_estimate(phi, c, self.wire_check)
-        if reason:
-            return Decision(t, reason, payload, detail)
+        broken = contract(estimate, t, self._age(t, estimate), c)
+        if broken:
+            return Decision(t, broken[0], None, broken[1])
+        empty = self._empty()
+        if empty:
+            payload = None
+        else:
+            payload, reason, detail = check_estimate(phi, c, self.wire_check)
+            if reason:
+                return Decision(t, reason, payload, detail)
         if self._silent:
             return Decision(t, "controller_silent", payload, "no joint state from the controller")
-        if self._awaiting is not None:
-            seq, at = self._awaiting
-            if t - at > c.ack_timeout_s:
-                self._awaiting = None
-                self._ack_failed_t = t
-                return Decision(t, "ack_missing", payload,
-                                f"command {seq} not acknowledged within {c.ack_timeout_s:g} s")
-            return Decision(t, "ack_missing", payload, f"waiting for the ack of command {seq}")
-        if self._ack_failed_t is not None and t - self._ack_failed_t < c.ack_retry_s:
-            return Decision(t, "ack_missing", payload,
-                            f"acknowledgements stopped; retry in "
-                            f"{c.ack_retry_s - (t - self._ack_failed_t):.1f} s")
-        if self._refusal is not None:
-            seq, at, error = self._refusal
-            left = self._retry_wait() - (t - at)
-            if left > 0:
-                return Decision(t, "refused", payload,
-                                f"the controller refused command {seq}"
-                                f"{f' ({error})' if error else ''}; retry in {left:.1f} s")
+        hold = self.commands.hold(t)
+        if hold is not None:
+            return Decision(t, hold[0], payload, hold[1])
         doubt = model_doubt(estimate, c)
         if doubt is not None:
             return Decision(t, doubt[0], payload, doubt[1])
-        if not self._is_stable():
+        if not self._is_stable(empty):
             return Decision(t, "unstable", payload, self._spread_text())
-        if self._last_sent is not None and not self._changed(payload):
-            return Decision(t, "no_change", payload)
-        if t - self._last_sent_t < 1.0 / c.max_rate_hz:
+        helps = self._helps(phi, estimate, payload)
+        if helps is not None:
+            return Decision(t, helps[0], payload, helps[1])
+        if t - self._last_send_t < 1.0 / c.max_rate_hz:
             return Decision(t, "rate_limited", payload)
-        determined = getattr(estimate, "determined", None)
+        return self._send(t, payload, estimate)
+
+    def _send(self, t: float, payload: Payload | None, estimate) -> Decision:
+        if payload is None:
+            return Decision(t, "send", None, "the empty load: the mass's upper 2-sigma bound "
+                                             f"stayed below {self.config.empty_mass_kg:g} kg")
+        determined = None if _typed(estimate) is None else _typed(estimate).determined
         prior = () if determined is None else tuple(g for g in ("mass", "com", "inertia")
                                                     if g not in determined)
         note = f"; {' and '.join(prior)} from the prior (the motion does not determine " \
                f"{'it' if len(prior) == 1 else 'them'})" if prior else ""
-        return Decision(t, "send", payload,
-                        f"mass {payload.mass:.4f} kg, CoM "
-                        f"[{payload.com[0]:.4f}, {payload.com[1]:.4f}, {payload.com[2]:.4f}] m"
-                        + note, from_prior=prior)
+        return Decision(t, "send", payload, describe(payload) + note, from_prior=prior)
 
     # -- helpers -------------------------------------------------------------------------
-    def _retry_wait(self) -> float:
-        """The wait before the next write after ``_refusals_in_row`` refusals in a row."""
-        c = self.config
-        n = max(self._refusals_in_row - 1, 0)
-        return min(c.refusal_retry_s * 2.0 ** min(n, 60), c.refusal_retry_max_s)
+    def _age(self, t: float, estimate) -> float:
+        """How old ``estimate`` is at gate time ``t``: the time since the newest estimate
+        reached the gate, plus how far ``estimate`` lags that one."""
+        when = _typed(estimate).t if _typed(estimate) is not None else math.nan
+        if not isinstance(when, int | float) or not math.isfinite(self._newest[0]):
+            return 0.0
+        return (t - self._newest[1]) + max(self._newest[0] - float(when), 0.0)
+
+    def _empty(self) -> bool:
+        """The mass's upper 2-sigma bound stayed below ``empty_mass_kg`` for the whole
+        stability window."""
+        w = self._history
+        if not w.n or w.last_t - w.first_t < 0.9 * self.config.stable_window_s:
+            return False
+        return w.column_max(4) < self.config.empty_mass_kg
+
+    def _helps(self, phi, estimate, payload) -> tuple[str, str] | None:
+        """``("no_change" | "uncertain", detail)`` unless writing ``payload`` (None: the
+        empty load) helps (:mod:`deploy.write_rule`)."""
+        c, in_force = self.config, self.commands.load
+        typed = _typed(estimate)
+        std = None if typed is None else typed.std
+        cov = None if typed is None or typed.cov is None else np.asarray(typed.cov, float)
+        band = np.zeros(10) if std is None else 2.0 * np.asarray(std, dtype=float)
+        band = np.where(np.isfinite(band), band, 0.0)  # an unseen inertia: the prior's
+        candidate = np.zeros(10) if payload is None else payload.to_phi()
+        if in_force == UNKNOWN:
+            return None  # nothing to keep: what the controller holds is not known
+        have = np.zeros(10) if in_force is None else in_force.to_phi()
+        if cov is not None and not np.isfinite(cov).all():
+            cov = None
+        hold, write = torque_errors(self.motion, have, candidate, phi, band, c.reach_m, cov)
+        if not hold >= c.min_torque_error_nm:
+            return ("no_change", f"{describe(in_force)} in force errs by at most "
+                                 f"{max(hold, 0.0):.3f} N·m beyond the estimate's band "
+                                 f"(< {c.min_torque_error_nm:g} N·m)")
+        if not write <= c.write_margin * hold:
+            return ("uncertain", f"a write could err by {write:.3f} N·m, more than "
+                                 f"{c.write_margin:g} x the {hold:.3f} N·m the load in force "
+                                 f"errs by at least (2-sigma mass {band[0]:.3f} kg)")
+        return None
 
     def _spread(self) -> tuple[float, float] | None:
         window = self._history
-        if not window.n:
-            return None
-        if window.last_t - window.first_t < 0.9 * self.config.stable_window_s:
+        if not window.n or window.last_t - window.first_t < 0.9 * self.config.stable_window_s:
             return None  # not watched for long enough yet
         ptp = window.ptp(_mass_and_com)
-        return float(ptp[0]), float(ptp[1:].max())
+        return float(ptp[0]), float(ptp[1:4].max())
 
     def _spread_text(self) -> str:
         spread = self._spread()
@@ -353,28 +324,80 @@ class SafetyGate:
         return (f"spread over {self.config.stable_window_s:g} s: mass {spread[0]:.4f} kg, "
                 f"CoM {spread[1]:.4f} m")
 
-    def _is_stable(self) -> bool:
+    def _is_stable(self, empty: bool = False) -> bool:
+        """Within the stability band (the CoM's too, unless the candidate is the empty
+        load, whose CoM is not defined)."""
         c = self.config
         spread = self._spread()
         if spread is None:
             self._stable = False
             return False
         m, r = spread
-        if self._stable:
-            self._stable = m <= 2 * c.stable_mass_kg and r <= 2 * c.stable_com_m
-        else:
-            self._stable = m <= c.stable_mass_kg and r <= c.stable_com_m
+        if empty:
+            r = 0.0
+        k = 2.0 if self._stable else 1.0
+        self._stable = m <= k * c.stable_mass_kg and r <= k * c.stable_com_m
         return self._stable
 
-    def _changed(self, payload: Payload) -> bool:
-        c, last = self.config, self._last_sent
-        if abs(payload.mass - last.mass) >= c.min_change_mass_kg:
-            return True
-        return any(abs(a - b) >= c.min_change_com_m
-                   for a, b in zip(payload.com, last.com, strict=True))
+    def _log_hold(self, decision: Decision) -> None:
+        """While holding: the reason at INFO at most once per :data:`HOLD_LOG_S` s (and at
+        DEBUG whenever it changes)."""
+        at, reason = self._logged
+        if decision.reason != reason:
+            log.debug("gate %s: %s", decision.reason, decision.detail)
+        if decision.t - at >= HOLD_LOG_S:
+            log.info("holding: %s%s; %s in force", decision.reason,
+                     f", {decision.detail}" if decision.detail else "",
+                     describe(self.commands.load),
+                     extra={"event": "gate", "reason": decision.reason,
+                            "detail": decision.detail})
+            self._logged = (decision.t, decision.reason)
+        else:
+            self._logged = (at, decision.reason)
+
+    # -- reporting -----------------------------------------------------------------------
+    def verdict(self) -> dict:
+        """The last decision and the load in force, for a link's status and the summary."""
+        last = self._last
+        out = {"reason": "" if last is None else last.reason,
+               "detail": "" if last is None else last.detail,
+               "load_in_force": load_record(self.commands.load)
+               if self.commands.confirmed or self.commands.load is None else UNKNOWN,
+               "in_force_confirmed": self.commands.confirmed}
+        counts = self.commands.summary()
+        for key in ("sent", "acked", "lost", "in_force", "send_errors"):
+            out[key] = counts[key]
+        out["refusals"] = counts["refused"]
+        return out
 
     def summary(self) -> dict:
-        """Counts of every decision reason, and writes sent / acknowledged / rejected."""
+        """Counts of every decision reason; writes sent, acknowledged, lost, in force,
+        rejected; the load in force."""
         rejected = sum(v for k, v in self.counts.items() if k in REJECTIONS)
-        return {"decisions": dict(self.counts), "sent": self.sent, "acked": self.acked,
+        return {"decisions": dict(self.counts), **self.commands.summary(),
                 "rejected": rejected}
+
+
+def _mass_and_com(rows: np.ndarray) -> np.ndarray:
+    """``[m, m c, ...]`` rows -> ``[m, c]`` rows."""
+    out = np.empty((rows.shape[0], 4))
+    out[:, 0] = rows[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.divide(rows[:, 1:4], rows[:, :1], out=out[:, 1:4])
+    return out
+
+
+def _vector(value) -> np.ndarray:
+    """``value`` as a flat float array; one NaN for what is not numbers at all."""
+    if value is None:
+        return np.full(1, math.nan)
+    try:
+        return np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return np.full(1, math.nan)
+
+
+def _typed(estimate) -> PayloadEstimate | None:
+    """``estimate`` if it is the typed estimate the gate reads, else None (anything else is
+    refused as ``unreported`` by :func:`deploy.gate_checks.model_doubt`)."""
+    return estimate if isinstance(estimate, PayloadEstimate) else None

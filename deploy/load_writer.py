@@ -1,19 +1,22 @@
-"""The load writer: the safety gate's decisions to the link's load command, acknowledgements
-back.
+"""The load writer: the safety gate's decisions to the link's load command, the controller's
+answers and reports back.
 
-Once a block point is estimated, :meth:`LoadWriter.observe` gives the gate the smoothed and
-the raw estimate (and any acknowledgement the link has received since); when a decision is
-due, :meth:`LoadWriter.decide` asks the gate and sends a load it lets through with the link's
-``send`` (libfranka ``setLoad`` semantics). A load the link still cannot encode
-(``EncodeError``: the gate's wire check should have caught it) is counted and logged, never
-fatal. An applied acknowledgement goes to the gate's ``acknowledged``, a refusal
-(``applied=False``, with the controller's ``error`` text where the link has one) to its
-``refused``, which retries later. No thread of its own: the service's loop calls it.
+Once a block point is estimated, :meth:`LoadWriter.observe` hands the gate what the
+controller said since the last point (its newest acknowledgement, and its own report of the
+load in force where the link carries one: :attr:`firmware_bridge.links.PayloadSink.
+load_report`), then the smoothed and the raw estimate and the point's pose; when a decision
+is due, :meth:`LoadWriter.decide` asks the gate and sends a load it lets through with the
+link's ``send`` (libfranka ``setLoad`` semantics; None: the empty load). A send that fails,
+for whatever reason the link gives (a load it cannot encode, a bus-off, a full buffer), is
+counted and logged, and the gate retries it after a back-off: the service goes on
+estimating. No thread of its own: the service's loop calls it.
 """
 
 from __future__ import annotations
 
 import logging
+
+from firmware_bridge.links import PayloadSink
 
 from .gate import SafetyGate
 
@@ -29,36 +32,56 @@ class LoadWriter:
 
     Args:
         gate: the safety gate.
-        link: the open link (its ``send`` and ``last_ack``).
-        write: send the loads the gate lets through (False: decide only, as a replay).
+        link: the open link: a :class:`~firmware_bridge.links.PayloadSink` where ``write``.
+        write: send the loads the gate lets through (False: decide only, as a replay: a
+            load the gate lets through is then taken as in force at once, as a controller
+            that applies every command would, so the next decisions judge against it).
+
+    Raises:
+        ConfigError: ``write`` with a link that is not a PayloadSink: it cannot write, and
+            deciding only would take its loads as in force.
     """
 
     def __init__(self, gate: SafetyGate, link, write: bool) -> None:
         self.gate = gate
-        # a link that can take a load (a replay's source cannot): it sends and answers
-        self.sink = link if write and hasattr(link, "send") else None
+        if write and not isinstance(link, PayloadSink):
+            from .config import ConfigError
+
+            raise ConfigError(f"the link {type(link).__name__} cannot write loads: it is not a "
+                              "firmware_bridge.links.PayloadSink (send, last_ack, "
+                              "load_report, wait_ack, close), yet its [link] kind writes "
+                              "them; give a link of that kind, or run with writes off")
+        self.sink: PayloadSink | None = link if write else None
         self._last_ack = None
+        self._last_report = None
         self._deferred = 0
+        self._offline = 0  # would-be commands of a writer that decides only
 
     def acknowledgements(self, t: float) -> None:
-        """Hand the gate the link's newest answer to a load command, if it is new."""
-        ack = None if self.sink is None else self.sink.last_ack
-        if ack is None or ack is self._last_ack:
+        """Hand the gate the link's newest answer to a load command and its newest report of
+        the load in force, if they are new."""
+        if self.sink is None:
             return
-        self._last_ack = ack
-        if ack.applied:
-            self.gate.acknowledged(ack.seq)
-            log.info("controller acknowledged load command %d", ack.seq,
-                     extra={"event": "load_acked", "seq": ack.seq})
-        else:
-            self.gate.refused(ack.seq, t, str(getattr(ack, "error", "") or ""))
+        ack = self.sink.last_ack
+        if ack is not None and ack is not self._last_ack:
+            self._last_ack = ack
+            if ack.applied:
+                self.gate.acknowledged(ack.seq, t, ack.load, ack.t)
+                log.info("controller acknowledged load command %d", ack.seq,
+                         extra={"event": "load_acked", "seq": ack.seq})
+            else:
+                self.gate.refused(ack.seq, t, str(ack.error or ""))
+        report = self.sink.load_report
+        if report is not None and report is not self._last_report:
+            self._last_report = report
+            self.gate.controller_report(report, t)
 
-    def observe(self, t: float, smoothed, raw, busy: bool = False) -> None:
-        """One estimate at gate time ``t``: acknowledgements, the gate's observation, then
-        its decision if one is due (deferred up to :data:`GATE_DEFER` points while the model
-        is ``busy``)."""
+    def observe(self, t: float, smoothed, raw, busy: bool = False, state=None) -> None:
+        """One estimate at gate time ``t``: the controller's answers, the gate's observation
+        (with the point's joint ``state``), then its decision if one is due (deferred up to
+        :data:`GATE_DEFER` points while the model is ``busy``)."""
         self.acknowledgements(t)
-        self.gate.observe(t, smoothed, raw)
+        self.gate.observe(t, smoothed, raw, state)
         if not self.gate.due(t):
             return
         if busy and self._deferred < GATE_DEFER:
@@ -69,15 +92,20 @@ class LoadWriter:
 
     def decide(self, t: float, smoothed) -> None:
         """Ask the gate now and send what it lets through."""
-        from firmware_bridge.errors import EncodeError
-
         decision = self.gate.decide(t, smoothed)
-        if not decision.send or self.sink is None:
+        if not decision.send:
+            return
+        if self.sink is None:  # decide only (a replay): as if a controller applied it
+            self._offline += 1
+            self.gate.sent_command(self._offline, t)
+            self.gate.acknowledged(self._offline, t)
+            log.info("load would be sent (no controller to write to): %s", decision.detail,
+                     extra={"event": "load_sent", "seq": self._offline, "written": False})
             return
         try:
             seq = self.sink.send(decision.payload)
-        except EncodeError as exc:  # the gate's wire check should have caught it:
-            self.gate.send_failed(str(exc))  # counted, logged, go on
+        except Exception as exc:
+            self.gate.send_failed(f"{type(exc).__name__}: {exc}", t)  # logged, retried
         else:
             self.gate.sent_command(seq, t)
             log.info("load sent (command %d): %s", seq, decision.detail,

@@ -3,9 +3,12 @@ rate and the configured arm and family, a known payload to start from, and the l
 range check for the gate.
 
 :func:`load_or_train_model` loads ``[model] path`` (removing the temporary files of an
-interrupted save first) and refuses a model made for another point rate than the link's
-rate over ``[estimate] block_frames``; without a file it trains one on the excitation path
-if ``train_if_missing``. :func:`start_from_file` makes IEM+phys start from ``[estimate]
+interrupted save first) with the arm the configuration gives (``[model] arm``, ``[arm]
+end_effector``: a model file names its arm by content and is loaded only with it,
+:func:`iem.persistence.load_model`) and refuses a model of another kind than ``[model]
+kind``, or made for another point rate than the link's rate over ``[estimate]
+block_frames`` (:attr:`iem.base.Estimator.rate_hz`); without a file it trains one on the excitation
+path if ``train_if_missing``. :func:`start_from_file` makes IEM+phys start from ``[estimate]
 initial_payload``.
 """
 
@@ -35,35 +38,73 @@ def link_rate(config: CellConfig) -> float:
 def point_rate(config: CellConfig) -> float:
     """Block points per second the estimator works at: the link's rate over ``[estimate]
     block_frames``."""
-    return link_rate(config) / config.estimate.block_frames
+    return link_rate(config) / block_frames_of(config)
 
 
-def wire_check_of(link):
-    """The range check of ``link``'s load command for the gate: a link with a DBC wire
-    profile (the CAN links) has one (:func:`firmware_bridge.protocol.payload_wire_error`);
-    others (serial msgpack floats, pylibfranka) have no ranges to check: None."""
-    from firmware_bridge.protocol import WireProfile, payload_wire_error
+def block_frames_of(config: CellConfig) -> int:
+    """Frames per block point: ``[estimate] block_frames``, or (0) the link's rate over 100
+    (:func:`iem.signals.rate.block_frames_for`: about 100 points a second)."""
+    from iem.signals.rate import block_frames_for
 
-    wire = getattr(link, "profile", None)
-    if not isinstance(wire, WireProfile):
+    return config.estimate.block_frames or block_frames_for(link_rate(config))
+
+
+def wire_check_of(link, kind: str | None = None):
+    """The range check of ``link``'s load command for the gate: a link that declares a DBC
+    wire profile (:class:`firmware_bridge.links.WireProfiled`: the CAN links, a replayed CAN
+    log) has one (:func:`firmware_bridge.protocol.payload_wire_error`); others (serial
+    msgpack floats, pylibfranka, ROS 2) have no ranges to check: None.
+
+    Raises:
+        ConfigError: ``kind``, the configured ``[link] kind``, is a CAN bus, whose loads
+            travel in DBC signals, but ``link`` declares no wire profile.
+    """
+    from firmware_bridge.links import LINKS, WireProfiled
+    from firmware_bridge.protocol import payload_wire_error
+
+    if not isinstance(link, WireProfiled):
+        if kind is not None and LINKS[kind].bus:
+            from .config import ConfigError
+
+            raise ConfigError(f"[link] kind {kind!r} sends loads in the DBC's signals, but "
+                              f"the link {type(link).__name__} declares no wire profile to "
+                              "check them against (firmware_bridge.links.WireProfiled: a "
+                              "'profile' attribute)")
         return None
-    return functools.partial(payload_wire_error, profile=wire.name)
+    return functools.partial(payload_wire_error, profile=link.profile.name)
 
 
-def load_or_train_model(config: CellConfig):
-    """The model of the configuration: its file, or a new one trained on the excitation path."""
+def model_resources(config: CellConfig) -> dict:
+    """What the configured model runs on, for :func:`iem.persistence.load_model`:
+    ``{"arm": ...}``, the arm of ``[model] arm`` or the nominal arm carrying ``[arm]
+    end_effector`` (None: the nominal arm with the Franka Hand)."""
+    from .training import load_arm_file
+
+    arm, _ = load_arm_file(config.model.arm or None, config.arm.end_effector)
+    return {"arm": arm}
+
+
+def load_or_train_model(config: CellConfig, resources: dict | None = None):
+    """The model of the configuration: its file, loaded with ``resources`` (None: the
+    configuration's, :func:`model_resources`), or a new one trained on the excitation path."""
     mc = config.model
     path = FsPath(mc.path)
     for stale in remove_stale_temporaries(path):  # left by a save that was killed
         log.info("removed %s, the temporary file of an interrupted save", stale,
                  extra={"event": "stale_temporary_removed", "path": str(stale)})
-    rate, frames = link_rate(config), config.estimate.block_frames
+    rate, frames = link_rate(config), block_frames_of(config)
     if path.exists():
-        model = load_model(path)
-        made_for = getattr(model, "rate_hz", rate / frames)  # IEM+phys's filters have one
-        if not math.isclose(made_for, rate / frames):
-            from .config import ConfigError
+        model = load_model(path, resources=model_resources(config) if resources is None
+                           else resources)
+        from .config import ConfigError
 
+        if model.name != mc.kind:
+            raise ConfigError(f"model file {path} holds a model of kind {model.name!r}, the "
+                              f"configuration's [model] kind is {mc.kind!r}; set kind = "
+                              f"{model.name!r}, or make a model of that kind with 'iem train "
+                              f"--kind {mc.kind} --out {path}'")
+        made_for = model.rate_hz  # None: no signal filter, any rate
+        if made_for is not None and not math.isclose(made_for, rate / frames):
             raise ConfigError(
                 f"model file {path} was made for {made_for:g} block points per second; the "
                 f"[link] profile {config.link.profile!r} delivers {rate:g} joint states per "
@@ -72,9 +113,6 @@ def load_or_train_model(config: CellConfig):
                 f"--rate {rate:g} --block-frames {frames}'")
         log.info("loaded model %s: %s with %d bags", path, model.name, model.n_bags,
                  extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
-        if model.name != mc.kind:
-            log.warning("model file %s holds a %s model, the configuration asks for %s; using "
-                        "the file's", path, model.name, mc.kind)
         return model
     if not mc.train_if_missing:
         from iem.errors import ModelFileError
@@ -97,7 +135,9 @@ def load_or_train_model(config: CellConfig):
 def checked_model(config: CellConfig, model=None):
     """``(model, arm)``: ``model`` (None: :func:`load_or_train_model`) checked against the
     configured arm file and payload family, started from ``[estimate] initial_payload`` if
-    one is set; ``arm`` the configured arm (None: the nominal one).
+    one is set, else, when restarted from its file, holding what it knew of the payload as
+    unverified (:meth:`iem.base.Estimator.distrust`); ``arm`` the configured arm (None: the
+    nominal one).
 
     Raises:
         ModelFileError: the model was made for another arm.
@@ -106,14 +146,19 @@ def checked_model(config: CellConfig, model=None):
     from .training import check_model_arm, check_model_family, load_arm_file
 
     arm, arm_record = load_arm_file(config.model.arm or None, config.arm.end_effector)
-    if model is None:
-        model = load_or_train_model(config)
     path = FsPath(config.model.path)
+    restored = model is None and path.exists()  # a restart from the last checkpoint
+    if model is None:
+        model = load_or_train_model(config, {"arm": arm})
     where = f"the model {path}" if path.exists() else "the model"
     check_model_arm(model, arm_record, where=where)
     check_model_family(model, config.model.family, where=where)
     if config.estimate.initial_payload:
         start_from_file(model, config.estimate.initial_payload)
+    elif restored:  # the payload may have been swapped while the plug-in was down
+        model.distrust()
+        log.info("restarted from %s: its payload is unverified until the live data have "
+                 "tested it", path, extra={"event": "restart_unverified", "path": str(path)})
     return model, arm
 
 
@@ -129,13 +174,12 @@ def start_from_file(model, path: str) -> None:
 
     from .config import ConfigError
 
-    start = getattr(model, "start_from", None)
-    if start is None:
+    if not model.starts_from_payload:
         raise ConfigError(f"[estimate] initial_payload = {path!r}: the {model.name} model "
                           "cannot start from a payload (it keeps no payload state); valid "
                           "with [model] kind = 'IEM+phys'")
     payload, std = load_payload_prior(path)
-    start(payload.to_phi(), INITIAL_STD if std is None else std)
+    model.start_from(payload.to_phi(), INITIAL_STD if std is None else std)
     log.info("starting from the payload file %s: %.4f kg at [%.4f, %.4f, %.4f] m; writes wait "
              "until the live data have tested it", path, payload.mass, *payload.com,
              extra={"event": "initial_payload", "path": path})

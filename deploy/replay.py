@@ -12,15 +12,21 @@ what the plug-in would have written. The gate runs on the recorded controller cl
 states' ``t``), not on the wall clock, so its decisions do not depend on how fast the replay
 runs; a replay has no silences (a gap in the recording is just a gap).
 
-The model is the one of ``--model FILE`` or, by default, a fresh IEM trained on the built-in
-excitation path with seed 0. Either way the replay learns in memory only: the file is never
-written unless ``--save-model FILE`` asks for it. Decoding, training and learning are
-deterministic, so replaying the same file twice gives identical estimates (``--out``).
+The model is the one of ``--model FILE`` (loaded with the arm that ``--arm`` and
+``--end-effector`` give: a model file references its arm by content, never by path) or, by
+default, a fresh model of the default kind (:data:`iem.persistence.DEFAULT_MODEL`,
+IEM+phys) trained on the built-in excitation path with seed 0 for the recording's rate and
+``--block-frames``. Either way the
+replay learns in memory only: the file is never written unless ``--save-model FILE`` asks
+for it. Decoding, training and learning are deterministic, so replaying the same file twice
+gives identical estimates (``--out``).
 
-The estimator works on block points, the means of ``--block-frames`` consecutive joint
-states (10 by default, :mod:`iem.signals.blocks`): the recording is read in bulk and its blocks are
-formed in one vectorised step per chunk, then fed as fast as the estimator takes them,
-learning inline (the JSON's ``speed`` is the recorded time over the wall time).
+The recording's rate is ``--rate HZ`` or else detected (:mod:`iem.signals.rate`), printed; the
+estimator works on block points, the means of ``--block-frames`` consecutive joint states (by
+default ``round(rate / 100)``, :mod:`iem.signals.blocks`), a ``--model`` made for another point
+rate refused. The recording is read in bulk and its blocks formed in one vectorised step per
+chunk, then fed as fast as the estimator takes them, learning inline (the JSON's ``speed`` is
+the recorded time over the wall time).
 
 Outputs: ``--out`` a CSV with one row per estimate, one per block point (``t``, the block's
 mean time, ``cycle``, its last frame's, ``bag``, the raw ``m..Izz``, the
@@ -51,16 +57,17 @@ import numpy as np
 from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
+from iem.persistence import DEFAULT_MODEL
 from iem.types import PARAMS
 
-from .options import add_block_frames, add_end_effector, add_recording_options
+from .options import add_block_frames, add_end_effector, add_rate, add_recording_options
+from .replay_report import add_replay_figures, print_summary
 
 CSV_HEADER = ("t", "cycle", "bag", *PARAMS, *(f"{p}_s" for p in PARAMS),
               *(f"{p}_std" for p in PARAMS))
 """Columns of ``--out``: controller time (s), cycle, bag, raw then smoothed phi, then the raw
 estimate's standard deviations (``nan`` where the model gives none)."""
 
-DEFAULT_KIND = "IEM"
 _NO_STD = np.full(len(PARAMS), np.nan)
 _NO_STD.flags.writeable = False
 
@@ -127,15 +134,17 @@ def _write(path, text: str) -> None:
 def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_to=None,
            status: bool = False, log=print, arm_file=None, format: str | None = None,
            topic: str = DEFAULT_TOPIC, end_effector=None,
-           block_frames: int | None = None) -> tuple[dict, Estimates]:
+           block_frames: int | None = None,
+           rate_hz: float | None = None) -> tuple[dict, Estimates]:
     """Run the plug-in over ``log_file`` as fast as possible, writes off.
 
     Args:
         log_file: the recording: a ``.blf``, ``.log``, ``.asc`` or ``.trc`` CAN log, a
             rosbag2 bag (directory, ``.db3``, ``.mcap``) or a joint-state CSV.
         profile: the wire profile a CAN log was recorded with (``fd`` or ``classic``).
-        model: the estimator to start from (copied, never changed); None: a fresh
-            ``IEM`` trained on the built-in excitation path with seed 0.
+        model: the estimator to start from (copied, never changed); None: a fresh model
+            of :data:`iem.persistence.DEFAULT_MODEL` trained on the built-in excitation
+            path with seed 0, for the recording's rate and ``block_frames``.
         truth: a :class:`sim.payload.Payload` to compute the MAE against, or None.
         save_model_to: save the model learnt during the replay to this file (atomic).
         status: show the live status line on stderr.
@@ -148,8 +157,11 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         end_effector: what the recorded arm carried as part of itself
             (:mod:`sim.end_effector`; None: the Franka Hand); the arm file and the model
             must be made for it.
-        block_frames: frames per block point (None: ``[estimate] block_frames``'s
-            default); the model must be made for the same point rate.
+        block_frames: frames per block point (None:
+            :func:`iem.signals.rate.block_frames_for` the rate: about 100 points a second);
+            the model must be made for the same point rate.
+        rate_hz: the recording's joint states a second (None: detected,
+            :func:`firmware_bridge.recordings.can_log_rate` for a CAN log).
 
     Returns:
         ``(summary, estimates)``: the summary dict (the keys of the demo's summary where
@@ -160,18 +172,24 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     from iem.persistence import save_model
     from sim.family import DEPLOY_FAMILY
 
-    from .training import train_initial_model
+    from .training import check_model_rate, train_initial_model
 
     fmt, kind, options = recording_link(log_file, format, topic)
+    if fmt != "can":
+        options["rate_hz"] = rate_hz
     link = open_link(kind, str(log_file), profile=profile, **options)
     try:
+        rate, block_frames, detected = _rate_of(link, log_file, fmt, profile, rate_hz,
+                                                block_frames, log)
         if model is None:
-            model = train_initial_model(DEFAULT_KIND, DEPLOY_FAMILY, "builtin", 0, log=log,
+            model = train_initial_model(DEFAULT_MODEL, DEPLOY_FAMILY, "builtin", 0, log=log,
+                                        rate_hz=rate, block_frames=block_frames,
                                         arm_file=arm_file, end_effector=end_effector)
         else:
+            check_model_rate(model, rate, block_frames, f"the recording {log_file}")
             model = copy.deepcopy(model)
         service = _replay_service(link, kind, str(log_file), profile, model, save_model_to,
-                                  arm_file, end_effector, block_frames, status)
+                                  arm_file, end_effector, block_frames, status, rate)
         estimates = Estimates()
         service.on_cycle.append(estimates)
         service.open()
@@ -184,12 +202,33 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
 
     if not estimates.t:  # nothing to report on: say why rather than print zeros
         _nothing_estimated(log_file, link, profile)
-    _add_replay_figures(summary, service, link, estimates,
+    add_replay_figures(summary, service, link, estimates,
                         {"log_file": str(log_file), "format": fmt,
-                         "profile": profile if fmt == "can" else None})
+                         "profile": profile if fmt == "can" else None, "rate_hz": rate,
+                         "rate_source": "detected" if detected else "given"})
     if truth is not None:
         summary.update(_against(estimates, truth))
     return summary, estimates
+
+
+def _rate_of(link, log_file, fmt: str, profile: str, rate_hz, block_frames, log):
+    """``(rate, block_frames, detected)`` of the recording open as ``link`` (given or
+    detected, checked; :mod:`iem.signals.rate`), the line saying so to ``log``."""
+    from firmware_bridge.errors import LogFileError
+    from firmware_bridge.recordings import can_log_rate
+    from iem.signals.rate import block_frames_for, check_rate, rate_line
+
+    detected = rate_hz is None
+    try:
+        if detected:
+            rate_hz = can_log_rate(log_file, profile) if fmt == "can" else link.rate_hz
+    except LogFileError:  # fewer than two cycles: the error that says why
+        _ = [*link]
+        _nothing_estimated(log_file, link, profile)
+    rate = check_rate(rate_hz, f"the recording {log_file}")
+    frames = int(block_frames) if block_frames else block_frames_for(rate)
+    log(rate_line(rate, frames, detected))
+    return rate, frames, detected
 
 
 def _against(estimates: Estimates, truth) -> dict:
@@ -204,9 +243,10 @@ def _against(estimates: Estimates, truth) -> dict:
 
 
 def _replay_service(link, kind: str, channel: str, profile: str, model, save_model_to,
-                    arm_file, end_effector, block_frames, status: bool):
-    """The service over an open recording ``link``, writes off, deciding on the recorded
-    clock (a fast replay decides as the cell did)."""
+                    arm_file, end_effector, block_frames: int, status: bool, rate_hz: float):
+    """The service over an open recording ``link`` of ``rate_hz`` joint states a second in
+    blocks of ``block_frames``, writes off, deciding on the recorded clock (a fast replay
+    decides as the cell did)."""
     from iem.persistence import DEFAULT_FAMILY
 
     from .config import config_from_dict
@@ -221,13 +261,13 @@ def _replay_service(link, kind: str, channel: str, profile: str, model, save_mod
                   "train_if_missing": False, "checkpoint_period_s": 86400.0,
                   "arm": str(arm_file or ""),
                   # the model's own family: new bags learn from the simulators it knew
-                  "family": getattr(model, "trained_family", None) or DEFAULT_FAMILY},
+                  "family": model.trained_family or DEFAULT_FAMILY},
         "arm": {"end_effector": str(end_effector or "franka_hand")},
-        "estimate": {} if block_frames is None else {"block_frames": int(block_frames)},
+        "estimate": {"block_frames": int(block_frames)},
         "log": {"status_line": "on" if status else "off"}}, where="iem replay")
     return Service(config, link=link, model=model, notifier=Notifier(environ={}),
                    status=StatusLine.from_config(config.log), write=False,
-                   gate_clock="controller")
+                   gate_clock="controller", rate_hz=rate_hz)
 
 
 def _nothing_estimated(log_file, link, profile: str) -> None:
@@ -247,79 +287,14 @@ def _nothing_estimated(log_file, link, profile: str) -> None:
                        f"frames of other IDs); recorded with --profile {other}?")
 
 
-def _add_replay_figures(summary: dict, service, link, estimates: Estimates,
-                        source: dict) -> None:
-    """What a replay's summary says beyond the service's: the recording (``source``), the
-    link's frame counts, the gate's would-be writes, the speed and the changes detected."""
-    decisions = service.gate.summary()
-    for key in ("malformed", "implausible", "timing"):
-        summary["frames"][key] = getattr(link.counters, key)
-    for key in ("latency_us", "age_us", "checkpoints"):  # no wall-clock latency here
-        summary.pop(key, None)
-    recorded = estimates.t[-1] - estimates.t[0]
-    wall = summary["wall_s"]
-    summary.update({
-        **source,
-        "truncated": bool(getattr(link, "truncated", False)),  # the link warned (iem.bridge)
-        "recorded_s": recorded,
-        "writes": {"would_send": decisions["decisions"].get("send", 0), "sent": 0,
-                   "rejected": decisions["rejected"],
-                   "would_send_loads": [_load_record(t, load, prior)
-                                        for t, load, prior in service.gate.sent_loads]},
-        "estimates_per_s": summary["estimates"] / wall if wall > 0 else None,
-        "speed": recorded / wall if wall > 0 else None,
-        # payload changes the model detected (None: a model without a detector)
-        "payload_changes": getattr(service.model, "changes", None),
-    })
-
-
-def _load_record(t: float, load, from_prior) -> dict:
-    """A load the gate would have written, as the JSON summary lists it: controller time
-    (s), mass (kg), CoM in the flange frame (m), inertia about the CoM (kg·m², ``[Ixx, Ixy,
-    Ixz, Iyy, Iyz, Izz]``), and the groups its model took from the prior."""
-    return {"t": float(t), "mass": float(load.mass), "com": [float(v) for v in load.com],
-            "inertia": [float(v) for v in load.inertia], "from_prior": list(from_prior)}
-
-
-def print_summary(s: dict, log=print) -> None:
-    what = f"{s['profile']} profile" if s.get("profile") else f"{s['format']} recording"
-    log(f"replay of {s['log_file']} ({what}, {s['model']})"
-        + (", TRUNCATED: replayed what it holds" if s.get("truncated") else "") + ":")
-    log(f"  {s['estimates']} estimates over {s['recorded_s']:.3f} s of recorded time, "
-        f"{s['bags']} bags; {s['wall_s']:.2f} s wall"
-        + (f" ({s['estimates_per_s']:.0f} estimates per s)" if s["estimates_per_s"] else ""))
-    g = s.get("mae_groups")
-    if g:
-        log(f"  MAE against {s['payload']}: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
-            f"inertia {g['inertia']:.5f} kg·m²")
-    cov = s.get("coverage_2sigma")
-    if cov and any(v is not None for v in cov.values()):
-        log("  2-sigma coverage: " + ", ".join(f"{k} {v:.2f}" for k, v in cov.items()
-                                               if v is not None))
-    w = s["writes"]
-    gate = ", ".join(f"{k} {v}" for k, v in sorted(s["gate"].items())) or "none"
-    log(f"  writes: none sent (replay); the gate would have sent {w['would_send']}, rejected "
-        f"{w['rejected']}; decisions: {gate}")
-    for load in w.get("would_send_loads", [])[:5]:
-        log(f"    t {load['t']:.3f} s: mass {load['mass']:.4f} kg, CoM "
-            f"[{', '.join(f'{v:.4f}' for v in load['com'])}] m"
-            + (f" ({', '.join(load['from_prior'])} from the prior)"
-               if load["from_prior"] else ""))
-    if s.get("arm_mismatch"):
-        log(f"  WARNING: {s['arm_mismatch']['message']}")
-    f = s["frames"]
-    drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
-    log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}")
-
-
 def configure(parser) -> None:
     parser.add_argument("file", metavar="REC", help="the recording: a CAN log (.blf, .log, "
                         ".asc, .trc), a rosbag2 bag (directory, .db3, .mcap) or a joint-state "
                         "CSV (t,q1..q7,dq1..dq7,tau1..tau7)")
     add_recording_options(parser, "wire profile a CAN log was recorded with (default fd)")
     parser.add_argument("--model", metavar="FILE", help="model file to start from (read "
-                        "only; default: a fresh IEM trained on the built-in excitation path, "
-                        "seed 0)")
+                        f"only; default: a fresh {DEFAULT_MODEL} trained on the built-in "
+                        "excitation path, seed 0)")
     parser.add_argument("--truth", metavar="PAYLOAD", help="payload TOML: report the MAE of "
                         "the smoothed estimates against it")
     parser.add_argument("--out", metavar="CSV", help="write every estimate (raw and smoothed)")
@@ -327,6 +302,8 @@ def configure(parser) -> None:
     parser.add_argument("--arm", metavar="ARM", help="arm file of the recorded arm (from "
                         "'iem calibrate'; the model must have been trained for it)")
     add_end_effector(parser)
+    add_rate(parser, help="joint states a second of the recording (default: detected from "
+             "its time stamps, the median step)")
     add_block_frames(parser)
     parser.add_argument("--save-model", metavar="FILE",
                         help="save the model learnt during the replay here")
@@ -341,7 +318,12 @@ def run(args) -> int:
 
     setup_logging("warning", "text")
     truth = load_payload(args.truth) if args.truth else None  # fail early on a bad file
-    model = load_model(args.model) if args.model else None
+    model = None
+    if args.model:  # with the arm it runs on: a model file references its arm by content
+        from .training import load_arm_file
+
+        arm, _ = load_arm_file(args.arm, args.end_effector)
+        model = load_model(args.model, resources={"arm": arm})
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
@@ -351,7 +333,7 @@ def run(args) -> int:
                                 status=not args.no_status and sys.stderr.isatty(), log=log,
                                 arm_file=args.arm, format=args.format, topic=args.topic,
                                 end_effector=args.end_effector,
-                                block_frames=args.block_frames)
+                                block_frames=args.block_frames, rate_hz=args.rate)
     if args.out:
         estimates.write_csv(args.out)
     if args.json:

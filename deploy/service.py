@@ -11,9 +11,12 @@ A pipeline of small parts, in one loop:
    tandem simulators of the configured payload family) and estimates; the estimate is
    published where the link has a topic for it, and watched for a wrong arm model;
 3. the load writer (:class:`deploy.load_writer.LoadWriter`): the smoothed estimate goes to
-   the :class:`deploy.gate.SafetyGate` (with the raw estimate, for its uncertainty, and the
-   link's wire range check, :func:`wire_check_of`), a load it lets through to the link's
-   ``send`` (libfranka ``setLoad`` semantics), acknowledgements back to the gate;
+   the :class:`deploy.gate.SafetyGate` (with the raw estimate, for its uncertainty, the
+   point's pose, for the torque a write would correct, and the link's wire range check,
+   :func:`wire_check_of`), a load it lets through to the link's ``send`` (libfranka
+   ``setLoad`` semantics), acknowledgements and the controller's reports of the load in
+   force back to the gate; the gate's verdict goes out once a second on a link with a
+   status topic (ROS 2 ``/diagnostics``);
 4. the checkpointer (:class:`deploy.checkpointer.Checkpointer`): the model saved every
    ``checkpoint_period_s`` (a copy, written in a background thread) and at exit, atomically:
    a failed save leaves the last good file.
@@ -30,7 +33,6 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -38,9 +40,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_bridge.links import DiagnosticsSink, EstimatePublisher, link_kind
 from iem.online import OnlineIdentifier
 from iem.signals.blocks import BlockFormer
 from iem.signals.filters import StateFilter, usable_cutoff
+from iem.signals.rate import block_frames_for
 from iem.signals.smoothing import ExponentialSmoother
 
 from .arm_watch import ArmWatch
@@ -52,11 +56,14 @@ from .load_writer import LoadWriter
 from .model_setup import checked_model, link_rate, wire_check_of
 from .pacing import LearningPace
 from .sdnotify import Notifier
-from .service_report import status_text, summary_of
+from .service_report import log_rate, status_text, summary_of
 from .status import StatusLine
 
 log = logging.getLogger("iem.service")
 
+DIAGNOSTICS_PERIOD_S = 1.0
+"""The gate's verdict goes out on a link with a status topic (ROS 2 ``/diagnostics``) once
+a second, as ROS diagnostics are."""
 SKIP_LAG_S = 2.0
 """A block point older than this when read is dropped (counted in ``skipped``): even
 estimating without learning has fallen hopelessly behind."""
@@ -95,12 +102,15 @@ class Service:
             thread (:class:`deploy.reader.BatchReader`). None: threaded for a live link
             (``gate_clock`` monotonic), not for a replay, which must lose nothing and run as
             fast as the estimator goes.
+        rate_hz: joint states a second the link delivers; None: the configured link's, its
+            kind's or wire profile's (:func:`deploy.model_setup.link_rate`); a replay gives
+            its recording's.
     """
 
     def __init__(self, config: CellConfig, link=None, model=None,
                  notifier: Notifier | None = None, status: StatusLine | None = None,
                  write: bool = True, gate_clock: str = "monotonic",
-                 threaded_reader: bool | None = None) -> None:
+                 threaded_reader: bool | None = None, rate_hz: float | None = None) -> None:
         if gate_clock not in ("monotonic", "controller"):
             raise ValueError(f"gate_clock {gate_clock!r}; valid are 'monotonic', 'controller'")
         self.gate_clock = gate_clock
@@ -108,11 +118,14 @@ class Service:
                                 else bool(threaded_reader))
         self.config = config
         self.link = link
+        self._rate_hz = rate_hz
         self.model = model
         self.notifier = Notifier() if notifier is None else notifier
         self.status = status if status is not None else StatusLine.from_config(config.log)
         self.write = write
         self.gate = SafetyGate(config.gate)
+        self._diagnostics = None  # the link's status topic, if it has one (set by run)
+        self._next_diagnostics = 0.0
         self.arm_watch = ArmWatch()
         """Says once when the mass stays clearly below zero (a wrong arm model)."""
         self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s)
@@ -173,9 +186,12 @@ class Service:
                                   silence_timeout=lc.silence_timeout_s,
                                   **self.config.link_options())  # [ros2] for kind ros2
         est = self.config.estimate
-        self.rate_hz = link_rate(self.config)
-        self.point_rate_hz = self.rate_hz / est.block_frames
+        self.rate_hz = self._rate_hz or link_rate(self.config)
+        self.block_frames = est.block_frames or block_frames_for(self.rate_hz)
+        self.point_rate_hz = self.rate_hz / self.block_frames
+        log_rate(self)
         self.kinematics = PandaModel()
+        self._zeros = np.zeros(7)
         self.tandem = tandem_for(self.config.model.family, arm)
         self.online = OnlineIdentifier(
             self.model, self.kinematics.flange_position, self.tandem.samples,
@@ -185,11 +201,18 @@ class Service:
             smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s,
                                          dt=1.0 / self.point_rate_hz),
             former=self._former())
-        self.gate.wire_check = wire_check_of(self.link)  # out_of_wire_range before send
+        # out_of_wire_range before send; a CAN kind's link must declare its profile
+        self.gate.wire_check = wire_check_of(self.link, self.config.link.kind)
+        self.gate.motion.regressor = self._regressor  # the torque bound of a write
         return self
 
+    def _regressor(self, q, dq):
+        """The payload regressor at a pose of the recent motion (``ddq = 0``): the gate's
+        bound of the joint-torque error a load leaves."""
+        return self.kinematics.payload_regressor(q, dq, self._zeros)
+
     def _former(self) -> BlockFormer:
-        return BlockFormer(self.config.estimate.block_frames, self.rate_hz)
+        return BlockFormer(self.block_frames, self.rate_hz)
 
     def stop(self) -> None:
         """Ask the loop to end after the current block (safe from a signal handler)."""
@@ -208,8 +231,13 @@ class Service:
         if self.link is None or self.model is None:
             self.open()
         model = self.model
-        self.writer = LoadWriter(self.gate, self.link, self.write)  # the link as it is now
-        self._publish = getattr(self.link, "publish_estimate", None)  # a link with topics
+        # the link as it is now; a kind that writes loads needs a PayloadSink (refused else)
+        self.writer = LoadWriter(self.gate, self.link,
+                                 self.write and link_kind(self.config.link.kind).sink)
+        self._publish = (self.link.publish_estimate if isinstance(self.link, EstimatePublisher)
+                         else None)  # a link with topics
+        self._diagnostics = self.link if isinstance(self.link, DiagnosticsSink) else None
+        self._next_diagnostics = 0.0
         started = time.monotonic()
         before = (time.thread_time(), model.learning_cpu_s, self.checkpointer.cpu_s)
         self.checkpointer.start(started)
@@ -261,8 +289,11 @@ class Service:
         """The load writer, the checkpointer and the status line after one estimate."""
         now = time.monotonic()
         t_gate = out.state.t if self.gate_clock == "controller" else now
-        self.writer.observe(t_gate, out.smoothed, out.raw, self.model.busy)
+        self.writer.observe(t_gate, out.smoothed, out.raw, self.model.busy, out.state)
         self.checkpointer.tick(now, self.model)
+        if self._diagnostics is not None and now >= self._next_diagnostics:
+            self._next_diagnostics = now + DIAGNOSTICS_PERIOD_S
+            self._diagnostics.publish_diagnostics(self.gate.verdict())
         if self.status.due(now):
             self.status.show(status_text(self, now - started, out.smoothed))
 
@@ -367,29 +398,3 @@ class Service:
         """What the last run did (:func:`deploy.service_report.summary_of`)."""
         return summary_of(self)
 
-
-def configure(parser) -> None:
-    parser.add_argument("--config", required=True, metavar="FILE", help="cell.toml")
-    parser.add_argument("--duration", type=float, help="stop after this many s")
-
-
-def run(args) -> int:
-    import signal
-
-    from .config import load_config
-    from .logs import setup_logging
-
-    config = load_config(args.config)
-    setup_logging(config.log.level, config.log.format)
-    service = Service(config)
-    signal.signal(signal.SIGTERM, lambda *_: service.stop())
-    signal.signal(signal.SIGINT, lambda *_: service.stop())
-    try:
-        service.open()
-        summary = service.run(duration=args.duration)
-    finally:
-        service.close()
-    log.info("stopped: %s", summary, extra={"event": "stopped"})
-    print(f"iem run: {summary['cycles']} cycles, {summary['bags']} bags, writes "
-          f"{summary['writes']}", file=sys.stderr)
-    return 0

@@ -1,11 +1,11 @@
-"""The last ``span`` seconds of a per-cycle vector, in one preallocated ring.
+"""The last ``span`` seconds of a per-point vector, in one preallocated ring.
 
-The safety gate watches the smoothed estimate over its stability window (1 s: about 1,000
-cycles). It kept them as a deque of small arrays, one allocated per cycle, and stacked them
-into a new array at every decision (20 Hz): 200-300 µs of one cycle in twenty (measured in
-``iem bench e2e``), enough to set the latency's p99. :class:`TimeWindow` writes each cycle's
-values into a row of a ring that doubles when full (never at steady rate, after the first
-window), and hands the window out as at most two slices of it, without copying.
+The safety gate watches the smoothed estimate over its stability window, one row a block
+point. Stacking a window of small arrays into a new array at every decision (20 Hz) costs
+hundreds of µs of one point in twenty, enough to set the latency's p99. :class:`TimeWindow`
+writes each point's values into a row of a ring that doubles when full (never at steady
+rate, after the first window), and hands the window out as at most two slices of it,
+without copying.
 """
 
 from __future__ import annotations
@@ -105,3 +105,8 @@ class TimeWindow:
             lo = p_lo if lo is None else np.minimum(lo, p_lo)
             hi = p_hi if hi is None else np.maximum(hi, p_hi)
         return hi - lo
+
+    def column_max(self, j: int) -> float:
+        """The largest value of column ``j`` over the window (-inf when empty)."""
+        return max((float(part[:, j].max()) for part in self._parts(self._v) if len(part)),
+                   default=-float("inf"))

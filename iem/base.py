@@ -25,7 +25,6 @@ physics; the caller restarts any smoothing).
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -39,22 +38,6 @@ Samples = tuple[np.ndarray, np.ndarray] | Callable[[], tuple[np.ndarray, np.ndar
 def resolve(samples: Samples) -> tuple[np.ndarray, np.ndarray]:
     """The ``(X, Y)`` of a samples argument (calling it if it is lazy)."""
     return samples() if callable(samples) else samples
-
-
-def load_factory(spec: str, what: str):
-    """Resolve ``"module:function"`` and call the factory: ``function()``; or
-    ``"module:function@ARG"``: ``function(ARG)`` (e.g. an arm file's path). ``what`` names
-    the setting in the error."""
-    from .errors import InvalidInputError
-
-    target, at, arg = spec.partition("@")
-    try:
-        module, _, attr = target.partition(":")
-        factory = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError) as exc:
-        raise InvalidInputError(f"{what} {spec!r} is not 'module:function[@ARG]' naming a "
-                                f"factory: {exc}") from exc
-    return factory(arg) if at else factory()
 
 
 @runtime_checkable
@@ -71,6 +54,19 @@ class Estimator(Protocol):
     comes from what the model learnt and the sample alone."""
     background_learning: bool
     """It can train off the estimate path, in a worker thread (:meth:`set_background`)."""
+    starts_from_payload: bool
+    """It can start from a known payload (:meth:`start_from`: ``[estimate] initial_payload``,
+    ``iem identify``'s file)."""
+    rate_hz: float | None
+    """The samples per second its signal filters were made for (IEM+phys's regression: the
+    block points' rate); None: it has no filter and works at any rate. A service whose link
+    gives another rate refuses the model."""
+    trained_arm: dict | None
+    """The arm it was trained for, as its model file records it (``{"crc32", "source"}``,
+    :func:`iem.persistence.check_arm`); None: the nominal arm, or made in memory."""
+    trained_family: str | None
+    """The payload family its bags were trained on, as its model file records it; None: made
+    in memory without one."""
 
     def learn_one(self, x: np.ndarray, flange: np.ndarray, samples: Samples) -> None: ...
 
@@ -80,6 +76,11 @@ class Estimator(Protocol):
     def predict_many(self, X: np.ndarray, F: np.ndarray) -> np.ndarray: ...
 
     def to_state(self) -> dict: ...
+
+    def params(self) -> dict:
+        """The hyper-parameters as given (``type(self)(**self.params())`` is a fresh clone);
+        the factory specs among them (:data:`iem.factories.SPEC_KEYS`, at any depth) name
+        what the model runs on, an arm by content."""
 
     @property
     def n_bags(self) -> int: ...
@@ -108,6 +109,16 @@ class Estimator(Protocol):
     def gap(self, steps: int) -> None:
         """The next sample comes ``steps >= 2`` nominal cycles after the last one (``steps -
         1`` were lost): signal filters bridge them (:mod:`iem.signals.gaps`)."""
+
+    def distrust(self) -> None:
+        """A restart from a saved state: the payload it knew may have been swapped while
+        nothing watched. Keep what it knew as a prior to be tested, and call its estimates
+        ``unverified`` until live data have tested them."""
+
+    def start_from(self, phi, std) -> None:
+        """Start from the known payload ``phi`` with standard deviations ``std`` (10 values
+        each), held as unverified until live data have tested it (where
+        ``starts_from_payload``)."""
 
     def set_background(self, on: bool) -> None:
         """Train in a worker thread (True) or inline, reproducibly (False), from now on."""
@@ -140,15 +151,20 @@ class Estimator(Protocol):
 
 class BaseEstimator:
     """The defaults of :class:`Estimator`'s capabilities, for an estimator to inherit: it
-    detects no changes, tracks no payload between samples, learns inline, and has nothing to
-    set up, restart, bridge, drain, stop or close. A subclass implements the seam
-    (``learn_one``, ``predict_one``, ``predict_many``, ``to_state``, ``n_bags``, ``nbytes``)
+    detects no changes, tracks no payload between samples, cannot start from one, learns
+    inline, works at any rate, and has nothing to set up, restart, bridge, drain, stop or
+    close. A subclass implements the seam (``learn_one``, ``predict_one``, ``predict_many``,
+    ``to_state``, ``params``, ``n_bags``, ``nbytes``)
     and overrides what it does beyond these defaults; :meth:`go_live`'s own set-up goes in
     the hook :meth:`_go_live`."""
 
     detects_changes = False
     tracks_payload = False
     background_learning = False
+    starts_from_payload = False
+    rate_hz: float | None = None
+    trained_arm: dict | None = None
+    trained_family: str | None = None
 
     def learn_predict_one(self, x, flange, samples: Samples, t: float = 0.0) -> PayloadEstimate:
         """:meth:`learn_one`, then :meth:`predict_one` at the same point."""
@@ -167,6 +183,16 @@ class BaseEstimator:
 
     def gap(self, steps: int) -> None:
         """Nothing: no signal filter to bridge."""
+
+    def distrust(self) -> None:
+        """Nothing: no payload is carried from a saved state."""
+
+    def start_from(self, phi, std) -> None:
+        """Refused: no payload state to start from (``starts_from_payload`` is False)."""
+        from .errors import InvalidInputError
+
+        raise InvalidInputError(f"the {self.name} model cannot start from a known payload "
+                                "(it keeps no payload state)")
 
     def set_background(self, on: bool) -> None:
         """Nothing: learning stays inline (``background_learning`` is False)."""

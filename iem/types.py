@@ -9,6 +9,7 @@ in kg, kg·m and kg·m², with the inertia taken about the flange origin in flan
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,13 +43,22 @@ NOMINAL_POINT_RATE_HZ = NOMINAL_RATE_HZ / DEFAULT_BLOCK_FRAMES
 estimator of the estimation path (100 Hz)."""
 
 
-def _vec7(name: str, value) -> np.ndarray:
+def vec7(name: str, value, error: type[InvalidInputError] = InvalidInputError,
+         finite: bool = False) -> np.ndarray:
+    """``value`` as a read-only float64 array of one number per joint (7), or ``error``
+    naming ``name`` and what is valid; ``finite``: NaN and infinity refused too. A read-only
+    float64 (7) array (as a :class:`JointState` keeps) is returned as it is."""
     if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (N_JOINTS,) \
-            and not value.flags.writeable:
+            and not value.flags.writeable and not finite:
         return value  # already what we keep: read-only float64 (7)
-    arr = np.array(value, dtype=float).reshape(-1)
+    try:
+        arr = np.array(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{name} must be {N_JOINTS} numbers, got {type(value).__name__}") from exc
     if arr.shape != (N_JOINTS,):
-        raise InvalidInputError(f"{name} must have {N_JOINTS} entries, got shape {arr.shape}")
+        raise error(f"{name} must have shape ({N_JOINTS},), got {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        raise error(f"{name} must be {N_JOINTS} finite numbers, got {arr}")
     arr.flags.writeable = False
     return arr
 
@@ -72,9 +82,9 @@ class JointState:
     cycle: int = 0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "q", _vec7("q", self.q))
-        object.__setattr__(self, "dq", _vec7("dq", self.dq))
-        object.__setattr__(self, "tau_J", _vec7("tau_J", self.tau_J))
+        object.__setattr__(self, "q", vec7("q", self.q))
+        object.__setattr__(self, "dq", vec7("dq", self.dq))
+        object.__setattr__(self, "tau_J", vec7("tau_J", self.tau_J))
 
     def features(self) -> np.ndarray:
         """The learner input ``X = [q, dq, tau]`` (21 values), as in the paper (Eq. 10-12)."""
@@ -108,8 +118,13 @@ class PayloadEstimate:
             tested against enough live data.
         determined: the parameter groups (:data:`GROUPS`) the data determine; the others are
             the prior's; None: the model cannot say.
+        cov: the covariance of ``phi`` (10x10, ``std`` its diagonal's square root), where the
+            model has one: the gate bounds the joint-torque error of a write with it; None:
+            the standard deviations alone (correlations unknown).
         extra: diagnostics that no safety decision reads (``change``, ``reset``,
-            ``ood_score``, ``velocity_score``, ``held``).
+            ``ood_score``, ``velocity_score``, ``held``; ``mean_mass``: a model that projects
+            its estimate onto possible bodies gives the mass before the projection, which
+            the arm watch reads: a bare arm through a wrong end effector reads below zero).
     """
 
     t: float
@@ -122,3 +137,37 @@ class PayloadEstimate:
     unverified: bool = False
     determined: tuple[str, ...] | None = None
     extra: dict = field(default_factory=dict, compare=False)
+    cov: np.ndarray | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        """Check the contract where the estimate is made: ``phi`` 10 finite numbers (or all
+        NaN: no estimate yet), ``std`` None or 10 numbers ``>= 0`` (inf: nothing known along
+        that parameter), ``nis`` None, NaN or ``>= 0``.
+
+        Raises:
+            InvalidInputError: naming the field, what it holds and what is valid.
+        """
+        phi = np.asarray(self.phi, dtype=float)
+        if phi.shape != (10,):
+            raise InvalidInputError(f"PayloadEstimate.phi has shape {phi.shape}; valid is (10,)")
+        finite = np.isfinite(phi)
+        if not finite.all() and not np.isnan(phi).all():
+            raise InvalidInputError("PayloadEstimate.phi has NaN or infinite entries; valid is "
+                                    "10 finite numbers, or all NaN for no estimate yet")
+        if self.std is not None:
+            std = np.asarray(self.std, dtype=float)
+            if std.shape != (10,):
+                raise InvalidInputError(f"PayloadEstimate.std has shape {std.shape}; valid is "
+                                        "(10,) or None")
+            if not (std >= 0).all():  # NaN fails too
+                raise InvalidInputError(f"PayloadEstimate.std has a negative or NaN entry "
+                                        f"({std.min():.4g}); valid is >= 0 or inf")
+        if self.cov is not None:
+            cov = np.asarray(self.cov, dtype=float)
+            if cov.shape != (10, 10) or not np.isfinite(cov).all() or (np.diag(cov) < 0).any():
+                raise InvalidInputError(f"PayloadEstimate.cov has shape {cov.shape} or a "
+                                        "non-finite or negative-variance entry; valid is a "
+                                        "finite 10x10 covariance or None")
+        if self.nis is not None and not (math.isnan(self.nis) or self.nis >= 0):
+            raise InvalidInputError(f"PayloadEstimate.nis = {self.nis!r}; valid is >= 0, NaN "
+                                    "(no verdict yet) or None")

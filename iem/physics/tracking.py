@@ -21,6 +21,9 @@ __all__ = ["DETECT_AFTER", "PRIOR_FLOOR", "PayloadTracking"]
 PRIOR_FLOOR = (1e-4, 1e-5, 1e-5, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
 """Smallest prior standard deviation per parameter (kg, kg·m, kg·m²): keeps ``C_p``
 invertible where the learners happen to agree with every training payload."""
+RESTART_STD_FLOOR = 1e-4
+"""The smallest standard deviation a restored payload keeps as a prior (kg, kg·m, kg·m²):
+the prior after a restart is never so sharp that the live data cannot move it."""
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
 
@@ -30,6 +33,9 @@ class PayloadTracking:
     :class:`~iem.physics.PhysicsInformedEnsemble`: :meth:`reset`, :meth:`resume`,
     :meth:`gap`, :meth:`start_from`, what the data say (:attr:`data_std`, :attr:`nis`,
     :attr:`prior_inflation`, :meth:`posterior`) and each observed sample's equation."""
+
+    starts_from_payload = True
+    """:meth:`start_from` takes a known payload as the prior."""
 
     def reset(self) -> None:
         """Forget the payload (a new task or a new payload); the ensemble is kept."""
@@ -64,6 +70,22 @@ class PayloadTracking:
                                     f"each), got {phi}, {std}")
         self._forget()
         self._initial = (phi.copy(), np.diag(np.square(std)))
+
+    def distrust(self) -> None:
+        """A restart from a saved state: the restored posterior becomes the known payload
+        :meth:`start_from` takes (its mean, its standard deviations floored at
+        :data:`RESTART_STD_FLOOR`), so its estimates say ``unverified`` until the live data
+        have tested it and a payload swapped while the plug-in was down is detected as a
+        change rather than written. Nothing restored: nothing to distrust."""
+        post = self._posterior()
+        if post is None:
+            return
+        phi = np.array(post.phi, dtype=float)
+        var = np.square(post.std) + post.gain_var  # as its estimates reported it
+        if self._bias_var is not None:
+            var = var + self._bias_var
+        std = np.maximum(np.nan_to_num(np.sqrt(var), nan=1.0, posinf=1.0), RESTART_STD_FLOOR)
+        self.start_from(phi, std)
 
     def _forget(self) -> None:
         self._window.clear()

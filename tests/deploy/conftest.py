@@ -60,11 +60,21 @@ def phys_model_file(trained_phys_model_file, tmp_path) -> Path:
     return _private_copy(trained_phys_model_file, tmp_path, "model-phys.msgpack")
 
 
+def model_kind(path) -> str:
+    """The kind a model file holds (its ``kind`` field): what its ``[model] kind`` must be."""
+    import msgpack
+
+    return msgpack.unpackb(Path(path).read_bytes(), raw=False)["kind"]
+
+
 def cell_config(model_path, link: dict, **sections) -> dict:
-    """A cell.toml as a dict: the given link, the model file, no status line; the gate lets
-    a model without uncertainty write (the paper's IEM of ``model_file`` needs it; IEM+phys
-    reports it, so it changes nothing there)."""
-    doc = {"link": link, "model": {"path": str(model_path), "train_if_missing": False},
+    """A cell.toml as a dict: the given link, the model file and the kind it holds (if it
+    exists), no status line; the gate lets a model without uncertainty write (the paper's
+    IEM of ``model_file`` needs it; IEM+phys reports it, so it changes nothing there)."""
+    model = {"path": str(model_path), "train_if_missing": False}
+    if Path(model_path).exists():
+        model["kind"] = model_kind(model_path)
+    doc = {"link": link, "model": model,
            "gate": {"allow_without_uncertainty": True},
            "log": {"status_line": "off", "level": "info", "format": "json"}}
     for name, table in sections.items():

@@ -2,12 +2,13 @@
 
 import re
 import tomllib
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 import pytest
 
 from deploy.config import (
+    DERIVED_GATE_KEYS,
     INT_RANGES,
     RANGES,
     SECTIONS,
@@ -42,7 +43,7 @@ def test_example_sets_and_documents_every_key():
     doc = tomllib.loads(text)
     assert set(doc) == set(SECTIONS)
     for section, cls in SECTIONS.items():
-        names = {f.name for f in fields(cls)}
+        names = {f.name for f in fields(cls)} - set(DERIVED_GATE_KEYS)
         assert set(doc[section]) == names, f"[{section}] keys differ from {cls.__name__}"
         start = text.index(f"\n[{section}]\n")
         end = text.find("\n[", start + 1)
@@ -97,7 +98,7 @@ def test_every_range_the_example_states_is_the_checked_one():
         comments = key_comments(text, section)
         for f in fields(cls):
             default = getattr(cls(), f.name)
-            if type(default) not in (int, float):
+            if type(default) not in (int, float) or f.name in DERIVED_GATE_KEYS:
                 continue
             stated = {(float(lo), float(hi)) for lo, hi in
                       re.findall(rf"({number}) to ({number})", comments[f.name])}
@@ -124,7 +125,12 @@ def assert_same(token: str, default, what: str) -> None:
 
 # -- defaults and paths ---------------------------------------------------------------------
 def test_missing_keys_take_the_defaults():
-    assert config_from_dict({}) == CellConfig(source="config")
+    from sim.end_effector import end_effector
+
+    cfg = config_from_dict({})
+    hand = end_effector("franka_hand").mass  # [arm] end_effector's default, on the gate
+    assert cfg == replace(CellConfig(source="config"),
+                          gate=replace(CellConfig().gate, end_effector_mass_kg=hand))
     cfg = config_from_dict({"link": {"channel": "vcan0"}})
     assert cfg.link == LinkConfig(channel="vcan0")
     assert cfg.model == ModelConfig()
@@ -157,8 +163,10 @@ def test_relative_model_path_is_taken_from_the_config_folder(tmp_path):
     ("[estimate]\nlearn = 1\n", ["[estimate] learn", "1", "must be true or false"]),
     ("[link]\nchannel = 0\n", ["[link] channel", "0", "non-empty string"]),
     ("[link]\nchannel = ''\n", ["[link] channel", "''", "non-empty string"]),
-    ("[gate]\nrated_mass_kg = 5.0\n",
-     ["[gate] rated_mass_kg", "5.0", "out of range", "[0.01, 3]"]),
+    ("[gate]\nrated_mass_kg = 60.0\n",
+     ["[gate] rated_mass_kg", "60.0", "out of range", "[0.01, 50]"]),
+    ("[gate]\nmin_change_mass_kg = 0.01\n", ["[gate] min_change_mass_kg", "remove them"]),
+    ("[gate]\nend_effector_mass_kg = 0.7\n", ["unknown key", "'end_effector_mass_kg'"]),
     ("[link]\nsilence_timeout_s = 0.001\n",
      ["[link] silence_timeout_s", "0.001", "out of range", "[0.005, 60]"]),
     ("[log]\nstatus_period_s = 0\n", ["[log] status_period_s", "0.0", "[0.05, 60]"]),

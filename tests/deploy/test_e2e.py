@@ -36,6 +36,20 @@ pytestmark = pytest.mark.hil
 
 TRUTH = default_test_payload()
 
+MASS_TOL_KG = 0.002
+COM_TOL_M = 0.002
+"""How far IEM+phys, the deployed model, may be from the truth here, in the final estimate
+and in every load written. docs/benchmarks.md: ``iem demo`` leaves the controller's load
+0.3 g and 0.1 mm off, ``iem bench faults`` writes loads within 0.3-0.7 g; the claim is
+about 1 g. These runs measured 0.2 g and 0.05 mm (final estimate), 0.2-0.4 g and 0.4-0.8 mm
+(loads written, clean and faulty). Margin: twice the 1 g claim, and 2 mm, 2.5 times the
+worst CoM measured."""
+
+IEM_MASS_TOL_KG = 0.010
+"""The same for the paper's IEM, which has no physics behind it: docs/benchmarks.md gives
+its mass MAE on the new path as 0.005 kg; the slcan runs here measured 0.7-3.3 g (final
+estimate) and 0.6-0.9 g (load in force). Margin: twice the benchmark."""
+
 
 def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None, seed=1,
                    estimate=None):
@@ -64,8 +78,8 @@ def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None
 def assert_identified_and_acknowledged(summary, controller, est) -> None:
     # identified: the smoothed estimate at the end is the true payload
     final = est[-1]
-    assert abs(final[0] - TRUTH.mass) < 0.02
-    np.testing.assert_allclose(final[1:4] / final[0], TRUTH.com, atol=0.005)
+    assert abs(final[0] - TRUTH.mass) < MASS_TOL_KG, final[0]
+    np.testing.assert_allclose(final[1:4] / final[0], TRUTH.com, atol=COM_TOL_M)
     # written back and acknowledged (a write sent just before the run ended may still be in
     # flight); the controller now uses (close to) the true load
     sent, acked = summary["writes"]["sent"], summary["writes"]["acked"]
@@ -74,8 +88,8 @@ def assert_identified_and_acknowledged(summary, controller, est) -> None:
     applied = [cmd for cmd, ok in controller.commands if ok]
     assert acked <= len(applied) <= sent
     load = controller.plant.controller_load
-    assert load is not None and abs(load.mass - TRUTH.mass) < 0.03
-    np.testing.assert_allclose(load.com, TRUTH.com, atol=0.005)
+    assert load is not None and abs(load.mass - TRUTH.mass) < MASS_TOL_KG, load
+    np.testing.assert_allclose(load.com, TRUTH.com, atol=COM_TOL_M)
 
 
 def test_identifies_and_writes_back_over_the_virtual_bus(phys_model_file):
@@ -91,12 +105,17 @@ def test_identifies_and_writes_back_over_the_virtual_bus(phys_model_file):
 
 def test_identifies_and_writes_back_over_slcan_on_a_pty(model_file, tmp_path):
     """The controller in another process acts as an slcan adapter; the service opens it with
-    python-can's own slcan interface (classic profile: 500 joint states per second)."""
+    python-can's own slcan interface (classic profile: 500 joint states per second).
+
+    The paper's IEM: IEM+phys is made for 100 block points a second and the classic profile
+    gives 50. The IEM reports no uncertainty, so the gate is told to let it write: this test
+    is about the link."""
     csv = new_task_csv(tmp_path / "path.csv")
     with controller_process("--interface", "slcan-pty", "--profile", "classic", "--path",
                             str(csv), "--once", "--duration", "12", "--seed", "1") as (proc, pty):
         doc = cell_config(model_file, {"kind": "slcan", "channel": pty, "profile": "classic",
-                                       "silence_timeout_s": 0.5})
+                                       "silence_timeout_s": 0.5},
+                          gate={"allow_without_uncertainty": True})
         service = Service(config_from_dict(doc, where="test"), status=StatusLine(False))
         rows = []
         service.on_cycle.append(lambda r: rows.append(r.smoothed.copy()))
@@ -115,8 +134,11 @@ def test_identifies_and_writes_back_over_slcan_on_a_pty(model_file, tmp_path):
     assert parts["cycle"] > 0 and parts["reader"] > 0
     assert summary["cpu_s"] == pytest.approx(sum(parts.values()))
     final = rows[-1]
-    assert abs(final[0] - TRUTH.mass) < 0.03
+    assert abs(final[0] - TRUTH.mass) < IEM_MASS_TOL_KG, final[0]
     assert summary["writes"]["sent"] >= 1 and summary["writes"]["acked"] >= 1
+    load = summary["load_in_force"]
+    assert summary["load_in_force_confirmed"] and isinstance(load, dict), summary
+    assert abs(load["mass"] - TRUTH.mass) < IEM_MASS_TOL_KG, load
     assert "commands" in err  # the controller's closing statistics
 
 
@@ -168,9 +190,11 @@ def test_restart_after_sigkill_resumes_from_the_last_checkpoint(model_file, tmp_
         np.testing.assert_array_equal(after.learner(bag).b, before.learner(bag).b)
 
 
-def test_faults_cost_little_accuracy_and_every_bad_frame_is_counted(model_file, tmp_path):
+def test_faults_cost_little_accuracy_and_every_bad_frame_is_counted(phys_model_file, tmp_path):
+    """IEM+phys, as ``iem bench faults`` runs it, with the gate as shipped."""
     from firmware_bridge.faults import FaultSpec
 
+    model_file = phys_model_file
     second = tmp_path / "second.msgpack"
     shutil.copyfile(model_file, second)  # both runs start from the same trained model
     # learning inline and always (max_lag_s 0): with the worker, or with learning skipped
@@ -199,15 +223,13 @@ def test_faults_cost_little_accuracy_and_every_bad_frame_is_counted(model_file, 
     assert bad_states - 3 <= faulty["frames"]["lost"] <= bad_states
     assert dropped.get("duplicate", 0) >= 0.9 * counts["duplicate"]  # (heartbeat repeats are
     # not counted: a heartbeat carries no cycle to assemble)
-    # the loads written are as right as on the clean stream (this model, the paper's IEM,
-    # has no uncertainty for the gate to check; it is the stream that is on trial here)
-    def worst(ctl):
+    # every load written, on the clean stream and the faulty one, is the true payload
+    for ctl in (clean_controller, controller):
         loads = [cmd.load for cmd, ok in ctl.commands if ok]
-        return (max(abs(p.mass - TRUTH.mass) for p in loads),
-                max(np.linalg.norm(np.subtract(p.com, TRUTH.com)) for p in loads))
-
-    (m_c, c_c), (m_f, c_f) = worst(clean_controller), worst(controller)
-    assert m_f <= m_c + 0.01 and c_f <= c_c + 0.005, ((m_c, c_c), (m_f, c_f))
+        assert loads, "no load applied"
+        for p in loads:
+            assert abs(p.mass - TRUTH.mass) < MASS_TOL_KG, p
+            assert np.linalg.norm(np.subtract(p.com, TRUTH.com)) < COM_TOL_M, p
 
 
 def test_silent_controller_stops_writes_and_they_resume(phys_model_file, caplog):
@@ -217,7 +239,7 @@ def test_silent_controller_stops_writes_and_they_resume(phys_model_file, caplog)
     from firmware_bridge.faults import FaultSpec
 
     caplog.set_level(logging.INFO, logger="iem")
-    gate = {"min_change_mass_kg": 0.0, "min_change_com_m": 0.0, "max_rate_hz": 5.0,
+    gate = {"max_rate_hz": 5.0,
             "stable_window_s": 0.2, "stable_mass_kg": 0.05, "stable_com_m": 0.01}
     summary, _, _, _ = run_in_process(
         phys_model_file, faults=FaultSpec(silence_at=3.0, silence_for=1.0), seconds=6.0,
@@ -235,4 +257,8 @@ def test_silent_controller_stops_writes_and_they_resume(phys_model_file, caplog)
     sends = [t for t, m in messages if m.startswith("load sent")]
     assert any(t < silent_at for t in sends)
     assert not any(silent_at < t < back_at for t in sends)  # no write while silent
-    assert any(t > back_at for t in sends)  # writes resume
+    # decisions resume: the gate ends judging the estimate against the load in force (the
+    # load written before the silence is still right: no write is needed after it)
+    assert summary["gate_verdict"]["reason"] in ("no_change", "send", "rate_limited"), (
+        summary["gate_verdict"], summary["gate"])
+    assert summary["load_in_force"] is not None and summary["load_in_force_confirmed"]

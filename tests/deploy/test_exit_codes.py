@@ -78,7 +78,9 @@ def test_a_seed_out_of_range(tmp_path, capsys, seed, parts):
 
 @pytest.mark.parametrize(("text", "part"), [
     ("[gate]\nmax_nis = 0.5\n", "[gate] max_nis = 0.5 is out of range; valid is [1, 1e+06]"),
-    ("[gate]\nmax_mass_2sigma_kg = 0\n", "[gate] max_mass_2sigma_kg = 0.0 is out of range"),
+    ("[gate]\nmax_mass_2sigma_kg = 0.02\n",
+     "[gate] max_mass_2sigma_kg: not a setting of this gate"),
+    ("[gate]\nwrite_margin = 0\n", "[gate] write_margin = 0.0 is out of range"),
     ("[gate]\nrefusal_retry_s = 5.0\nrefusal_retry_max_s = 2.0\n",
      "refusal_retry_max_s = 2.0 is below refusal_retry_s = 5.0; valid is refusal_retry_max_s"),
     ("[gate]\nmax_nsi = 3\n", "unknown key(s) ['max_nsi'] in [gate]"),

@@ -17,7 +17,8 @@ def test_defaults_and_the_options_the_opener_gets():
                     "estimate_std_topic": "", "estimate_rate_hz": 10.0,
                     "set_load_service": "/service_server/set_load",
                     "set_load_timeout_s": 2.0, "flange_frame": "", "interface": "",
-                    "peers": []}
+                    "robot_state_topic": "/franka_robot_state_broadcaster/robot_state",
+                    "diagnostics_topic": "/diagnostics", "peers": []}
     assert config_from_dict({"link": {"kind": "socketcan", "channel": "can0"},
                              "ros2": {"domain_id": 3}}).link_options() == {}
     cfg = config_from_dict({"link": {"kind": "ros2", "channel": "/left/franka/joint_states"},

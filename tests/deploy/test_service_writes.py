@@ -26,8 +26,9 @@ from .conftest import cell_config
 pytestmark = pytest.mark.hil
 
 TRUTH = default_test_payload()
-BAR = Payload("bar", 2.5, (0.0, 0.0, 0.05), (0.6, 0.0, 0.0, 0.001, 0.0, 0.6))
-"""Physically possible, within the rating and reach; Ixx beyond the CAN signal's ±0.524 kg·m²."""
+BAR = Payload("bar", 2.0, (0.0, 0.0, 0.05), (0.6, 0.0, 0.0, 0.001, 0.0, 0.6))
+"""Physically possible, within the rating with the hand (0.76 kg) and reach; Ixx beyond the
+CAN signal's ±0.524 kg·m²."""
 
 
 class OneLoad(BaseEstimator):
@@ -36,7 +37,11 @@ class OneLoad(BaseEstimator):
     name = "one-load"
 
     def __init__(self, load: Payload) -> None:
+        self.load = load
         self.phi = load.to_phi()
+
+    def params(self) -> dict:
+        return {"load": self.load}
 
     def learn_one(self, x, flange, samples) -> None:
         pass

@@ -1,0 +1,247 @@
+"""The load in force: what the controller holds, as only the controller can confirm it.
+
+A load command is a small state machine (the house style's, after TCP's retransmission):
+
+- **sent**: the link took the command (:meth:`LoadInForce.sent`); it is *pending* until
+- **acked**: the controller acknowledged it as applied: its load is now **in force**; or
+- **refused**: the controller answered but did not apply it (a Franka refuses ``setLoad``
+  while a controller runs): the load in force stays as it was, the gate retries after a
+  back-off (``refusal_retry_s``, doubling up to ``refusal_retry_max_s``); or
+- **lost**: no answer within ``ack_timeout_s``: the load in force stays as it was, and the
+  write is retried after a back-off (``ack_retry_s``, doubling up to ``ack_retry_max_s``).
+
+Where the link reports what the controller holds (:class:`firmware_bridge.messages.LoadReport`:
+the CAN heartbeat's ``LoadSeq``, libfranka's ``m_load``/``F_x_Cload``/``I_load``), the report
+is the truth: a command it names is in force even if its acknowledgement was lost, and a
+report that disagrees with what this plug-in believes is in force is logged as a mismatch and
+makes the believed load unknown, so the gate writes again. Before the controller has said
+anything the load in force is the empty load, the state a controller starts in (libfranka's
+``setLoad`` with mass 0); a report, where the link has one, replaces that assumption.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+from iem.payload import Payload
+
+log = logging.getLogger("iem.gate")
+
+UNKNOWN = "unknown"
+"""The load in force when a report contradicts what was written and names no values."""
+
+HISTORY = 64
+"""Commands remembered by sequence number, to read a report that names only the sequence."""
+
+MASS_TOL_KG = 1e-4
+COM_TOL_M = 1e-4
+"""How closely a controller's report of a load's values must match the written load (its
+own rounding: the CAN wire's resolution is 1 g and 0.1 mm, libfranka's doubles are exact)."""
+
+
+@dataclass
+class Pending:
+    """A command sent and not yet answered."""
+
+    seq: int
+    load: Payload | None
+    t: float
+
+
+def same_load(a: Payload | None, b: Payload | None) -> bool:
+    """Two loads equal to the controller's rounding (None: the empty load; a zero mass is
+    empty too)."""
+    a = None if a is None or a.mass <= MASS_TOL_KG else a
+    b = None if b is None or b.mass <= MASS_TOL_KG else b
+    if a is None or b is None:
+        return a is None and b is None
+    return abs(a.mass - b.mass) <= MASS_TOL_KG and all(
+        abs(x - y) <= COM_TOL_M for x, y in zip(a.com, b.com, strict=True))
+
+
+def describe(load) -> str:
+    """A load in words for a log line."""
+    if load is None:
+        return "the empty load"
+    if load == UNKNOWN:
+        return "an unknown load"
+    return (f"{load.mass:.4f} kg at [{load.com[0]:.4f}, {load.com[1]:.4f}, "
+            f"{load.com[2]:.4f}] m")
+
+
+class LoadInForce:
+    """What the controller holds and what became of each command.
+
+    Args:
+        ack_timeout_s: a command unanswered this long is lost.
+        ack_retry_s, ack_retry_max_s: the wait before the write after a lost command, doubled
+            after each further loss in a row, up to the maximum.
+        refusal_retry_s, refusal_retry_max_s: the same after a refusal.
+    """
+
+    def __init__(self, ack_timeout_s: float = 0.5, ack_retry_s: float = 0.5,
+                 ack_retry_max_s: float = 10.0, refusal_retry_s: float = 1.0,
+                 refusal_retry_max_s: float = 10.0) -> None:
+        self.ack_timeout_s = ack_timeout_s
+        self.ack_retry = (ack_retry_s, ack_retry_max_s)
+        self.refusal_retry = (refusal_retry_s, refusal_retry_max_s)
+        self.load: Payload | str | None = None
+        """The load in force: a :class:`Payload`, None (the empty load) or :data:`UNKNOWN`."""
+        self.confirmed = False
+        """The controller itself said so (an ack or a report), not the start-up assumption."""
+        self.pending: Pending | None = None
+        self.seq_in_force = 0
+        self._by_seq: dict[int, Payload | None] = {}
+        self._backoff: tuple[str, float, float, str] | None = None  # why, since, wait, detail
+        self._in_row = {"lost": 0, "refused": 0}
+        self._answered = -math.inf  # when the link took the newest acknowledgement
+        self.sent = 0
+        self.acked = 0
+        self.lost = 0
+        self.refused = 0
+        self.in_force = 0
+        """Commands the controller confirmed in force (by its acknowledgement or report)."""
+        self.mismatches = 0
+        self.send_errors = 0
+
+    # -- events ---------------------------------------------------------------------------
+    def sent_command(self, seq: int, load: Payload | None, t: float) -> None:
+        """The link took command ``seq`` writing ``load`` at time ``t``."""
+        self.pending = Pending(int(seq), load, t)
+        self._by_seq[int(seq)] = load
+        if len(self._by_seq) > HISTORY:
+            del self._by_seq[next(iter(self._by_seq))]
+        self.sent += 1
+
+    def send_failed(self, t: float, error: str) -> None:
+        """The link could not send: as a lost command (back-off, retry), counted apart."""
+        self.send_errors += 1
+        self._start_backoff("lost", t, f"the link could not send the load: {error}")
+
+    def acknowledged(self, seq: int, t: float, load=None, received: float = -math.inf) -> None:
+        """The controller applied command ``seq`` (``load``: the load its ack reports, if
+        any; ``received``: when the link took the ack, on the links' clock, so that a report
+        taken before it is not read as newer)."""
+        self.acked += 1
+        self._answered = max(self._answered, received)
+        self._settle(seq, self._by_seq.get(seq, load) if load is None else load, t)
+
+    def refused_command(self, seq: int, t: float, error: str = "") -> None:
+        """The controller answered ``seq`` but kept its load."""
+        self.refused += 1
+        if self.pending is not None and self.pending.seq == seq:
+            self.pending = None
+            self._start_backoff("refused", t, f"the controller refused command {seq}"
+                                              f"{f' ({error})' if error else ''}")
+
+    def report(self, seq: int | None, load, has_values: bool, t: float,
+               received: float = math.inf) -> None:
+        """The controller's own report of what it holds: the command in force ``seq`` (None:
+        the link carries none) and, if ``has_values``, the load's values (None: empty);
+        ``received``: when the link took it. A report taken before the last acknowledgement
+        (a heartbeat that was on its way) says nothing newer and is passed over."""
+        if received < self._answered:
+            return
+        if has_values:
+            if self.pending is not None and same_load(load, self.pending.load):
+                self._settle(self.pending.seq, self.pending.load, t)
+            elif self.load == UNKNOWN or not same_load(load, self.load):
+                if self.confirmed or self.load is not None:
+                    self._mismatch(describe(load))
+                self.load, self.confirmed = load, True
+            else:
+                self.confirmed = True
+            return
+        if seq is None:
+            return
+        if self.pending is not None and seq == self.pending.seq:
+            self._settle(seq, self.pending.load, t)  # applied; only its ack was lost
+            return
+        if seq == self.seq_in_force:
+            self.confirmed = True
+            return
+        if seq == 0 and self.seq_in_force == 0:
+            self.confirmed = self.load is None or self.confirmed
+            return
+        self._mismatch(f"command {seq}")
+        self.seq_in_force = seq
+        self.load = self._by_seq.get(seq, UNKNOWN) if seq else UNKNOWN
+
+    def tick(self, t: float) -> None:
+        """A pending command unanswered for ``ack_timeout_s`` is lost."""
+        p = self.pending
+        if p is not None and t - p.t > self.ack_timeout_s:
+            self.pending = None
+            self.lost += 1
+            self._start_backoff("lost", t, f"command {p.seq} not acknowledged within "
+                                           f"{self.ack_timeout_s:g} s")
+            log.warning("load command %d lost (no answer within %g s); %s stays in force, "
+                        "retry in %.1f s", p.seq, self.ack_timeout_s, describe(self.load),
+                        self._backoff[2], extra={"event": "load_lost", "seq": p.seq})
+
+    def controller_back(self) -> None:
+        """The controller returned from a silence: a loss then is explained by it, so the
+        write may be tried again at once."""
+        if self._backoff is not None and self._backoff[0] == "lost":
+            self._backoff = None
+            self._in_row["lost"] = 0
+
+    # -- questions ------------------------------------------------------------------------
+    def hold(self, t: float) -> tuple[str, str] | None:
+        """``(reason, detail)`` while no command may be sent now: one is pending
+        (``ack_missing``), or a back-off after a loss (``lost``) or a refusal (``refused``)
+        runs; None when a command may go."""
+        if self.pending is not None:
+            return "ack_missing", f"waiting for the ack of command {self.pending.seq}"
+        if self._backoff is not None:
+            why, since, wait, detail = self._backoff
+            left = wait - (t - since)
+            if left > 0:
+                return why, f"{detail}; retry in {left:.1f} s"
+        return None
+
+    def retry_wait(self) -> float | None:
+        """The wait of the back-off running now, s (None: none runs)."""
+        return None if self._backoff is None else self._backoff[2]
+
+    def summary(self) -> dict:
+        """The counts, and the load in force."""
+        return {"sent": self.sent, "acked": self.acked, "lost": self.lost,
+                "in_force": self.in_force, "refused": self.refused,
+                "mismatches": self.mismatches, "send_errors": self.send_errors,
+                "load_in_force": load_record(self.load),
+                "in_force_confirmed": self.confirmed}
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _settle(self, seq: int, load, t: float) -> None:
+        if self.pending is not None and self.pending.seq == seq:
+            self.pending = None
+        self.load, self.confirmed, self.seq_in_force = load, True, seq
+        self.in_force += 1
+        self._backoff = None
+        self._in_row = {"lost": 0, "refused": 0}
+
+    def _mismatch(self, what: str) -> None:
+        self.mismatches += 1
+        log.warning("the controller reports %s in force; this plug-in believed %s: it will "
+                    "be written again", what, describe(self.load),
+                    extra={"event": "load_mismatch"})
+
+    def _start_backoff(self, why: str, t: float, detail: str) -> None:
+        first, most = self.ack_retry if why == "lost" else self.refusal_retry
+        n = self._in_row[why]
+        self._in_row[why] = n + 1
+        self._backoff = (why, t, min(first * 2.0 ** min(n, 60), most), detail)
+
+
+def load_record(load) -> dict | str | None:
+    """A load for JSON: None (empty), ``"unknown"``, or mass, CoM and inertia (9 values about
+    the CoM, column-major, as ``setLoad`` takes them)."""
+    if load is None or load == UNKNOWN:
+        return load
+    mass, com, inertia = load.set_load_args()
+    return {"mass": float(mass), "com": [float(v) for v in com],
+            "inertia": [float(v) for v in inertia]}
+
