@@ -23,7 +23,12 @@ has the names, types and layouts, from rmw_cyclonedds_cpp's sources).
   the model's per-parameter standard deviations, taken as independent).
 - **Sink**: ``franka_msgs/srv/SetLoad`` on ``set_load_service``
   (:class:`firmware_bridge.ros2_setload.SetLoadClient`), from a worker thread, never on the
-  1 kHz cycle; written only to an rmw_cyclonedds_cpp replier.
+  1 kHz cycle; written only to an rmw_cyclonedds_cpp replier. ``load_report`` is the load in
+  force as franka_ros2's ``franka_msgs/msg/FrankaRobotState`` on ``robot_state_topic``
+  reports it (:mod:`firmware_bridge.ros2_robot_state`).
+- **Diagnostics**: :meth:`Ros2Link.publish_diagnostics` publishes the gate's verdict as a
+  ``diagnostic_msgs/msg/DiagnosticArray`` on ``diagnostics_topic``
+  (:mod:`firmware_bridge.ros2_diagnostics`).
 """
 
 from __future__ import annotations
@@ -40,6 +45,9 @@ from iem.types import NOMINAL_RATE_HZ, JointState
 from .errors import BridgeConfigError, ControllerSilent
 from .links import BUFFERED_CYCLES, LinkCounters
 from .reassembly import CYCLE_MOD
+from .ros2_diagnostics import DEFAULT_TOPIC as DEFAULT_DIAGNOSTICS_TOPIC
+from .ros2_inertia import inertia_message, inertia_std, inertia_values
+from .ros2_robot_state import DEFAULT_TOPIC as DEFAULT_ROBOT_STATE_TOPIC
 
 log = logging.getLogger("iem.ros2")
 
@@ -82,51 +90,6 @@ def match_joints(names, joints: tuple[str, ...] | None = None
     return None
 
 
-def _stamp(t: float):
-    from .ros2_types import Time
-
-    sec = math.floor(t)
-    nanosec = min(round((t - sec) * 1e9), 999_999_999)
-    return Time(sec=int(sec), nanosec=nanosec)
-
-
-def inertia_values(phi) -> np.ndarray:
-    """``[m, cx, cy, cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]`` (kg, m, kg·m² about the CoM) of the
-    paper's ``phi`` (inertia about the flange); ValueError if the mass is not > 0."""
-    phi = np.asarray(phi, dtype=float)
-    m = phi[0]
-    if not m > 0.0:
-        raise ValueError(f"mass {m} kg is not > 0: no CoM")
-    c = phi[1:4] / m
-    xx, xy, xz, yy, yz, zz = phi[4:]
-    about_o = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-    about_c = about_o - m * (float(c @ c) * np.eye(3) - np.outer(c, c))
-    return np.concatenate(([m], c, about_c[[0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]]))
-
-
-def inertia_std(phi, std) -> np.ndarray:
-    """Standard deviations of :func:`inertia_values` from those of ``phi``, to first order,
-    the parameters taken as independent (the models report no covariance)."""
-    phi = np.asarray(phi, dtype=float)
-    base = inertia_values(phi)
-    jac = np.empty((10, 10))
-    for j in range(10):
-        h = 1e-7 * max(1.0, abs(phi[j]))
-        d = phi.copy()
-        d[j] += h
-        jac[:, j] = (inertia_values(d) - base) / h
-    return np.sqrt((jac ** 2) @ (np.asarray(std, dtype=float) ** 2))
-
-
-def _inertia_message(values, frame_id: str, t: float):
-    from .ros2_types import Header, Inertia, InertiaStamped, Vector3
-
-    v = [float(x) for x in values]
-    return InertiaStamped(header=Header(stamp=_stamp(t), frame_id=frame_id),
-                          inertia=Inertia(m=v[0], com=Vector3(v[1], v[2], v[3]), ixx=v[4],
-                                          ixy=v[5], ixz=v[6], iyy=v[7], iyz=v[8], izz=v[9]))
-
-
 class Ros2Link:
     """Joint states from a ROS 2 topic; estimates to topics; loads to franka_ros2's set_load.
 
@@ -140,6 +103,8 @@ class Ros2Link:
         set_load_service: franka_ros2's SetLoad service ("": no write-back).
         set_load_timeout_s: how long the worker waits for a reply.
         flange_frame: ``frame_id`` of the estimate ("": ``<arm>_link8`` of the joints read).
+        robot_state_topic: franka_ros2's FrankaRobotState, the load in force ("": none).
+        diagnostics_topic: where :meth:`publish_diagnostics` publishes ("": nowhere).
         config: the Cyclone XML (:func:`firmware_bridge.ros2_dds.cyclone_config`) or None.
         silence_timeout: ``read``'s default timeout, s.
     """
@@ -152,6 +117,8 @@ class Ros2Link:
                  estimate_rate_hz: float = 10.0,
                  set_load_service: str = DEFAULT_SET_LOAD_SERVICE,
                  set_load_timeout_s: float = 2.0, flange_frame: str = "",
+                 robot_state_topic: str = DEFAULT_ROBOT_STATE_TOPIC,
+                 diagnostics_topic: str = DEFAULT_DIAGNOSTICS_TOPIC,
                  config: str | None = None, silence_timeout: float = 0.1) -> None:
         from . import ros2_dds
         from .ros2_types import InertiaStamped, JointStateMsg, topic_name
@@ -204,6 +171,15 @@ class Ros2Link:
             self._client = SetLoadClient(self._dp, set_load_service,
                                          timeout_s=set_load_timeout_s, domain_id=domain_id,
                                          counters=self.counters)
+        self._reports = self._diagnostics = None
+        if robot_state_topic:
+            from .ros2_robot_state import LoadReportReader
+
+            self._reports = LoadReportReader(self._dp, robot_state_topic)
+        if diagnostics_topic:
+            from .ros2_diagnostics import DiagnosticsWriter
+
+            self._diagnostics = DiagnosticsWriter(self._dp, self.name, diagnostics_topic)
 
     # -- source ----------------------------------------------------------------------------
     def _joint_index(self, names: tuple[str, ...]) -> tuple[int, ...] | None:
@@ -311,10 +287,10 @@ class Ros2Link:
         due = self._next_publish + self._period  # keeps the average rate ...
         self._next_publish = due if due > now else now + self._period  # ... unless behind
         frame = self._flange_frame or "fr3_link8"
-        self._estimate_writer.write(_inertia_message(values, frame, estimate.t))
+        self._estimate_writer.write(inertia_message(values, frame, estimate.t))
         if getattr(estimate, "std", None) is not None:
-            self._std_writer.write(_inertia_message(inertia_std(phi, estimate.std), frame,
-                                                    estimate.t))
+            self._std_writer.write(inertia_message(inertia_std(phi, estimate.std), frame,
+                                                   estimate.t))
         self.published += 1
         return True
 
@@ -334,6 +310,30 @@ class Ros2Link:
     def last_ack(self):
         return None if self._client is None else self._client.last_ack
 
+    @property
+    def load_report(self):
+        """The newest :class:`~firmware_bridge.messages.LoadReport` of franka_ros2's robot
+        state (its values, no sequence number), or None before one arrived."""
+        return None if self._reports is None else self._reports.latest()
+
+    def wait_for_service(self, timeout: float) -> str:
+        """Wait up to ``timeout`` s for an rmw_cyclonedds SetLoad replier to be discovered;
+        why none can be written to ("" once one is)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            problem = self._sink().replier_problem()
+            if not problem or time.monotonic() >= deadline:
+                return problem
+            time.sleep(0.02)
+
+    # -- diagnostics -----------------------------------------------------------------------
+    def publish_diagnostics(self, verdict: dict) -> bool:
+        """Publish the gate's ``verdict`` on ``diagnostics_topic`` now (the caller paces it);
+        True if published, False without a diagnostics topic."""
+        if self._diagnostics is None:
+            return False
+        return self._diagnostics.publish(verdict)
+
     def wait_ack(self, seq: int, timeout: float = 1.0):
         return self._sink().wait_ack(seq, timeout)
 
@@ -348,6 +348,7 @@ class Ros2Link:
             self._client = None
         self._waitset = self._condition = self._reader = None
         self._estimate_writer = self._std_writer = self._dp = None
+        self._reports = self._diagnostics = None
 
 
 def open_ros2_link(kind: str, channel: str, *, profile: str | None = None,
@@ -356,6 +357,8 @@ def open_ros2_link(kind: str, channel: str, *, profile: str | None = None,
                    estimate_std_topic: str = "", estimate_rate_hz: float = 10.0,
                    set_load_service: str = DEFAULT_SET_LOAD_SERVICE,
                    set_load_timeout_s: float = 2.0, flange_frame: str = "",
+                   robot_state_topic: str = DEFAULT_ROBOT_STATE_TOPIC,
+                   diagnostics_topic: str = DEFAULT_DIAGNOSTICS_TOPIC,
                    interface: str = "", peers=()) -> Ros2Link:
     """Opener for :func:`firmware_bridge.links.open_link`: ``channel`` is the JointState
     topic ("" : ``/franka/joint_states``); ``profile`` is a CAN notion and not used.
@@ -379,5 +382,6 @@ def open_ros2_link(kind: str, channel: str, *, profile: str | None = None,
                     estimate_topic=estimate_topic, estimate_std_topic=estimate_std_topic,
                     estimate_rate_hz=estimate_rate_hz, set_load_service=set_load_service,
                     set_load_timeout_s=set_load_timeout_s, flange_frame=flange_frame,
+                    robot_state_topic=robot_state_topic, diagnostics_topic=diagnostics_topic,
                     config=cyclone_config(interface, tuple(peers)),
                     silence_timeout=silence_timeout)

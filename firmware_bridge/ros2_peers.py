@@ -30,7 +30,8 @@ import numpy as np
 
 from iem.types import NOMINAL_RATE_HZ
 
-from .ros2_link import JOINT_SETS, _stamp
+from .ros2_inertia import stamp as _stamp
+from .ros2_link import JOINT_SETS
 
 
 def joint_state_messages(n: int, t0: float, rate_hz: float = NOMINAL_RATE_HZ, arm: str = "fr3"):

@@ -24,7 +24,7 @@ their bytes are checked against ``rosbags`` in the tests.
 from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, int64, sequence, uint32, uint64
+from cyclonedds.idl.types import array, float64, int32, int64, sequence, uint8, uint32, uint64
 
 # -- messages ------------------------------------------------------------------------------
 
@@ -165,3 +165,100 @@ def parse_user_data(data: bytes) -> dict[str, bytes]:
         if eq and key:
             out[key.decode("utf-8", "replace")] = value
     return out
+
+
+# -- diagnostic_msgs --------------------------------------------------------------------------
+
+
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    """``diagnostic_msgs/msg/KeyValue``."""
+
+    key: str = ""
+    value: str = ""
+
+
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    """``diagnostic_msgs/msg/DiagnosticStatus``: ``level`` OK 0, WARN 1, ERROR 2, STALE 3
+    (``byte``, an IDL octet)."""
+
+    level: uint8 = 0
+    name: str = ""
+    message: str = ""
+    hardware_id: str = ""
+    values: sequence[KeyValue] = field(default_factory=list)
+
+
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    """``diagnostic_msgs/msg/DiagnosticArray``, what ``/diagnostics`` carries."""
+
+    header: Header = field(default_factory=Header)
+    status: sequence[DiagnosticStatus] = field(default_factory=list)
+
+
+# -- franka_msgs/msg/FrankaRobotState, up to the load in force --------------------------------
+
+
+@dataclass
+class CollisionIndicators(IdlStruct,
+                          typename="franka_msgs::msg::dds_::CollisionIndicators_"):
+    """``franka_msgs/msg/CollisionIndicators``."""
+
+    is_cartesian_linear_collision: Vector3 = field(default_factory=Vector3)
+    is_cartesian_angular_collision: Vector3 = field(default_factory=Vector3)
+    is_cartesian_linear_contact: Vector3 = field(default_factory=Vector3)
+    is_cartesian_angular_contact: Vector3 = field(default_factory=Vector3)
+    is_joint_collision: array[float64, 7] = field(default_factory=lambda: [0.0] * 7)
+    is_joint_contact: array[float64, 7] = field(default_factory=lambda: [0.0] * 7)
+
+
+@dataclass
+class Elbow(IdlStruct, typename="franka_msgs::msg::dds_::Elbow_"):
+    """``franka_msgs/msg/Elbow``."""
+
+    position: array[float64, 2] = field(default_factory=lambda: [0.0] * 2)
+    desired_position: array[float64, 2] = field(default_factory=lambda: [0.0] * 2)
+    commanded_position: array[float64, 2] = field(default_factory=lambda: [0.0] * 2)
+    commanded_velocity: array[float64, 2] = field(default_factory=lambda: [0.0] * 2)
+    commanded_acceleration: array[float64, 2] = field(default_factory=lambda: [0.0] * 2)
+
+
+@dataclass
+class Wrench(IdlStruct, typename="geometry_msgs::msg::dds_::Wrench_"):
+    """``geometry_msgs/msg/Wrench``."""
+
+    force: Vector3 = field(default_factory=Vector3)
+    torque: Vector3 = field(default_factory=Vector3)
+
+
+@dataclass
+class WrenchStamped(IdlStruct, typename="geometry_msgs::msg::dds_::WrenchStamped_"):
+    """``geometry_msgs/msg/WrenchStamped``."""
+
+    header: Header = field(default_factory=Header)
+    wrench: Wrench = field(default_factory=Wrench)
+
+
+@dataclass
+class FrankaRobotState(IdlStruct, typename="franka_msgs::msg::dds_::FrankaRobotState_"):
+    """``franka_msgs/msg/FrankaRobotState`` (franka_ros2's robot state broadcaster) up to
+    ``inertia_load``, the load in force (libfranka's ``m_load``, ``F_x_Cload``, ``I_load``).
+    The fields after it (``inertia_total``, the poses, twists, ``time``, ``robot_mode``, the
+    errors) are left unread: XCDR1 is read in order, so a message read up to a field is
+    read right whatever follows it, and the errors' fields differ between releases."""
+
+    header: Header = field(default_factory=Header)
+    collision_indicators: CollisionIndicators = field(default_factory=CollisionIndicators)
+    measured_joint_state: JointStateMsg = field(default_factory=JointStateMsg)
+    desired_joint_state: JointStateMsg = field(default_factory=JointStateMsg)
+    measured_joint_motor_state: JointStateMsg = field(default_factory=JointStateMsg)
+    ddq_d: array[float64, 7] = field(default_factory=lambda: [0.0] * 7)
+    dtau_j: array[float64, 7] = field(default_factory=lambda: [0.0] * 7)
+    tau_ext_hat_filtered: JointStateMsg = field(default_factory=JointStateMsg)
+    elbow: Elbow = field(default_factory=Elbow)
+    k_f_ext_hat_k: WrenchStamped = field(default_factory=WrenchStamped)
+    o_f_ext_hat_k: WrenchStamped = field(default_factory=WrenchStamped)
+    inertia_ee: InertiaStamped = field(default_factory=InertiaStamped)
+    inertia_load: InertiaStamped = field(default_factory=InertiaStamped)

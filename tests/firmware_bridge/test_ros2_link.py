@@ -4,6 +4,7 @@ multicast: nothing leaves this machine)."""
 
 from __future__ import annotations
 
+import json
 import logging
 import struct
 import time
@@ -18,12 +19,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from firmware_bridge.errors import BridgeConfigError, ControllerSilent
 from firmware_bridge.ros2_dds import cyclone_config, participant, qos
-from firmware_bridge.ros2_link import (
-    _inertia_message,
-    inertia_std,
-    inertia_values,
-    open_ros2_link,
-)
+from firmware_bridge.ros2_inertia import inertia_message, inertia_std, inertia_values
+from firmware_bridge.ros2_link import open_ros2_link
 from firmware_bridge.ros2_peers import SetLoadServer, joint_state_messages
 from firmware_bridge.ros2_types import (
     JointStateMsg,
@@ -88,7 +85,7 @@ def test_cdr_bytes_equal_rosbags(store):
     assert ours.serialize() == bytes(store.serialize_cdr(theirs, "sensor_msgs/msg/JointState"))
 
     values = inertia_values(TOOL.to_phi())
-    msg = _inertia_message(values, "fr3_link8", 12.5)
+    msg = inertia_message(values, "fr3_link8", 12.5)
     got = store.deserialize_cdr(msg.serialize(), "geometry_msgs/msg/InertiaStamped")
     assert got.header.frame_id == "fr3_link8" and got.header.stamp.sec == 12
     assert got.header.stamp.nanosec == 500_000_000
@@ -307,3 +304,241 @@ def test_estimate_and_its_std_published_at_the_configured_rate():
         assert link.last_ack is None
     finally:
         link.close()
+
+
+# -- /diagnostics -------------------------------------------------------------------------------
+VERDICT = {"reason": "over_rated", "detail": "mass 3.400 kg + end effector 0.730 kg > rated 3 kg",
+           "load_in_force": None, "sent": 3, "acked": 2, "lost": 1, "in_force": 2,
+           "send_errors": 0, "refusals": 0}
+
+
+def test_every_gate_reason_has_a_level():
+    from deploy.gate import REASONS
+    from firmware_bridge.ros2_diagnostics import ERROR, LEVELS, OK, WARN, level_of
+
+    assert set(REASONS) <= set(LEVELS), set(REASONS) - set(LEVELS)
+    assert level_of("send") == level_of("no_change") == OK
+    assert level_of("unstable") == level_of("uncertain") == level_of("refused") == WARN
+    for reason in ("not_finite", "over_rated", "controller_silent", "ack_missing", "lost"):
+        assert level_of(reason) == ERROR
+    assert level_of("") == WARN  # no decision yet
+
+
+def test_diagnostic_array_reads_back_with_rosbags(store):
+    from firmware_bridge.ros2_diagnostics import STATUS_NAME, diagnostic_array
+
+    verdict = {**VERDICT, "load_in_force": {"mass": 0.73, "com": [0.0, 0.0, 0.06],
+                                            "inertia": [1e-3, 0, 0, 0, 1e-3, 0, 0, 0, 1e-3]}}
+    msg = diagnostic_array(verdict, "ROS 2 /franka/joint_states (domain 0)", t=7.25)
+    got = store.deserialize_cdr(msg.serialize(), "diagnostic_msgs/msg/DiagnosticArray")
+    assert got.header.stamp.sec == 7 and got.header.stamp.nanosec == 250_000_000
+    (status,) = got.status
+    assert status.level == 2 and status.name == STATUS_NAME
+    assert status.hardware_id == "ROS 2 /franka/joint_states (domain 0)"
+    assert status.message == "over_rated: " + VERDICT["detail"]
+    values = {kv.key: kv.value for kv in status.values}
+    assert list(values) == list(verdict)
+    assert values["reason"] == "over_rated" and values["lost"] == "1"
+    assert json.loads(values["load_in_force"]) == verdict["load_in_force"]
+    assert msg.serialize() == bytes(store.serialize_cdr(got,
+                                                        "diagnostic_msgs/msg/DiagnosticArray"))
+
+
+def test_the_verdict_goes_out_on_diagnostics():
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from firmware_bridge.links import DiagnosticsSink
+    from firmware_bridge.ros2_types import DiagnosticArray
+
+    link = _link(88, "", diagnostics_topic="/d88/diagnostics")
+    dp = participant(88, cyclone_config(**LOOPBACK))
+    reader = DataReader(dp, Topic(dp, topic_name("/d88/diagnostics"), DiagnosticArray),
+                        qos=qos(reliable=True, depth=10))
+    try:
+        assert isinstance(link, DiagnosticsSink)
+        assert _until(lambda: reader.get_matched_publications())
+        assert link.publish_diagnostics({**VERDICT, "reason": "send", "detail": "written"})
+        assert link.publish_diagnostics({**VERDICT, "reason": "unstable", "detail": ""})
+        got = []
+        assert _until(lambda: got.extend(reader.take(N=10)) or len(got) >= 2)
+        assert [(a.status[0].level, a.status[0].message) for a in got] == \
+            [(0, "send: written"), (1, "unstable")]
+        assert got[0].status[0].hardware_id == link.name
+    finally:
+        link.close()
+    quiet = _link(87, "", diagnostics_topic="")
+    try:
+        assert not quiet.publish_diagnostics(VERDICT)
+    finally:
+        quiet.close()
+
+
+# -- the load in force, as franka_ros2's robot state reports it ---------------------------------
+FRANKA_MSGS = {
+    "franka_msgs/msg/CollisionIndicators":
+        "geometry_msgs/Vector3 is_cartesian_linear_collision\n"
+        "geometry_msgs/Vector3 is_cartesian_angular_collision\n"
+        "geometry_msgs/Vector3 is_cartesian_linear_contact\n"
+        "geometry_msgs/Vector3 is_cartesian_angular_contact\n"
+        "float64[7] is_joint_collision\nfloat64[7] is_joint_contact\n",
+    "franka_msgs/msg/Elbow": "float64[2] position\nfloat64[2] desired_position\n"
+                             "float64[2] commanded_position\nfloat64[2] commanded_velocity\n"
+                             "float64[2] commanded_acceleration\n",
+    # its fields differ between releases; it comes after the load and is not read
+    "franka_msgs/msg/Errors": "bool joint_position_limits_violation\nbool joint_reflex\n"
+                              "string note\n",
+    "franka_msgs/msg/FrankaRobotState":
+        "std_msgs/Header header\nCollisionIndicators collision_indicators\n"
+        "sensor_msgs/JointState measured_joint_state\n"
+        "sensor_msgs/JointState desired_joint_state\n"
+        "sensor_msgs/JointState measured_joint_motor_state\n"
+        "float64[7] ddq_d\nfloat64[7] dtau_j\nsensor_msgs/JointState tau_ext_hat_filtered\n"
+        "Elbow elbow\ngeometry_msgs/WrenchStamped k_f_ext_hat_k\n"
+        "geometry_msgs/WrenchStamped o_f_ext_hat_k\n"
+        "geometry_msgs/InertiaStamped inertia_ee\ngeometry_msgs/InertiaStamped inertia_load\n"
+        "geometry_msgs/InertiaStamped inertia_total\ngeometry_msgs/PoseStamped o_t_ee\n"
+        "geometry_msgs/PoseStamped o_t_ee_d\ngeometry_msgs/PoseStamped o_t_ee_c\n"
+        "geometry_msgs/PoseStamped f_t_ee\ngeometry_msgs/PoseStamped ee_t_k\n"
+        "geometry_msgs/TwistStamped o_dp_ee_d\ngeometry_msgs/TwistStamped o_dp_ee_c\n"
+        "geometry_msgs/AccelStamped o_ddp_ee_c\nfloat64 time\n"
+        "float64 control_command_success_rate\nuint8 ROBOT_MODE_IDLE=1\nuint8 robot_mode\n"
+        "Errors current_errors\nErrors last_motion_errors\n",
+}
+
+
+def _robot_state_bytes(store, load: Payload | None, load_frame: str = "fr3_link9") -> bytes:
+    """A full FrankaRobotState (every field after the load set too) serialised by rosbags."""
+    for name, text in FRANKA_MSGS.items():
+        if name not in store.types:
+            store.register(get_types_from_msg(text, name))
+    msg = store.types["franka_msgs/msg/FrankaRobotState"]
+    t = store.types
+    vec = t["geometry_msgs/msg/Vector3"]
+    header = t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=5, nanosec=0),
+                                      frame_id="fr3_link0")
+
+    def js(n):
+        return t["sensor_msgs/msg/JointState"](header=header, name=[f"fr3_joint{i}" for i in
+                                                                    range(1, n + 1)],
+                                               position=np.arange(n, dtype=float),
+                                               velocity=np.ones(n), effort=np.zeros(n))
+
+    def inertia(p, frame="fr3_link9"):
+        m, c, i = (0.0, [0.0] * 3, [0.0] * 6) if p is None else (p.mass, p.com, p.inertia)
+        head = t["std_msgs/msg/Header"](stamp=header.stamp, frame_id=frame)
+        return t["geometry_msgs/msg/InertiaStamped"](header=head, inertia=t[
+            "geometry_msgs/msg/Inertia"](m=m, com=vec(x=c[0], y=c[1], z=c[2]), ixx=i[0],
+                                         ixy=i[1], ixz=i[2], iyy=i[3], iyz=i[4], izz=i[5]))
+
+    def stamped(kind, field_name, value):
+        return t[f"geometry_msgs/msg/{kind}Stamped"](header=header, **{field_name: value})
+
+    wrench = t["geometry_msgs/msg/Wrench"](force=vec(x=1.0, y=2.0, z=3.0), torque=vec(x=0.1,
+                                                                                      y=0.2,
+                                                                                      z=0.3))
+    pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=0.3, y=0.0,
+                                                                              z=0.5),
+                                       orientation=t["geometry_msgs/msg/Quaternion"](
+                                           x=0.0, y=0.0, z=0.0, w=1.0))
+    twist = t["geometry_msgs/msg/Twist"](linear=vec(x=0.0, y=0.0, z=0.0),
+                                         angular=vec(x=0.0, y=0.0, z=0.0))
+    accel = t["geometry_msgs/msg/Accel"](linear=vec(x=0.0, y=0.0, z=0.0),
+                                         angular=vec(x=0.0, y=0.0, z=0.0))
+    errors = t["franka_msgs/msg/Errors"](joint_position_limits_violation=False,
+                                         joint_reflex=True, note="x")
+    full = msg(header=header, collision_indicators=t["franka_msgs/msg/CollisionIndicators"](
+        is_cartesian_linear_collision=vec(x=0.0, y=0.0, z=0.0),
+        is_cartesian_angular_collision=vec(x=0.0, y=0.0, z=0.0),
+        is_cartesian_linear_contact=vec(x=0.0, y=0.0, z=1.0),
+        is_cartesian_angular_contact=vec(x=0.0, y=0.0, z=0.0),
+        is_joint_collision=np.zeros(7), is_joint_contact=np.ones(7)),
+        measured_joint_state=js(7), desired_joint_state=js(7), measured_joint_motor_state=js(7),
+        ddq_d=np.full(7, 0.5), dtau_j=np.full(7, -0.5), tau_ext_hat_filtered=js(7),
+        elbow=t["franka_msgs/msg/Elbow"](position=np.ones(2), desired_position=np.ones(2),
+                                         commanded_position=np.ones(2),
+                                         commanded_velocity=np.zeros(2),
+                                         commanded_acceleration=np.zeros(2)),
+        k_f_ext_hat_k=stamped("Wrench", "wrench", wrench),
+        o_f_ext_hat_k=stamped("Wrench", "wrench", wrench),
+        inertia_ee=inertia(Payload("hand", 0.73, (0, 0, 0.017), (1e-3, 0, 0, 2.5e-3, 0, 1.7e-3)),
+                           "fr3_link8"),
+        inertia_load=inertia(load, load_frame), inertia_total=inertia(None, "fr3_link8"),
+        o_t_ee=stamped("Pose", "pose", pose), o_t_ee_d=stamped("Pose", "pose", pose),
+        o_t_ee_c=stamped("Pose", "pose", pose), f_t_ee=stamped("Pose", "pose", pose),
+        ee_t_k=stamped("Pose", "pose", pose), o_dp_ee_d=stamped("Twist", "twist", twist),
+        o_dp_ee_c=stamped("Twist", "twist", twist), o_ddp_ee_c=stamped("Accel", "accel", accel),
+        time=12.0, control_command_success_rate=1.0, robot_mode=1, current_errors=errors,
+        last_motion_errors=errors)
+    return bytes(store.serialize_cdr(full, "franka_msgs/msg/FrankaRobotState"))
+
+
+def test_robot_state_is_read_up_to_the_load_whatever_follows(store):
+    from firmware_bridge.ros2_inertia import load_of
+    from firmware_bridge.ros2_types import FrankaRobotState
+
+    got = FrankaRobotState.deserialize(_robot_state_bytes(store, TOOL))
+    load = load_of(got.inertia_load.inertia)
+    assert (load.mass, load.com, load.inertia) == (TOOL.mass, TOOL.com, TOOL.inertia)
+    assert got.inertia_ee.inertia.m == 0.73 and list(got.ddq_d) == [0.5] * 7
+    empty = FrankaRobotState.deserialize(_robot_state_bytes(store, None))
+    assert load_of(empty.inertia_load.inertia) is None
+
+
+def test_load_report_from_the_robot_state_topic(store):
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.topic import Topic
+
+    from firmware_bridge.ros2_types import FrankaRobotState
+
+    link = _link(86, "", robot_state_topic="/d86/robot_state")
+    dp = participant(86, cyclone_config(**LOOPBACK))
+    writer = DataWriter(dp, Topic(dp, topic_name("/d86/robot_state"), FrankaRobotState),
+                        qos=qos(reliable=True, depth=10))
+    try:
+        assert link.load_report is None
+        assert _until(lambda: writer.get_matched_subscriptions())
+        before = time.perf_counter()
+        writer.write(FrankaRobotState.deserialize(_robot_state_bytes(store, TOOL)))
+        assert _until(lambda: link.load_report is not None)
+        report = link.load_report
+        assert report.has_values and report.seq is None and report.t > before
+        assert (report.load.mass, report.load.com, report.load.inertia) == \
+            (TOOL.mass, TOOL.com, TOOL.inertia)
+        writer.write(FrankaRobotState.deserialize(_robot_state_bytes(store, None)))
+        assert _until(lambda: link.load_report.load is None)
+        # one that does not read as franka_ros2's (the load in another frame): not taken
+        writer.write(FrankaRobotState.deserialize(_robot_state_bytes(store, TOOL, "fr3_link0")))
+        assert _until(lambda: link.load_report and link._reports.unreadable == 1)
+        assert link.load_report.load is None
+    finally:
+        link.close()
+
+
+def test_iem_set_load_through_ros2(tmp_path, capsys):
+    """``iem set-load`` on a ros2 cell: it waits for the SetLoad service, and a refusal
+    exits 1 with the robot's text."""
+    from deploy.cli import main
+    from sim.payload import save_payload
+
+    answers = iter([(True, ""), (False, "command not possible in the current mode")])
+    dp = participant(85, cyclone_config(**LOOPBACK))
+    server = SetLoadServer(dp, "/d85/set_load", answer=lambda r: next(answers))
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[link]\nkind = "ros2"\nchannel = "/d85/joint_states"\n'
+                    '[ros2]\ndomain_id = 85\nset_load_service = "/d85/set_load"\n'
+                    'estimate_topic = "/d85/payload"\ninterface = "lo"\n'
+                    'peers = ["127.0.0.1"]\n')
+    save_payload(TOOL, tmp_path / "tool.toml")
+    try:
+        assert main(["set-load", str(tmp_path / "tool.toml"), "--config", str(cell),
+                     "--json"]) == 0
+        applied = json.loads(capsys.readouterr().out)
+        assert main(["set-load", "--clear", "--config", str(cell)]) == 1
+        refused = capsys.readouterr().out
+    finally:
+        server.close()
+    assert applied["applied"] and applied["load_in_force"]["mass"] == TOOL.mass
+    assert server.requests[0] == TOOL.set_load_args()
+    assert server.requests[1] == (0.0, [0.0] * 3, [0.0] * 9)
+    assert "NOT applied" in refused and "command not possible in the current mode" in refused
