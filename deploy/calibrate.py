@@ -5,23 +5,24 @@ by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes
 rosbag2 bags of ``sensor_msgs/msg/JointState`` (directory, ``.db3``, ``.mcap``; ``--topic``,
 default ``/franka/joint_states``) or joint-state CSVs (``t,q1..q7,dq1..dq7,tau1..tau7``), each
 of the format ``--format`` names or else of the one detected
-(:mod:`firmware_bridge.recordings`);
-``iem calibrate --interface I --channel C --duration S --out ARM`` reads a live link
-(:func:`firmware_bridge.links.open_link`) for ``S`` seconds instead. The arm must carry no
-payload and should run the calibration motion (:func:`sim.paths.calibration_path`, 30 s;
-``iem calibrate --write-motion FILE.csv`` writes it as a path CSV for the robot's own
-program); ``--end-effector`` says what it carries as part of itself (:mod:`sim.end_effector`;
-the prior is centred on that nominal arm). The numerics are :mod:`sim.calibration` and
-:mod:`sim.calibration_noise` (the noise the fit leaves in IEM+phys's equations, measured on
-traffic it did not see); this prints the per-joint residual RMS before and after, the
-condition number of the excitation, that noise and any warning, and writes the arm file
-(msgpack, versioned, CRC-checked; :mod:`sim.arm`), which ``iem train/run/replay/demo --arm``
-and the benchmarks use.
+(:mod:`firmware_bridge.recordings`); ``iem calibrate --interface I --channel C --duration S
+--out ARM`` reads a live link (:func:`firmware_bridge.links.open_link`) for ``S`` seconds
+instead. The arm must carry no payload and should run the calibration motion
+(:func:`sim.paths.calibration_path`, 30 s; ``iem calibrate --write-motion FILE.csv`` writes it
+as a path CSV for the robot's own program); the traffic's rate is ``--rate HZ`` or else each
+recording's detected from its time stamps (:mod:`iem.signals.rate`, 100 Hz to 1 kHz, one rate
+for all, printed with the block size of the noise's equations: ``bare.csv at 200 Hz (detected),
+block points of 2 frames: 100 per s``); ``--end-effector`` says what it carries as part of
+itself (:mod:`sim.end_effector`; the prior is centred on that nominal arm). The numerics are
+:mod:`sim.calibration` and :mod:`sim.calibration_noise` (the noise the fit leaves in IEM+phys's
+equations, measured on traffic it did not see); this prints the per-joint residual RMS before
+and after, the condition number of the excitation, that noise and any warning, and writes the
+arm file (msgpack, versioned, CRC-checked; :mod:`sim.arm`), which ``iem train/run/replay/demo
+--arm`` and the benchmarks use.
 """
 
 from __future__ import annotations
 
-import itertools
 import time
 
 import numpy as np
@@ -29,7 +30,7 @@ import numpy as np
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
 
-from .options import add_end_effector, add_recording_options
+from .options import add_end_effector, add_rate, add_recording_options
 
 
 def read_states(source, duration: float | None = None, silence_s: float = 1.0):
@@ -59,50 +60,22 @@ def read_states(source, duration: float | None = None, silence_s: float = 1.0):
     return t, *(np.array([r[i] for r in rows]) for i in (1, 2, 3))
 
 
-def record_rollout(rollout, out, profile: str = "fd") -> None:
-    """Write a plant rollout's measured joint states (:class:`sim.plant.Rollout`) as a CAN
-    log ``out`` (``.blf .log .asc``), framed as the controller sends them (for tests and
-    demonstrations of ``iem calibrate`` without a robot)."""
-    import can
-
-    from firmware_bridge.can_link import open_bus
-    from firmware_bridge.controller_port import open_port
-    from iem.types import JointState
-
-    channel = f"iem-calibrate-record-{id(rollout)}-{next(_records)}"
-    recorder = open_bus("virtual", channel, profile)
-    port, _ = open_port("virtual", channel, profile)
-    writer = can.Logger(str(out))
-    try:
-        for k in range(len(rollout)):
-            t = float(rollout.t[k])
-            port.tick(k, t)
-            port.publish(JointState(t=t, q=rollout.q[k], dq=rollout.dq[k],
-                                    tau_J=rollout.tau[k], cycle=k))
-            for msg in itertools.takewhile(lambda m: m is not None,
-                                           iter(lambda: recorder.recv(0), None)):
-                writer.on_message_received(msg)
-    finally:
-        writer.stop()
-        port.close()
-        recorder.shutdown()
-
-
-_records = itertools.count()
-
-
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
                       profile: str = "fd", link=None, format: str | None = None,
-                      topic: str = DEFAULT_TOPIC, end_effector=None):
+                      topic: str = DEFAULT_TOPIC, end_effector=None,
+                      rate_hz: float | None = None, log=print):
     """The arm calibrated from the recordings ``logs`` (of ``format``, None: detected per
     file; ``topic``: a rosbag2 bag's JointState topic; ``profile``: a CAN log's wire profile)
     and/or a live link (see the module docstring): ``interface``/``channel`` opened here, or
     ``link`` already open (closed here); ``end_effector``: what the arm carries
     (:mod:`sim.end_effector`; None: the Franka Hand). The arm carries the noise it leaves,
-    measured on traffic its fit did not see (:mod:`sim.calibration_noise`)."""
+    measured on traffic its fit did not see (:mod:`sim.calibration_noise`). ``rate_hz``:
+    the traffic's joint states a second (None: each recording's detected from its time
+    stamps and logged with ``log``; the recordings must share one).
+    """
     from firmware_bridge.links import open_link
     from firmware_bridge.recordings import open_recording
-    from sim.calibration import segments
+    from sim.calibration import CalibrationSettings
     from sim.calibration_noise import calibrate_with_noise
 
     parts, names = [], []
@@ -115,7 +88,7 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
         if data[0].size == 0:
             raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
                                     f"{profile} profile in it")
-        parts += segments(*data)
+        parts.append(data)  # split at its gaps by the signal chain
         names.append(str(log_file))
     if interface is not None or link is not None:
         if duration is None or not duration > 0:
@@ -127,11 +100,35 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
             data = read_states(link, duration)
         finally:
             link.close()
-        parts += segments(*data)
+        if data[0].size < 2:
+            raise InvalidInputError(f"the link {interface}:{channel} gave {data[0].size} joint "
+                                    f"state(s) before it ended; a calibration needs the "
+                                    f"motion's traffic")
+        parts.append(data)  # split at its gaps by the signal chain
         names.append(f"{interface}:{channel} for {duration:g} s")
     if not names:
         raise InvalidInputError("give at least one REC, or --interface/--channel/--duration")
-    return calibrate_with_noise(parts, source=", ".join(names), end_effector=end_effector)
+    rate = traffic_rate(parts, names, rate_hz, log)
+    return calibrate_with_noise(parts, CalibrationSettings(recorded_rate_hz=rate),
+                                source=", ".join(names), end_effector=end_effector)
+
+
+def traffic_rate(parts, names, rate_hz: float | None = None, log=print) -> float:
+    """The joint states' rate of the traffic ``parts`` (``(t, q, dq, tau)`` each, named by
+    ``names``): ``rate_hz`` if given, else each part's detected
+    (:func:`iem.signals.rate.detect_rate`), which must be one rate; checked against
+    :data:`iem.signals.rate.RATE_RANGE_HZ`. Each part's line goes to ``log``."""
+    from iem.signals.rate import block_frames_for, check_rate, detect_rate, rate_line
+
+    rates = [rate_hz if rate_hz is not None else detect_rate(p[0]) for p in parts]
+    for rate, name in zip(rates, names, strict=True):
+        check_rate(rate, name)
+        log(rate_line(rate, block_frames_for(rate), rate_hz is None, name))
+    if max(rates) > min(rates) * 1.02:
+        listed = ", ".join(f"{n} at {r:g} Hz" for r, n in zip(rates, names, strict=True))
+        raise InvalidInputError(f"the recordings have different rates ({listed}); calibrate "
+                                "from recordings of one rate, the rate the arm will run at")
+    return rates[0]
 
 
 def print_report(arm, out, log=print) -> None:
@@ -178,6 +175,7 @@ def configure(parser) -> None:
     parser.add_argument("--duration", type=float, metavar="S",
                         help="seconds of live traffic to record")
     add_end_effector(parser)
+    add_rate(parser)
 
 
 def run(args) -> int:
@@ -195,7 +193,8 @@ def run(args) -> int:
     t0 = time.perf_counter()
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
                             duration=args.duration, profile=args.profile, format=args.format,
-                            topic=args.topic, end_effector=args.end_effector)
+                            topic=args.topic, end_effector=args.end_effector,
+                            rate_hz=args.rate)
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

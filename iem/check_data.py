@@ -10,11 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import IemError, InvalidInputError
-
-
-class CheckFailed(IemError, AssertionError):
-    """An estimator broke one of the shared checks."""
+from .errors import CheckFailed, InvalidInputError
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,12 @@ class ModelFileError(IemError):
     """A saved model file is missing, truncated, corrupt or of an unknown schema version."""
 
 
+class CheckFailed(IemError, AssertionError):
+    """A component broke one of the shared check suites (an estimator :mod:`iem.checks`'s, a
+    link :mod:`firmware_bridge.checks`'s); the message names the check, what was expected
+    and what was found."""
+
+
 class MissingExtraError(IemError, ImportError):
     """A part of the project that needs an optional extra (the simulator, the plots) was used
     where that extra is not installed; the message names the ``pip install`` that adds it

@@ -240,14 +240,6 @@ def default_test_payload() -> Payload:
     return test_payloads()[DEFAULT_TEST]
 
 
-@functools.cache
-def training_phi() -> np.ndarray:
-    """The 77 training payloads' phi, shape (77, 10), in the paper's order (read-only)."""
-    phi = np.array([p.to_phi() for p in training_payloads()])
-    phi.flags.writeable = False
-    return phi
-
-
 def _generic() -> list[Payload]:
     from sim.generic import generic_payloads
 

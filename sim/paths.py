@@ -49,9 +49,10 @@ import math
 import numpy as np
 
 from iem.errors import PathError
+from iem.types import vec7
 from sim.robot import panda
 
-from .joint_path import N_JOINTS, RATE_HZ, Path, frozen_array
+from .joint_path import N_JOINTS, RATE_HZ, Path
 from .path_csv import CSV_HEADER, MIN_CSV_RATE_HZ, MIN_CSV_ROWS, load_path_csv, save_path_csv
 
 __all__ = ["CALIBRATION_AMPLITUDE", "CALIBRATION_SEED", "CSV_HEADER", "EXCITATION_AMPLITUDE",
@@ -84,13 +85,6 @@ excitation path (seed 0, 20 s) into 4 bags, as the paper's excitation path is sp
 EXCITATION_AMPLITUDE.flags.writeable = False
 LIMIT_FRACTION = 0.75
 """Largest fraction of the velocity and acceleration limits the excitation path uses."""
-
-
-def _vec7(name: str, value) -> np.ndarray:
-    arr = frozen_array(name, np.asarray(value, dtype=float).reshape(-1), (N_JOINTS,))
-    if not np.all(np.isfinite(arr)):
-        raise PathError(f"{name} must be 7 finite joint positions in rad, got {arr}")
-    return arr
 
 
 def _time_grid(duration: float, what: str) -> np.ndarray:
@@ -154,7 +148,7 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
     if int(harmonics) != harmonics or harmonics < 3:
         raise PathError(f"excitation path {name!r}: harmonics must be an integer >= 3, "
                         f"got {harmonics}")
-    amp = _vec7("amplitude", amplitude)
+    amp = vec7("amplitude", amplitude, PathError, finite=True)
     if np.any(amp < 0.0):
         raise PathError(f"excitation path {name!r}: amplitude must be >= 0 rad, got {amp}")
     m = panda()
@@ -195,7 +189,8 @@ def linear_path(q_start, q_end, duration: float, name: str = "linear") -> Path:
     """Every joint from ``q_start`` to ``q_end`` (rad) in ``duration`` s (> 0) with the
     quintic time scaling ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, ``τ = t / duration``: a straight line
     in joint space, at rest (zero velocity and acceleration) at both ends."""
-    q_a, q_b = _vec7("q_start", q_start), _vec7("q_end", q_end)
+    q_a, q_b = (vec7(n, v, PathError, finite=True)
+                for n, v in (("q_start", q_start), ("q_end", q_end)))
     t = _time_grid(duration, f"path {name!r}")
     if t[-1] <= 0.0:
         raise PathError(f"path {name!r}: duration must be > 0 s, got {duration}")
@@ -221,7 +216,7 @@ def new_task_path(q_start=None, q_end=None, duration: float = 6.0,
 
 def rest_path(q, duration: float, name: str = "rest") -> Path:
     """Standing still at ``q`` (rad) for ``duration`` s (>= 0)."""
-    q = _vec7("q", q)
+    q = vec7("q", q, PathError, finite=True)
     t = _time_grid(duration, f"path {name!r}")
     zeros = np.zeros((t.shape[0], N_JOINTS))
     return Path(name=name, t=t, q=zeros + q, dq=zeros, ddq=zeros).check_limits()

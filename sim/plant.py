@@ -317,7 +317,3 @@ class Rollout:
     def features(self) -> np.ndarray:
         """Learner inputs ``[q, dq, tau]`` per cycle, ``(N, 21)``."""
         return np.hstack((self.q, self.dq, self.tau))
-
-    def tracking_error(self) -> np.ndarray:
-        """Per-cycle max |q_ref - q_true| over the joints, rad."""
-        return np.abs(self.q_ref - self.q_true).max(axis=1)

@@ -155,12 +155,6 @@ class RealityGap:
         return replace(self, load_friction=0.0, warmup=0.0, gain_rel=0.0, offset_drift=0.0,
                        ripple_large=(0.0, 0.0), ripple_small=(0.0, 0.0))
 
-    @classmethod
-    def gaz_only(cls, seed: int = 0) -> RealityGap:
-        """The links, Gaz's friction and the offsets of ``seed`` alone: no viscous or
-        Stribeck friction, nothing unmodelled."""
-        return cls(seed=seed, viscous=0.0, stribeck=0.0).modelled_only()
-
     def bodies(self, model: mujoco.MjModel) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """The perturbed link bodies ``(mass, com (3,), principal moments (3,))`` in their
         frames (principal axes unchanged), from the nominal bodies of ``model`` (a fresh

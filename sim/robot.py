@@ -60,11 +60,6 @@ def phi_to_pin(phi: np.ndarray) -> np.ndarray:
     return np.asarray(phi)[..., PAPER_TO_PIN]
 
 
-def phi_from_pin(params: np.ndarray) -> np.ndarray:
-    """Pinocchio dynamic-parameter order -> paper order (works on ``(..., 10)`` arrays)."""
-    return np.asarray(params)[..., PAPER_TO_PIN]
-
-
 def _nominal_model() -> pin.Model:
     full = pin.buildModelFromUrdf(str(panda_urdf()))
     locked = [full.getJointId(n) for n in ("panda_finger_joint1", "panda_finger_joint2")]

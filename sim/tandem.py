@@ -64,13 +64,3 @@ class TandemSimulators:
         x[:, 14:] = self.torques(q, dq, ddq)
         return x, self.phi
 
-    def samples_many(self, Q, DQ, DDQ) -> tuple[np.ndarray, np.ndarray]:
-        """Samples for N states stacked state-major: ``(N*K, 21)`` and ``(N*K, 10)``."""
-        Q, DQ, DDQ = (np.asarray(a, dtype=float) for a in (Q, DQ, DDQ))
-        n, k = Q.shape[0], self.phi.shape[0]
-        x = np.empty((n, k, 21))
-        x[:, :, :7] = Q[:, None, :]
-        x[:, :, 7:14] = DQ[:, None, :]
-        for i in range(n):
-            x[i, :, 14:] = self.torques(Q[i], DQ[i], DDQ[i])
-        return x.reshape(n * k, 21), np.tile(self.phi, (n, 1))

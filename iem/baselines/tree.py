@@ -92,10 +92,6 @@ class RegressionTree:
         return self.n_features > 0
 
     @property
-    def n_nodes(self) -> int:
-        return len(self.feature)
-
-    @property
     def depth(self) -> int:
         """Depth of the grown tree (at most ``max_depth``)."""
         return self._depth

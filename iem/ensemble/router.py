@@ -96,11 +96,6 @@ class BagRouter:
         return self._n
 
     @property
-    def q_means(self) -> np.ndarray:
-        """Joint-space mean of every bag, ``(n, 7)`` rad (a copy)."""
-        return self._means[: self._n, :7].copy()
-
-    @property
     def flange_means(self) -> np.ndarray:
         """Flange-position mean of every bag, ``(n, 3)`` m (a copy)."""
         return self._means[: self._n, 7:].copy()

@@ -17,9 +17,9 @@ they come:
   linearly interpolated between the frames on either side, as every filter of the path
   bridged them at the frame rate (counted in ``bridged``). Blocks then stay whole, one every
   ``frames`` nominal cycles, and the filters downstream keep their even spacing: closing a
-  block at every lost frame instead made its points unevenly spaced (4 to 15 ms), which a
-  fixed-rate derivative reads as acceleration (5 % of frames lost, 2 % late and 2 %
-  repeated: IEM+phys's mass error went from 0.1 g to 3.9 g);
+  block at every lost frame would make its points unevenly spaced (4 to 15 ms), which a
+  fixed-rate derivative reads as acceleration (with 5 % of frames lost, 2 % late and 2 %
+  repeated, IEM+phys's mass error is 3.9 g that way, 0.1 g bridged);
 - a gap the rule does not bridge (a silence, time going back: a restart) closes the block
   early: the frames before it make a shorter block, and the frame after it starts the next.
   A block never spans such a gap.
@@ -186,10 +186,6 @@ class BlockFormer:
         self._prev = (t, row)
         self._add(t, row, out)
         return out
-
-    def push_state(self, state: JointState) -> list[JointState]:
-        """:meth:`push` of a :class:`iem.types.JointState`."""
-        return self.push(state.t, state.q, state.dq, state.tau_J, state.cycle)
 
     def push_many(self, T, X, cycles=None) -> Blocks:
         """Add ``len(T)`` frames at once (``X``: ``(n, 21)`` rows of ``[q, dq, tau_J]``;

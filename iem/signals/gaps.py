@@ -20,6 +20,9 @@ how many nominal cycles lie between the sample it is given and the last one it u
   controller), or time stamps that jump back by more than that (a controller restart, a new
   recording): the signal filters start again at this sample; the payload estimate stays.
 
+The offline chain (:mod:`iem.signals.offline`), which sees a whole recording and filters
+it forwards and backwards, splits it at gaps instead (:data:`iem.signals.offline.MAX_GAP_S`).
+
 The rule keeps the time of the last sample it accepted; rounding to whole cycles makes it
 tolerant of clock jitter and of a controller clock that drifts by a fraction of a percent.
 """

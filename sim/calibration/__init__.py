@@ -12,11 +12,14 @@ per torque sensor.
 
 Steps (:func:`calibrate`):
 
-1. **Signals.** The whole log is there, so the filtering is zero-phase: ``q``, ``dq`` and
-   ``tau`` through the same 4th-order Butterworth forwards and backwards (``cutoff_hz``),
-   ``ddq`` the central difference of the filtered ``dq`` on the recorded time stamps; then
-   decimated to ``rate_hz`` (100 Hz), the first and last ``trim_s`` dropped. Traffic whose
-   time steps jitter is first interpolated onto a uniform grid (:func:`prepare`).
+1. **Signals.** The one offline signal chain of :mod:`iem.signals.offline`, which ``iem
+   identify`` uses too: the traffic split where it has gaps of more than 50 ms (pieces
+   shorter than ``4 trim_s + 2`` s left out), interpolated onto a uniform grid where its
+   time steps jitter, spikes replaced, ``q``, ``dq`` and ``tau`` through the same
+   4th-order Butterworth forwards and backwards (``cutoff_hz``), ``ddq`` the central
+   difference of the filtered ``dq`` on the time stamps; then decimated to ``rate_hz``
+   (100 Hz), the first and last ``trim_s`` of each piece dropped
+   (:func:`.signals.calibration_signals`).
 2. **Base parameters.** Only combinations of ``theta`` act on the torques. Column-pivoted QR
    of the regressor at random states, with a relative tolerance (:data:`QR_TOL`), gives their
    number and a basis; the excitation's condition number is that of the recorded regressor on
@@ -92,11 +95,11 @@ from .prior import (
     friction_prior,
     link_prior_std,
 )
-from .signals import JITTER_TOL, MAX_GAP_S, prepare, segments
+from .signals import JITTER_TOL, MAX_GAP_S, calibration_signals, segments
 
 __all__ = ["AMPLITUDES", "FRICTION_BOUNDS", "JITTER_TOL", "MAX_CONDITION", "MAX_GAP_S",
            "MIN_RANGE", "MIN_SPEED", "PARAM_NAMES", "PAYLOAD_WARN_KG", "PAYLOAD_WARN_SIGMAS",
            "QR_TOL", "CalibrationError", "CalibrationSettings", "base_basis", "calibrate",
-           "calibrate_segments", "check_excitation", "consistent", "consistent_map",
-           "friction_prior", "link_prior_std", "never_worse", "prepare", "residual_rms",
-           "segments"]
+           "calibrate_segments", "calibration_signals", "check_excitation", "consistent",
+           "consistent_map", "friction_prior", "link_prior_std", "never_worse",
+           "residual_rms", "segments"]

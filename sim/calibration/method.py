@@ -17,7 +17,7 @@ from .prior import (
     friction_prior,
     link_prior_std,
 )
-from .signals import prepare
+from .signals import calibration_signals
 
 PAYLOAD_WARN_SIGMAS = 4.0
 PAYLOAD_WARN_KG = 0.1
@@ -44,7 +44,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        source: str = "traffic", end_effector=None,
                        refuse: bool = True) -> ArmParams:
     """:func:`calibrate` on several recordings ``[(t, q, dq, tau), ...]``, each filtered on
-    its own (several logs, or one log split at its gaps by :func:`segments`).
+    its own and split at its gaps (:func:`.signals.calibration_signals`).
     ``end_effector`` (a spec or :class:`sim.end_effector.EndEffector`; None: the Franka
     Hand) is the prior's body 7 and the nominal model the result is compared with.
     ``refuse=False`` fits too little excitation instead of refusing it (the prior holds the
@@ -52,8 +52,9 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     s = settings
     if not parts:
         raise CalibrationError("no traffic to calibrate from (no segment of at least 3 s)")
-    prepared = [prepare(*part, s) for part in parts]
-    q, dq, ddq, tau = (np.concatenate([p[i] for p in prepared]) for i in range(1, 5))
+    prepared = calibration_signals(parts, s)
+    q, dq, ddq, tau = (np.concatenate([getattr(p, k) for p in prepared])
+                       for k in ("q", "dq", "ddq", "tau"))
     nominal_model = PandaModel().model
     ee = _end_effector(end_effector)  # the prior's centre: the declared end effector
     theta0 = nominal_link_params(ee).ravel()
@@ -81,8 +82,9 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     report = {
         "source": source,
         "samples": int(W.shape[0]),
-        "duration_s": float(sum(p[0][-1] - p[0][0] for p in prepared)),
-        "segments": len(prepared),
+        "duration_s": float(sum(p.duration for p in prepared)),
+        "segments": sum(p.pieces for p in prepared),
+        "segments_dropped": sum(p.dropped for p in prepared),
         "base_parameters": int(basis.shape[1]),
         "condition_number": cond,
         "iterations": iterations,
@@ -121,7 +123,7 @@ def residual_rms(arm: ArmParams | None, t, q, dq, tau,
                  settings: CalibrationSettings = DEFAULT_SETTINGS) -> np.ndarray:
     """Per-joint RMS of ``tau - model`` (N·m) on traffic prepared as :func:`calibrate` does,
     for ``arm`` (None: the nominal model): how well an arm model explains held-out motion."""
-    t, q, dq, ddq, tau = prepare(t, q, dq, tau, settings)
+    (p,) = calibration_signals([(t, q, dq, tau)], settings)
     model = PandaModel(arm=arm)
-    pred = np.array([model.rnea(q[k], dq[k], ddq[k]) for k in range(q.shape[0])])
-    return np.sqrt(np.mean((tau - pred) ** 2, axis=0))
+    pred = np.array([model.rnea(p.q[k], p.dq[k], p.ddq[k]) for k in range(p.q.shape[0])])
+    return np.sqrt(np.mean((p.tau - pred) ** 2, axis=0))

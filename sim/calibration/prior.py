@@ -37,6 +37,10 @@ class CalibrationSettings:
         stribeck_std: prior standard deviation of the Stribeck excess, N·m.
         stribeck_vs_std: prior standard deviation of the Stribeck velocities, rad/s.
         offset_std: prior standard deviation of the offsets, N·m.
+        recorded_rate_hz: the joint states' rate, Hz (None: detected from each recording's
+            time stamps, :func:`iem.signals.rate.detect_rate`). The other settings are in
+            seconds and Hz, not samples, so they hold at any rate the offline chain accepts
+            (a cut-off below 0.45 of it, equations at most at it).
     """
 
     cutoff_hz: float = 10.0
@@ -54,6 +58,7 @@ class CalibrationSettings:
     stribeck_std: float = 0.2
     stribeck_vs_std: float = 0.1
     offset_std: float = 0.5
+    recorded_rate_hz: float | None = None
 
 
 DEFAULT_SETTINGS = CalibrationSettings()

@@ -8,19 +8,21 @@ data determine and which the prior.
 
 Method (offline, so the filters may be non-causal):
 
-1. **Signals** (:func:`iem.signals.recording.filtered`). Each recording goes on a uniform time grid
-   at its own median rate (interpolating over the time stamps it has, so lost cycles shift
-   nothing); spikes (single corrupt samples, more than 6 robust standard deviations from a
-   local quadratic fit) are replaced by that fit; ``q``, ``dq`` and ``tau`` go through a
-   zero-phase Butterworth low-pass (order 4, ``cutoff_hz`` = 10 Hz: no lag, so every signal
-   lines up with every other); ``ddq`` is the central difference of the filtered ``dq``; the
-   result is taken every ``1/rate_hz`` s (100 Hz; the low-pass is the anti-alias filter),
-   ``edge_s`` trimmed at both ends.
+1. **Signals** (:func:`iem.signals.offline.prepare`, the offline chain ``iem calibrate`` uses
+   too). Each recording is split where its time stamps jump by more than 50 ms (nothing is
+   invented across a gap; pieces too short to filter are dropped) and each piece goes on a
+   uniform time grid at the median rate where its clock jitters by more than 1 %; spikes
+   (single corrupt samples, more than 6 robust standard deviations from a local quadratic
+   fit) are replaced by that fit; ``q``, ``dq`` and ``tau`` go through a zero-phase
+   Butterworth low-pass (order 4, ``cutoff_hz`` = 10 Hz: no lag, so every signal lines up
+   with every other); ``ddq`` is the central difference of the filtered ``dq``; the result
+   is taken every ``1/rate_hz`` s (100 Hz; the low-pass is the anti-alias filter),
+   ``edge_s`` trimmed at both ends of each piece.
 2. **Alignment.** The bare recording is moved in time onto the loaded one by the peak of the
    cross-correlation of their filtered joint velocities (sub-sample, parabolic), and sampled
-   at the loaded recording's instants. The two must be the same motion: on the overlap (at
-   least ``min_overlap_s``) no joint may differ by more than ``path_tol`` rad, else
-   :class:`MismatchedLogsError`.
+   at the loaded recording's instants inside a piece of both. The two must be the same
+   motion: on the overlap (at least ``min_overlap_s``) no joint may differ by more than
+   ``path_tol`` rad, else :class:`MismatchedLogsError`.
 3. **Residual torques.** ``r = (tau_L - tau_nom(x_L)) - (tau_B - tau_nom(x_B))``, ``tau_nom``
    the nominal Panda's RNEA at each recording's own filtered state. What the nominal model
    gets wrong about the arm (links, friction, torque offsets) is nearly the same in both and

@@ -10,7 +10,8 @@ import numpy as np
 from iem.errors import InvalidInputError
 from iem.physics.consistency import is_consistent, project, pseudo_inertia
 from iem.physics.posterior import DEFAULT_PRIOR_STD
-from iem.signals.recording import Signals, as_recording, filtered
+from iem.signals.offline import Signals, prepare
+from iem.signals.recording import as_recording
 from iem.types import GROUPS, N_JOINTS
 
 from .fit import (
@@ -51,7 +52,7 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
              min_overlap_s: float = MIN_OVERLAP_S, huber: float = HUBER,
              prior_std=DEFAULT_PRIOR_STD, excitation_tol: dict | None = None,
              check_excitation: bool = True, min_mass: float = MIN_MASS,
-             model=None) -> Identification:
+             model=None, recorded_rate_hz: float | None = None) -> Identification:
     """Identify the payload from a loaded recording and a bare one (or an arm model).
 
     Args:
@@ -62,7 +63,7 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
             exactly one of ``bare`` and ``arm``.
         cutoff_hz: zero-phase low-pass cutoff, Hz.
         rate_hz: rate of the equations after decimation, Hz.
-        edge_s: time trimmed at both ends after filtering, s.
+        edge_s: time trimmed at both ends of each gap-free piece after filtering, s.
         path_tol: largest joint difference between the loaded and bare motions, rad.
         min_overlap_s: shortest common stretch of the two recordings, s.
         huber: Huber threshold, robust-scale units.
@@ -72,6 +73,8 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
         check_excitation: refuse an unexciting motion (else report it in ``determined_by``).
         min_mass: smallest mass the loaded-minus-bare difference must carry, kg.
         model: the nominal arm (a :class:`sim.robot.PandaModel`); default a new one.
+        recorded_rate_hz: the recordings' joint states a second, Hz (None: each one's
+            detected from its time stamps, :func:`iem.signals.rate.detect_rate`).
 
     Raises:
         MismatchedLogsError, ExcitationError, BareLoadError (all :class:`IdentifyError`);
@@ -84,12 +87,17 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
         model = PandaModel()
     arm_rnea = None if arm is None else arm_model(arm)
 
-    L = filtered(as_recording(loaded), cutoff_hz, rate_hz, edge_s, "loaded recording")
+    L = prepare(as_recording(loaded), cutoff_hz, rate_hz, edge_s, what="loaded recording",
+                recorded_rate_hz=recorded_rate_hz)
     report: dict = {"cutoff_hz": cutoff_hz, "rate_hz": rate_hz,
-                    "recorded_rate_hz": L.rate, "spikes_replaced": {"loaded": L.spikes}}
+                    "recorded_rate_hz": L.rate, "spikes_replaced": {"loaded": L.spikes},
+                    "pieces": {"loaded": L.pieces}, "pieces_dropped": {"loaded": L.dropped}}
     if bare is not None:
-        B = filtered(as_recording(bare), cutoff_hz, rate_hz, edge_s, "bare recording")
+        B = prepare(as_recording(bare), cutoff_hz, rate_hz, edge_s, what="bare recording",
+                    recorded_rate_hz=recorded_rate_hz)
         report["spikes_replaced"]["bare"] = B.spikes
+        report["pieces"]["bare"] = B.pieces
+        report["pieces_dropped"]["bare"] = B.dropped
         r, Y, lead, at = _against_bare(model, L, B, path_tol, min_overlap_s, report)
     else:
         r, Y, lead, at = _against_arm(model, L, arm_rnea)

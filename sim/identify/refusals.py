@@ -10,7 +10,7 @@ import numpy as np
 
 from iem.errors import InvalidInputError
 from iem.physics.consistency import is_consistent, project
-from iem.signals.recording import Signals, lag, sample
+from iem.signals.offline import Signals, lag, piece_of, sample
 from iem.types import GROUPS, PARAMS
 
 from .fit import RobustFit, residuals_and_regressor, robust_fit
@@ -54,9 +54,11 @@ def align(loaded: Signals, bare: Signals, path_tol: float, min_overlap_s: float)
     recording's signals at those instants, and the figures of the alignment; or
     :class:`MismatchedLogsError`."""
     shift = lag(loaded, bare)
-    t_bare = bare.fine_t + shift
-    keep = (loaded.t >= t_bare[0]) & (loaded.t <= t_bare[-1])
-    overlap = float(loaded.t[keep][-1] - loaded.t[keep][0]) if keep.sum() > 1 else 0.0
+    # inside a piece of each (no gap of either); the overlap sums the stretches that are
+    piece = np.stack((piece_of(loaded, loaded.t), piece_of(bare, loaded.t - shift)))
+    keep = piece[1] >= 0
+    joined = keep[1:] & keep[:-1] & np.all(piece[:, 1:] == piece[:, :-1], axis=0)
+    overlap = float(np.diff(loaded.t)[joined].sum())
     if overlap < min_overlap_s:
         raise MismatchedLogsError(
             f"the loaded and bare recordings share {overlap:.2f} s of motion at their best "

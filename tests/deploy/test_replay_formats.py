@@ -1,7 +1,7 @@
 """``iem replay``, ``iem calibrate`` and ``iem identify`` on the recordings Franka users have.
 
 One plant rollout (:class:`sim.plant.PandaPlant` on the new task path, a payload mounted) is
-written as a CAN log by ``deploy.calibrate.record_rollout``, framed as the controller sends
+written as a CAN log by ``tests.can_logs.write_log``, framed as the controller sends
 it. The CAN wire quantises (``protocol.dbc``: q 1e-5 rad, dq 1e-4 rad/s, tau 0.01 N·m, t 1 µs),
 so the rosbag2 bags and the CSV are written from the values the CAN log decodes to: the three
 formats then carry the same joint states. The CSV holds every float as its repr, so it is
@@ -17,13 +17,13 @@ import json
 import numpy as np
 import pytest
 
-from deploy.calibrate import record_rollout
 from deploy.cli import main
 from deploy.replay import CSV_HEADER, replay
 from firmware_bridge.recordings import CSV_COLUMNS, read_recording
 from sim.family import default_test_payload
 from sim.paths import new_task_path
 from sim.plant import PandaPlant
+from tests.can_logs import write_log
 from tests.firmware_bridge.test_recordings import FR3, write_bag, write_csv
 
 from .conftest import cell_config, write_toml
@@ -40,7 +40,7 @@ def write_formats(folder, rollout, stem: str) -> dict:
     """``rollout`` as a CAN log, then the log's decoded joint states as a sqlite3 bag, an MCAP
     bag and a CSV; name -> path."""
     can_log = folder / f"{stem}.blf"
-    record_rollout(rollout, can_log)
+    write_log(rollout, can_log)
     rec = read_recording(can_log)
     ns = stamps_ns(rec.t)
     return {
@@ -296,5 +296,5 @@ def test_iem_run_replays_a_recording_link(files, model_file, tmp_path, capsys):
                                                "channel": str(files["csv"])}))
     assert main(["run", "--config", str(cell)]) == 0
     err = capsys.readouterr().err
-    assert int(err.split("iem run: ")[1].split(" cycles")[0]) == -(-(int(SECONDS * 1000) + 1)
+    assert int(err.split("iem run: ")[1].split(" block points")[0]) == -(-(int(SECONDS * 1000) + 1)
                                                                     // 10)  # block points

@@ -23,7 +23,8 @@ from iem.physics.consistency import (
 )
 from sim.family import test_payloads, training_payloads
 from sim.payload import Payload
-from sim.robot import phi_from_pin, phi_to_pin
+from sim.robot import phi_to_pin
+from tests.sim.test_robot import phi_from_pin
 
 
 def _payload_ok(phi) -> bool:

@@ -16,6 +16,7 @@ from iem.ensemble.router import BagRouter
 from iem.ensemble.worker import LearningError, LearningWorker
 from iem.errors import InvalidInputError
 from iem.persistence import dumps, loads
+from tests.iem.router_views import q_means
 
 from .test_checks import DATA
 
@@ -448,8 +449,8 @@ def test_router_after_replacements_routes_as_a_fresh_router_of_its_means(n):
         q, f = rng.uniform(-2.5, 2.5, 7), rng.uniform(-0.8, 0.8, 3)
         router.replace(i, q, f)
         router.join(i, q + 0.01, f)
-    fresh = BagRouter.from_means(router.q_means, router.flange_means)
-    probes_q = np.vstack((router.q_means + rng.normal(0, 0.1, (n, 7)),
+    fresh = BagRouter.from_means(q_means(router), router.flange_means)
+    probes_q = np.vstack((q_means(router) + rng.normal(0, 0.1, (n, 7)),
                           rng.uniform(-2.5, 2.5, (200, 7))))
     probes_f = np.vstack((router.flange_means + rng.normal(0, 0.05, (n, 3)),
                           rng.uniform(-0.8, 0.8, (200, 3))))

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from iem.ensemble.router import BagRouter
 from iem.errors import InvalidInputError
+from tests.iem.router_views import q_means
 
 LO, HI = -2.0, 2.0  # rad: a box small enough that bags overlap at δ = 0.5
 DELTA, RHO = 0.5, 0.3
@@ -40,7 +41,7 @@ def brute(means: np.ndarray, q, x, delta: float, rho: float) -> tuple[int, int]:
 
 
 def means_of(router: BagRouter) -> np.ndarray:
-    return np.hstack((router.q_means, router.flange_means))
+    return np.hstack((q_means(router), router.flange_means))
 
 
 def probes(rng, router: BagRouter, k: int):
@@ -48,8 +49,8 @@ def probes(rng, router: BagRouter, k: int):
     share a mean), and uniform in the box (most outside every bag)."""
     n = len(router)
     pick = rng.integers(0, n, k)
-    Q = np.vstack((router.q_means[pick] + rng.normal(0, 0.15, (k, 7)),
-                   router.q_means[pick[: k // 4]],
+    Q = np.vstack((q_means(router)[pick] + rng.normal(0, 0.15, (k, 7)),
+                   q_means(router)[pick[: k // 4]],
                    rng.uniform(LO, HI, (k, 7))))
     F = np.vstack((router.flange_means[pick] + rng.normal(0, 0.1, (k, 3)),
                    router.flange_means[pick[: k // 4]],
@@ -90,7 +91,7 @@ def test_every_path_decides_as_brute_force_while_means_move(n):
         for _ in range(5):
             i, j = (int(v) for v in rng.integers(0, len(router), 2))
             if step % 2:
-                q, x = router.q_means[j], router.flange_means[j]
+                q, x = q_means(router)[j], router.flange_means[j]
             else:
                 q, x = rng.uniform(LO, HI, 7), rng.uniform(LO / 4, HI / 4, 3)
             router.replace(i, q, x)
@@ -107,7 +108,7 @@ def test_any_sequence_of_slot_operations_routes_as_brute_force(seed, n, ops):
         q = rng.uniform(LO, HI, 7)
         x = rng.uniform(LO / 4, HI / 4, 3)
         if op == "dup":  # bag i takes bag j's joint-space mean: ties
-            q = router.q_means[j]
+            q = q_means(router)[j]
         if op == "add":
             router.add(q, x)
         elif op == "join":  # a far point joins: a large move of the mean
@@ -128,7 +129,7 @@ def test_route_join_is_route_then_join_on_bag_boundaries(n_bags):
     split = copy.deepcopy(fused)
     rng = np.random.default_rng(4)
     points = list(_boundary_points(split, 10, rng))
-    points += [(split.q_means[i % len(split)] + rng.normal(0, 0.2, 7), np.zeros(3))
+    points += [(q_means(split)[i % len(split)] + rng.normal(0, 0.2, 7), np.zeros(3))
                for i in range(200)]
     outcomes = set()
     for q, f in points:
@@ -160,7 +161,7 @@ def test_route_join_when_the_nearest_bag_is_out_of_reach_in_cartesian_space(othe
     split.join(bag, q, np.zeros(3))
     assert (bag, nearest) == (1, 0)
     assert router.route_join(q, np.zeros(3)) == (1, 0)
-    assert router.q_means.tobytes() == split.q_means.tobytes()
+    assert q_means(router).tobytes() == q_means(split).tobytes()
     assert router.counts.tolist()[:3] == [1, 2, 1]
     # nothing holds it: no bag moves, the nearest is reported
     far = np.full(7, 2.0)

@@ -101,7 +101,7 @@ def test_depth_one_recovers_a_step_exactly():
     tree = RegressionTree(max_depth=1, min_samples_leaf=1).fit(X, Y)
     below, above = X[X[:, 0] <= 0.37, 0].max(), X[X[:, 0] > 0.37, 0].min()
     assert tree.feature[0] == 0 and tree.threshold[0] == 0.5 * (below + above)
-    assert tree.n_nodes == 3
+    assert len(tree.feature) == 3
     np.testing.assert_array_equal(tree.predict_many(X), Y)
     np.testing.assert_array_equal(tree.predict_one([0.1, 5.0]), low)
     np.testing.assert_array_equal(tree.predict_one([0.9, -5.0]), high)
@@ -110,7 +110,7 @@ def test_depth_one_recovers_a_step_exactly():
 def test_constant_targets_give_a_single_leaf():
     X = np.random.default_rng(0).standard_normal((50, 3))
     tree = RegressionTree(min_samples_leaf=1).fit(X, np.ones((50, 10)))
-    assert tree.n_nodes == 1 and tree.depth == 0
+    assert len(tree.feature) == 1 and tree.depth == 0
 
 
 @pytest.mark.parametrize("min_leaf", [1, 7, 30])
@@ -224,5 +224,5 @@ def test_invalid_hyper_parameters_and_predictions_raise():
 def test_leaf_marker_and_depth_zero():
     X, Y = _data(10, n=50)
     tree = RegressionTree(max_depth=0).fit(X, Y)
-    assert tree.n_nodes == 1 and tree.feature[0] == LEAF
+    assert len(tree.feature) == 1 and tree.feature[0] == LEAF
     np.testing.assert_allclose(tree.predict_one(X[0]), Y.mean(axis=0))

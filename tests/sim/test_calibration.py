@@ -7,7 +7,6 @@ log."""
 import numpy as np
 import pytest
 
-from deploy.calibrate import record_rollout
 from deploy.cli import main
 from iem.errors import ModelFileError
 from sim.arm import ArmParams, friction_torque, load_arm, save_arm
@@ -16,9 +15,9 @@ from sim.calibration import (
     base_basis,
     calibrate,
     calibrate_segments,
+    calibration_signals,
     link_prior_std,
     never_worse,
-    prepare,
 )
 from sim.calibration import CalibrationSettings as Settings
 from sim.calibration.excitation import regressors
@@ -26,11 +25,18 @@ from sim.family import default_test_payload
 from sim.paths import Q0, calibration_path, excitation_path, linear_path, rest_path
 from sim.plant import PandaPlant, RealityGap
 from sim.robot import PandaModel, nominal_link_params
+from tests.can_logs import write_log
 from tests.real_data import real_recording
 
 GAP = RealityGap(seed=3).modelled_only()
 """Links, friction (Coulomb, viscous, Stribeck, per direction) and offsets: all the arm
 model describes, so that what the calibration recovers can be checked against the truth."""
+
+
+def prepare(t, q, dq, tau):
+    """``(t, q, dq, ddq, tau)`` of one recording as the calibration prepares it."""
+    (p,) = calibration_signals([(t, q, dq, tau)])
+    return p.t, p.q, p.dq, p.ddq, p.tau
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +65,8 @@ def test_recovers_friction_and_offsets(bare, arm):
 def test_recovers_gaz_friction_of_a_gaz_arm():
     """On an arm with Gaz's friction alone the full model finds Gaz's parameters (measured:
     phi1 within 2 %, phi2 within 3 %) and no viscous or Stribeck friction to speak of."""
-    plant = PandaPlant(gap=RealityGap.gaz_only(seed=3), seed=101)
+    gaz = RealityGap(seed=3, viscous=0.0, stribeck=0.0).modelled_only()  # Gaz's friction alone
+    plant = PandaPlant(gap=gaz, seed=101)
     r = plant.follow(calibration_path(20.0))
     arm, truth = calibrate(r.t, r.q, r.dq, r.tau), plant.arm
     np.testing.assert_allclose(arm.friction[:, 0], truth.friction[:, 0], rtol=0.04)
@@ -152,7 +159,7 @@ def test_arm_file_round_trip_and_corruption(arm, tmp_path):
 
 def test_cli_calibrates_from_a_can_log(bare, tmp_path, capsys):
     log_file = tmp_path / "bare.blf"
-    record_rollout(bare[1], log_file)
+    write_log(bare[1], log_file)
     out = tmp_path / "arm.msgpack"
     assert main(["calibrate", str(log_file), "--out", str(out)]) == 0
     text = capsys.readouterr().out

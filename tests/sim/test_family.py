@@ -23,7 +23,6 @@ def test_build_is_fast():
     fam._standardized.cache_clear()
     fam._training_indices.cache_clear()
     fam._test_payloads.cache_clear()
-    fam.training_phi.cache_clear()
     start = time.perf_counter()
     fam.training_payloads()
     fam.test_payloads()
@@ -56,13 +55,6 @@ def test_training_set_is_deterministic_and_a_fresh_list():
     assert len(fam.training_payloads()) == 77
 
 
-def test_training_phi_is_read_only_and_matches():
-    phi = fam.training_phi()
-    assert phi.shape == (77, 10)
-    assert not phi.flags.writeable
-    np.testing.assert_allclose(phi, [p.to_phi() for p in fam.training_payloads()])
-
-
 def test_mass_range_and_all_six_levels():
     masses = np.array([p.mass for p in fam.training_payloads()])
     assert masses.min() == pytest.approx(0.790)
@@ -74,7 +66,7 @@ def test_mass_range_and_all_six_levels():
 def test_test_payloads_are_outside_training_and_consistent():
     tests = fam.test_payloads()
     assert set(tests) >= {"test-2w", "test-3w", "test-4w"}
-    training_phi = fam.training_phi()
+    training_phi = np.array([p.to_phi() for p in fam.training_payloads()])
     for name, p in tests.items():
         assert p.name == name
         assert p.check() is p

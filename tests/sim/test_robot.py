@@ -6,7 +6,13 @@ import pinocchio as pin
 import pytest
 
 from sim.plant import build_mujoco_model
-from sim.robot import PAPER_TO_PIN, PandaModel, phi_from_pin, phi_to_pin
+from sim.robot import PAPER_TO_PIN, PandaModel, phi_to_pin
+
+
+def phi_from_pin(params: np.ndarray) -> np.ndarray:
+    """Pinocchio dynamic-parameter order -> paper order (``(..., 10)`` arrays): the inverse
+    permutation of :data:`sim.robot.PAPER_TO_PIN`, computed, not assumed to be itself."""
+    return np.asarray(params)[..., np.argsort(PAPER_TO_PIN)]
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +76,7 @@ def test_rnea_and_regressor_agree_with_separate_calls(model):
 
 def test_parameter_order_permutation_is_an_involution():
     v = np.arange(10.0)
+    np.testing.assert_array_equal(phi_to_pin(phi_to_pin(v)), v)
     np.testing.assert_array_equal(phi_from_pin(phi_to_pin(v)), v)
     # paper Ixz (6) is Pinocchio's index 7, paper Iyy (7) is Pinocchio's index 6
     assert PAPER_TO_PIN[6] == 7 and PAPER_TO_PIN[7] == 6

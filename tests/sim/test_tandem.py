@@ -36,19 +36,6 @@ def test_targets_are_read_only(tandem):
         y[0, 0] = 1.0
 
 
-def test_samples_many_stacks_state_major(tandem):
-    model = PandaModel()
-    rng = np.random.default_rng(2)
-    states = [model.random_state(rng) for _ in range(3)]
-    qs, dqs, ddqs = (np.array(a) for a in zip(*states, strict=True))
-    x, y = tandem.samples_many(qs, dqs, ddqs)
-    assert x.shape == (3 * 77, 21) and y.shape == (3 * 77, 10)
-    for i, (q, dq, ddq) in enumerate(states):
-        xi, yi = tandem.samples(q, dq, ddq)
-        np.testing.assert_array_equal(x[i * 77:(i + 1) * 77], xi)
-        np.testing.assert_array_equal(y[i * 77:(i + 1) * 77], yi)
-
-
 def test_bad_family_shape_is_an_error():
     with pytest.raises(InvalidInputError, match=r"\(K, 10\)"):
         TandemSimulators(np.zeros((3, 9)))
