@@ -45,28 +45,32 @@ EX_ERROR = 2
 Table = dict[str, "tuple[str, str] | tuple[dict, str]"]
 
 BENCHES: Table = {
-    "sim": ("sim.bench", "RNEA, regressor and tandem speed, plant real-time factor"),
+    "sim": ("deploy.bench.sim", "RNEA, regressor and tandem speed, plant real-time factor"),
     "paper": ("deploy.bench.paper", "the paper's experiments in simulation: results.json, report"),
     "realistic": ("deploy.bench.realistic", "the models on a perturbed arm, with and without "
                   "calibration: results.json, report"),
     "custom": ("deploy.bench.custom", "the paper benchmark's models on a payload file and a path"),
-    "bridge": ("firmware_bridge.bench", "fieldbus bridge: decode throughput, latency, bus load"),
-    "e2e": ("deploy.bench_e2e", "the plug-in against the simulated controller at 1 kHz"),
-    "faults": ("deploy.bench_faults",
+    "bridge": ("deploy.bench.bridge", "fieldbus bridge: decode throughput, latency, bus load"),
+    "e2e": ("deploy.bench.e2e", "the plug-in against the simulated controller at 1 kHz"),
+    "faults": ("deploy.bench.faults",
                "the plug-in on a lossy, late, corrupt stream with a silence, against a clean run"),
     "longrun": ("deploy.bench.longrun", "IEM and IEM+phys over a long random motion, per 30 s"),
-    "real": ("deploy.bench_real", "the plug-in on a real Panda's recording: calibrated on one "
+    "real": ("deploy.bench.real", "the plug-in on a real Panda's recording: calibrated on one "
              "part, payloads identified on the rest"),
+    "writeback": ("deploy.bench.writeback", "the write-back, scenario by scenario, simulated"),
 }
 
 COMMANDS: Table = {
     "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
-    "run": ("deploy.service", "the plug-in service: identify the payload, write it back"),
+    "run": ("deploy.run", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
     "calibrate": ("deploy.calibrate", "identify the arm's departure from its model from "
                   "bare-arm traffic: the arm file"),
-    "replay": ("deploy.replay", "run the plug-in over recorded CAN traffic, as fast as possible"),
+    "replay": ("deploy.replay", "run the plug-in over a recording (CAN log, rosbag2 bag, "
+                               "joint-state CSV), as fast as possible"),
     "identify": ("deploy.identify", "identify a payload offline from a loaded and a bare log"),
+    "set-load": ("deploy.set_load", "write a payload file (or --clear: no load) to the "
+                 "controller through the gate's checks"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
     "sim-controller": ("deploy.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),

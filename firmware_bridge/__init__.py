@@ -24,7 +24,7 @@ The plug-in's only way to the robot. Modules, one concept each:
   cross-process tests on a machine without AF_CAN.
 - :mod:`.faults`: drop, corrupt, duplicate, delay, silence.
 - :mod:`.record`, :mod:`.replay`: bus logs with python-can's writers and readers.
-- :mod:`.busload`, :mod:`.bench`: bus load and the bridge's speed.
+- :mod:`.busload`: bus load (the bridge's speed: :mod:`deploy.bench.bridge`).
 - :mod:`.checks`: the check suite every link kind passes (as :mod:`iem.checks` for
   estimators), on the harnesses of :mod:`.link_harness`.
 - :mod:`.errors`: the bridge's errors under :class:`iem.errors.IemError`.

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from deploy.bench_faults import JOINT_STATE, expected_counters
+from deploy.bench.faults import JOINT_STATE, expected_counters
 from firmware_bridge.faults import FaultInjector, FaultSpec
 
 from .conftest import REPO

@@ -36,7 +36,7 @@ def test_train_refuses_an_arm_file_of_another_end_effector_naming_both(tmp_path,
 def test_calibrate_records_the_end_effector_and_the_noise(tmp_path, capsys):
     """A bare simulated arm without its hand, recorded as a joint-state CSV: the arm file
     says 'none' and carries the noise measured on traffic the fit did not see."""
-    from deploy.bench_real import write_csv
+    from deploy.bench.real import write_csv
     from sim.paths import calibration_path
     from sim.plant import PandaPlant, RealityGap
 

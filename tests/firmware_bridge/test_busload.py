@@ -1,4 +1,5 @@
-"""Bus load: the bit counts against a bit-level stuffing simulation, the profiles' loads."""
+"""Bus load: the bit counts against a bit-level stuffing simulation, the profiles' loads,
+and the ``iem bus-load`` command."""
 
 import json
 import subprocess
@@ -122,15 +123,3 @@ def test_bus_load_command():
     assert fig["bits_per_frame"] == 135 and fig["frames_per_s"] == 2010
     text = cli("bus-load", "--profile", "fd")
     assert "712 bits (34 nominal + 678 data)" in text and "17.1 %" in text
-
-
-def test_bench_bridge_writes_json(tmp_path):
-    out = tmp_path / "bridge.json"
-    text = cli("bench", "bridge", "--cycles", "2000", "--slcan-cycles", "200", "--json",
-               str(out))
-    fig = json.loads(out.read_text())
-    for key in ("virtual", "slcan_pty"):
-        assert fig[key]["cycles_per_s"] > 0
-        assert 0 < fig[key]["latency_us"]["p50"] <= fig[key]["latency_us"]["p99"]
-    assert set(fig["bus_load"]) == {"fd", "classic"}
-    assert "virtual bus" in text and "slcan over a pty" in text

@@ -30,14 +30,13 @@ def _median_us(fn, calls: int, repeats: int) -> float:
 def measure(calls: int = 2000, repeats: int = 15, plant_seconds: float = 2.0,
             plant_repeats: int = 5) -> dict:
     from iem.extras import require
-
-    from .family import default_test_payload, training_payloads
-    from .paths import new_task_path
+    from sim.family import default_test_payload, training_payloads
+    from sim.paths import new_task_path
 
     require("mujoco", "iem bench sim (the plant's real-time factor)")
-    from .plant import PandaPlant
-    from .robot import PandaModel
-    from .tandem import TandemSimulators
+    from sim.plant import PandaPlant
+    from sim.robot import PandaModel
+    from sim.tandem import TandemSimulators
 
     model = PandaModel()
     rng = np.random.default_rng(0)

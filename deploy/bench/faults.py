@@ -37,7 +37,7 @@ Figures (``--json FILE`` writes them with these keys):
   points and frames skipped (not newer) by the reader's block former, and restarts of the
   estimator's filters.
 
-Targets (issue 10): faulty mass MAE <= 1.5x the clean run's (floor 0.001 kg); every written
+Targets: faulty mass MAE <= 1.5x the clean run's (floor 0.001 kg); every written
 load within 0.01 kg and 5 mm of CoM of the truth; no write during the silence; counters as
 injected. The plant is the ideal arm (the nominal model): these figures say what the stream
 does to the estimate, not what a real arm's model errors do.
@@ -56,7 +56,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-REPO = FsPath(__file__).resolve().parents[1]
+REPO = FsPath(__file__).resolve().parents[2]
 
 FAULTS = {"drop": 0.05, "corrupt": 0.01, "duplicate": 0.02, "delay": 0.02}
 DELAY_CYCLES = 3
@@ -82,8 +82,8 @@ def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
 def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dict | None,
          fault_seed: int, log) -> dict:
     """One run: the controller process, the service here; what it estimated and wrote."""
-    from .service import Service
-    from .status import StatusLine
+    from deploy.service import Service
+    from deploy.status import StatusLine
 
     with tempfile.TemporaryDirectory() as tmp:
         stats_file = str(FsPath(tmp) / "controller.json")
@@ -118,7 +118,7 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
 
 def _cell_config(pty: str, model, tmp: str):
     """The cell of a run: slcan on the controller's pty, the model checkpointed in ``tmp``."""
-    from .config import config_from_dict
+    from deploy.config import config_from_dict
 
     return config_from_dict({
         "link": {"kind": "slcan", "channel": pty, "profile": "fd",
@@ -192,7 +192,7 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
     out["injected"] = controller.get("faults_by_message", {})
     # the cycles read: a record's cycle is its block point's last frame's, and the first
     # block of the stream holds block_frames frames (no gap can come before its first)
-    first = cycles[0][4] - (service.config.estimate.block_frames - 1) if cycles else 0
+    first = cycles[0][4] - (service.block_frames - 1) if cycles else 0
     seen = (first, cycles[-1][4]) if cycles else (0, -1)
     failures = [tuple(f) for f in controller.get("send_failures", [])]
     out["adapter_dropped"] = len(failures)
@@ -275,9 +275,8 @@ def expected_counters(events, first: int, last: int, failures=()) -> dict:
 
 def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str | None = None,
             log=print) -> dict:
+    from deploy.training import best_model_kind, train_initial_model
     from sim.family import test_payloads
-
-    from .training import best_model_kind, train_initial_model
 
     kind = kind or best_model_kind()
     payload_file = str(REPO / "sim" / "payloads" / "test-3w.toml")

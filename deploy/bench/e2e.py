@@ -40,20 +40,20 @@ import sys
 import tempfile
 from pathlib import Path as FsPath
 
-REPO = FsPath(__file__).resolve().parents[1]
+REPO = FsPath(__file__).resolve().parents[2]
 
 
 def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=print,
             link: str = "virtual", cpu_dma_latency_us: int = -1) -> dict:
-    from .config import config_from_dict
-    from .training import best_model_kind
+    from deploy.config import config_from_dict
+    from deploy.training import best_model_kind
 
     kind = kind or best_model_kind()
     host = {"cpu_dma_latency_us": cpu_dma_latency_us}
     config_from_dict({"host": host}, where="bench e2e")  # a bad limit fails before training
     if link == "slcan-pty":
         return _measure_slcan_pty(seconds, kind, seed, log, host)
-    from .inprocess import simulated_cell, virtual_channel
+    from deploy.inprocess import simulated_cell, virtual_channel
 
     with tempfile.TemporaryDirectory() as tmp:
         config = config_from_dict({
@@ -75,10 +75,10 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
 
 def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) -> dict:
     """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
-    from .config import config_from_dict
-    from .service import Service
-    from .status import StatusLine
-    from .training import train_initial_model
+    from deploy.config import config_from_dict
+    from deploy.service import Service
+    from deploy.status import StatusLine
+    from deploy.training import train_initial_model
 
     model = train_initial_model(kind, seed=seed, log=lambda *a: None,
                                 noise="sensor")  # the simulated arm is its model
@@ -153,7 +153,7 @@ def configure(parser) -> None:
     parser.add_argument("--link", choices=["virtual", "slcan-pty"], default="virtual",
                         help="virtual: the controller in this process (default); slcan-pty: "
                              "the controller in its own process behind slcan on a pty")
-    from .host import add_cpu_latency_option
+    from deploy.host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
 
