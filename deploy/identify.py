@@ -7,7 +7,9 @@ them), decoded by :class:`firmware_bridge.replay.ReplaySource` exactly as the li
 the bus, as fast as the machine goes, or a rosbag2 bag of ``sensor_msgs/msg/JointState``
 (directory, ``.db3``, ``.mcap``; ``--topic``, default ``/franka/joint_states``) or a
 joint-state CSV (``t,q1..q7,dq1..dq7,tau1..tau7``), read by :mod:`firmware_bridge.recordings`;
-``--format can|rosbag2|csv`` names the format of both, else each one's is detected. The
+``--format can|rosbag2|csv`` names the format of both, else each one's is detected; so is
+each one's rate (:mod:`iem.signals.rate`: 100 Hz to 1 kHz; ``--rate HZ`` gives it), printed with
+the rate of its equations (about 100 a second). The
 numerics are :func:`sim.identify.identify` (see there for the method and the refusals). The
 result is written as the project's payload TOML
 (:func:`sim.payload.save_payload`: mass, CoM in the flange frame, inertia about the CoM) and,
@@ -31,7 +33,7 @@ from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
 
-from .options import add_end_effector, add_recording_options
+from .options import add_end_effector, add_rate, add_recording_options
 
 
 def read_log(path, profile: str = "fd", format: str | None = None,
@@ -58,6 +60,19 @@ def read_log(path, profile: str = "fd", format: str | None = None,
     return Recording.from_states(states)
 
 
+def recording_rate_line(rec, rate_hz: float | None, what: str) -> str:
+    """The line ``iem identify`` prints for a recording: its rate (``rate_hz``, or detected
+    from its time stamps, :func:`iem.signals.rate.detect_rate`; 100 Hz to 1 kHz, else
+    InvalidInputError) and its equations' rate."""
+    from iem.signals.rate import check_rate, detect_rate
+    from sim.identify import RATE_HZ
+
+    rate = check_rate(detect_rate(rec.t) if rate_hz is None else rate_hz, what)
+    every = max(1, round(rate / RATE_HZ))
+    return (f"{what} at {rate:g} Hz ({'detected' if rate_hz is None else 'given'}), "
+            f"equations every {every} sample{'s' if every > 1 else ''}: {rate / every:g} per s")
+
+
 def configure(parser) -> None:
     parser.add_argument("--loaded", required=True, metavar="REC",
                         help="recording of the motion with the payload mounted: a CAN log "
@@ -72,6 +87,8 @@ def configure(parser) -> None:
                         help="payload file to write (mass, CoM, inertia about the CoM)")
     parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
     add_recording_options(parser, "wire profile CAN logs were recorded with (default fd)")
+    add_rate(parser, help="joint states a second of both recordings (default: each one's "
+             "detected from its time stamps, the median step)")
     parser.add_argument("--name", help="payload name in the file (default: the file's stem)")
 
 
@@ -114,12 +131,15 @@ def run(args) -> int:
     bare = (read_log(args.bare, args.profile, args.format, args.topic)
             if args.bare is not None else None)
     decoded = time.perf_counter()
+    for name, rec in (("loaded", loaded), ("bare", bare)):
+        if rec is not None:
+            print(recording_rate_line(rec, args.rate, f"{name} recording"))
     arm = args.arm
     if arm is not None and args.end_effector:  # the arm file must be for the declared one
         from .training import load_arm_file
 
         load_arm_file(arm, args.end_effector)
-    result = identify(loaded, bare=bare, arm=arm)
+    result = identify(loaded, bare=bare, arm=arm, recorded_rate_hz=args.rate)
     done = time.perf_counter()
     name = args.name or FsPath(args.out).stem or "identified"
     summary = result.summary(name)

@@ -40,11 +40,33 @@ def block_frames(text: str) -> int:
 
 def add_block_frames(parser) -> None:
     """``--block-frames N``: frames per block point (:mod:`iem.signals.blocks`; ``[estimate]
-    block_frames``)."""
-    from iem.types import DEFAULT_BLOCK_FRAMES
-
-    parser.add_argument("--block-frames", type=block_frames, default=DEFAULT_BLOCK_FRAMES,
+    block_frames``); default None: :func:`iem.signals.rate.block_frames_for` the rate."""
+    parser.add_argument("--block-frames", type=block_frames, default=None,
                         metavar="N", help="the estimator works on the means of N "
-                        f"consecutive joint states (default {DEFAULT_BLOCK_FRAMES}: 100 "
-                        "points per second from a 1 kHz link); the model must be made for "
-                        "the same")
+                        "consecutive joint states (default: round(rate / 100), about 100 "
+                        "points per second: 10 at 1 kHz, 2 at 200 Hz); the model must be made "
+                        "for the same")
+
+
+def rate(text: str) -> float:
+    """A ``--rate`` value: joint states a second in :data:`iem.signals.rate.RATE_RANGE_HZ`
+    (argparse reports the error)."""
+    import argparse
+
+    from iem.errors import InvalidInputError
+    from iem.signals.rate import check_rate
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: valid is a number of Hz") from None
+    try:
+        return check_rate(value)
+    except InvalidInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_rate(parser, default=None, help: str = "joint states a second of the recordings "
+             "(default: detected from their time stamps, the median step)") -> None:
+    """``--rate HZ``: the joint states' rate (:mod:`iem.signals.rate`)."""
+    parser.add_argument("--rate", type=rate, default=default, metavar="HZ", help=help)

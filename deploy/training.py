@@ -8,9 +8,13 @@ those of :data:`iem.persistence.MODELS` that can learn online (``IEM``, ``IEM+ph
 
 With an arm file (``--arm ARM``, from ``iem calibrate``) the tandem simulators are the
 calibrated arm (:class:`sim.robot.PandaModel` with ``arm=``: its bodies, friction and
-offsets), so the learners' samples are the real arm's; IEM+phys's regression names the same
-arm by its dynamics spec (:func:`sim.arm.arm_spec`); and the model file records the arm's
-CRC, so that it refuses to run with another (:func:`iem.persistence.check_arm`).
+offsets), so the learners' samples are the real arm's; IEM+phys's regression and the
+learners' reversal name the same arm by content (:func:`sim.arm.arm_spec`,
+:func:`sim.coverage.reversal_spec`: ``...@arm:CRC32``, never a path); and the model file
+records the arm's CRC, so that it is loaded only with that arm given
+(:func:`iem.persistence.load_model`'s ``resources``) and refuses to run with another
+(:func:`iem.persistence.check_arm`). A tool file declared as the end effector is the nominal
+arm carrying it, referenced the same way.
 """
 
 from __future__ import annotations
@@ -23,14 +27,14 @@ from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
 from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY, FAMILIES
 
-from .options import add_block_frames, add_end_effector
-
-TRAINABLE = ("IEM", "IEM+phys")
+from .config import MODEL_KINDS
+from .options import add_block_frames, add_end_effector, add_rate
 
 
 def best_model_kind() -> str:
-    """The most capable model this build has (:data:`iem.persistence.DEFAULT_MODEL`)."""
-    return DEFAULT_MODEL if DEFAULT_MODEL in TRAINABLE else "IEM"
+    """The kind ``iem train`` and the benchmarks make unless told otherwise:
+    :data:`iem.persistence.DEFAULT_MODEL`."""
+    return DEFAULT_MODEL
 
 
 DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities",
@@ -61,34 +65,33 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_f
     ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
     ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`;
     ``arm``: :func:`load_arm_file`'s result for them, if the caller has it already."""
-    if kind not in TRAINABLE or kind not in MODELS:
-        valid = [k for k in TRAINABLE if k in MODELS]
+    if kind not in MODEL_KINDS or kind not in MODELS:
+        valid = [k for k in MODEL_KINDS if k in MODELS]
         raise InvalidInputError(f"model kind {kind!r} cannot be trained here; valid kinds are "
                                 f"{', '.join(valid)}")
     from sim.coverage import reversal_spec
 
-    params = {**DEPLOY_ENSEMBLE, "reversal": reversal_spec(arm_file), **params}
     if noise not in NOISE_SOURCES:
         raise InvalidInputError(f"noise {noise!r} is not valid; valid are "
                                 f"{', '.join(NOISE_SOURCES)}")
+    arm, _ = load_arm_file(arm_file, end_effector) if arm is None else arm
+    # the nominal arm (a tool's or not) has no friction: its reversal is the plain one
+    params = {**DEPLOY_ENSEMBLE, "reversal": reversal_spec(arm if arm_file else None),
+              **params}
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
+        from sim.arm import arm_spec, nominal_spec
         from sim.robot import PANDA_DYNAMICS
 
-        arm, _ = load_arm_file(arm_file, end_effector) if arm is None else arm
         extra = {"dynamics": PANDA_DYNAMICS}
         if arm_file is not None:
-            from sim.arm import arm_spec
-
-            extra["dynamics"] = arm_spec(arm_file)
+            extra["dynamics"] = arm_spec(arm)
         elif arm is not None:
-            from sim.arm import nominal_spec
-
             extra["dynamics"] = nominal_spec(end_effector)
         point_rate = rate_hz / block_frames
         if noise == "arm":
             extra["torque_noise"] = arm_torque_noise(arm, point_rate)
         return new_model(kind, ensemble={"seed": seed, **params}, rate_hz=point_rate,
-                         **extra)
+                         point_frames=block_frames, **extra)
     return new_model(kind, seed=seed, **params)
 
 
@@ -97,7 +100,7 @@ def check_model_family(model, family: str, where: str = "the model") -> None:
     bags would be trained on one family's simulators, its old ones on another's)."""
     from .config import ConfigError
 
-    have = getattr(model, "trained_family", None)
+    have = model.trained_family
     if have is not None and have != family:  # None: a model of unknown making (in memory)
         raise ConfigError(f"{where} was trained on the payload family {have!r}, the "
                           f"configuration's [model] family is {family!r}; set family = "
@@ -107,32 +110,39 @@ def check_model_family(model, family: str, where: str = "the model") -> None:
 
 def check_model_arm(model, arm_record, where: str = "the model") -> None:
     """Refuse ``model`` unless it was trained for the arm ``arm_record``
-    (:func:`iem.persistence.check_arm`) and every arm file it names is still there with the
-    same content: its physics' (its dynamics spec, ``sim.arm:arm_dynamics@PATH``) and its
-    learners' reversal (``sim.coverage:reversed_velocities@PATH``)."""
+    (:func:`iem.persistence.check_arm`) and every arm its factory specs reference by content
+    (in its hyper-parameters, :meth:`iem.base.Estimator.params`: IEM+phys's dynamics, the
+    learners' reversal: ``...@arm:CRC32``) is that arm."""
     from iem.errors import ModelFileError
+    from iem.factories import referenced, specs_in
     from iem.persistence import check_arm
-    from sim.arm import load_arm
 
     check_arm(model, arm_record, where)
-    ensemble = getattr(model, "ensemble_model", model)
-    named_by = (("its physics", getattr(model, "dynamics", None), "sim.arm:arm_dynamics@"),
-                ("its learners' reversal", getattr(ensemble, "reversal", None),
-                 "sim.coverage:reversed_velocities@"))
-    for what, spec, prefix in named_by:
-        if not isinstance(spec, str) or not spec.startswith(prefix):
-            continue
-        named = spec.partition("@")[2]
-        try:
-            crc = load_arm(named).crc32
-        except ModelFileError as exc:
-            raise ModelFileError(f"{where}: {what} names the arm file {named}, which cannot "
-                                 f"be used ({exc}); put the arm file back there or retrain "
-                                 f"with 'iem train --arm ARM --out MODEL'") from exc
-        if arm_record is None or crc != arm_record["crc32"]:
-            raise ModelFileError(f"{where}: {what} names the arm file {named}, whose content "
-                                 f"differs from the arm the model was trained for; retrain "
-                                 f"with 'iem train --arm ARM --out MODEL'")
+    for key, spec in specs_in(model.params()):
+        ref = referenced(spec)
+        if ref is not None and ref[0] == "arm" and (arm_record is None
+                                                    or ref[1] != arm_record["crc32"]):
+            raise ModelFileError(f"{where}: its {key} {spec!r} references the arm of CRC32 "
+                                 f"{ref[1]:#010x}, not the arm it was trained for; retrain "
+                                 "with 'iem train --arm ARM --out MODEL'")
+
+
+def check_model_rate(model, rate_hz: float, block_frames: int, source: str,
+                     where: str = "the model") -> None:
+    """Refuse ``model`` if it was made for another point rate than ``rate_hz / block_frames``
+    (:attr:`iem.base.Estimator.rate_hz`; None: a model without a signal filter, any rate),
+    naming the ``iem train`` that makes one for ``source``'s joint states."""
+    import math
+
+    from iem.errors import ModelFileError
+
+    made_for = model.rate_hz
+    points = rate_hz / block_frames
+    if made_for is not None and not math.isclose(made_for, points, rel_tol=1e-6):
+        raise ModelFileError(f"{where} was made for {made_for:g} block points per second; "
+                             f"{source} is at {rate_hz:g} Hz, in blocks of {block_frames} "
+                             f"frames: {points:g}; make one for it with 'iem train --rate "
+                             f"{rate_hz:g} --block-frames {block_frames} --out MODEL'")
 
 
 def load_arm_file(arm_file, end_effector=None):
@@ -187,7 +197,7 @@ def tandem_for(family: str, arm=None):
     return TandemSimulators(family_payloads(family), model=PandaModel(arm=arm))
 
 
-def train_initial_model(kind: str = "IEM", family: str = DEPLOY_FAMILY,
+def train_initial_model(kind: str = DEFAULT_MODEL, family: str = DEPLOY_FAMILY,
                         excitation_spec="builtin",
                         seed: int = 0, log=print, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
                         end_effector=None, noise: str = "arm",
@@ -230,8 +240,8 @@ def _seed(text: str) -> int:
 
 def configure(parser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE", help="model file to write")
-    parser.add_argument("--kind", default=None, choices=list(TRAINABLE),
-                        help="model kind (default: the best available)")
+    parser.add_argument("--kind", default=DEFAULT_MODEL, choices=list(MODEL_KINDS),
+                        help=f"model kind (default {DEFAULT_MODEL})")
     parser.add_argument("--family", default=DEPLOY_FAMILY, choices=sorted(FAMILIES),
                         help=f"training payload family (default {DEPLOY_FAMILY}: the paper's "
                              "container configurations and 77 random tools)")
@@ -239,8 +249,9 @@ def configure(parser) -> None:
                         help="excitation path CSV (default: the built-in 20 s path)")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the learners (an integer from 0 to 2**63-1)")
-    parser.add_argument("--rate", type=float, default=NOMINAL_RATE_HZ, metavar="HZ",
-                        help="joint states per second the link delivers (fd 1000, classic 500)")
+    add_rate(parser, NOMINAL_RATE_HZ, f"joint states a second the link or the recordings "
+             f"deliver (default {NOMINAL_RATE_HZ:g}: fd; classic 500; what 'iem replay' "
+             "printed for a recording)")
     add_block_frames(parser)
     parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
                         "the nominal arm)")
@@ -253,11 +264,14 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    kind = args.kind or best_model_kind()
-    model = train_initial_model(kind, args.family, args.excitation, args.seed,
+    from iem.signals.rate import block_frames_for, rate_line
+
+    frames = args.block_frames or block_frames_for(args.rate)
+    print(rate_line(args.rate, frames, detected=False, what="joint states"))
+    model = train_initial_model(args.kind, args.family, args.excitation, args.seed,
                                 rate_hz=args.rate, arm_file=args.arm,
                                 end_effector=args.end_effector, noise=args.noise,
-                                block_frames=args.block_frames)
+                                block_frames=frames)
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

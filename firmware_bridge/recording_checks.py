@@ -1,6 +1,7 @@
 """The checks every joint-state recording passes, whatever its format (:mod:`firmware_bridge.
 recordings`): at least two joint states, time stamps that increase strictly, every value
-finite; a median time step far from the controller's rate is logged.
+finite; a rate outside the range the commands take (:data:`iem.signals.rate.RATE_RANGE_HZ`)
+is logged.
 """
 
 from __future__ import annotations
@@ -10,16 +11,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from iem.errors import InvalidInputError
+from iem.signals.rate import check_rate, detect_rate
 from iem.signals.recording import Recording
-from iem.types import NOMINAL_RATE_HZ
 
 from .errors import LogFileError
 
-__all__ = ["RATE_HZ", "checked_recording", "refuse_nonfinite"]
-
-RATE_HZ = NOMINAL_RATE_HZ
-"""Joint states per second the estimator is set up for on a recording: Franka's controller
-rate (libfranka's RobotState and franka_ros2's ``/franka/joint_states``)."""
+__all__ = ["checked_recording", "refuse_nonfinite"]
 
 log = logging.getLogger("iem.bridge")
 
@@ -37,11 +35,11 @@ def checked_recording(path, t, q, dq, tau, what: Callable[[int], str]) -> Record
         raise LogFileError(f"{path}: {what(k)}: t = {float(t[k])!r} s {how} {what(k - 1)}'s "
                            f"{float(t[k - 1])!r} s; the time stamps of a recording must increase "
                            "strictly (one joint state per controller cycle, in order)")
-    median = float(np.median(steps))
-    if not 0.5 / RATE_HZ <= median <= 2.0 / RATE_HZ:
-        log.warning("%s: the median time step is %.3g ms; the estimator is set up for %g joint "
-                    "states per second and restarts its filters after gaps over 20 ms", path,
-                    median * 1e3, RATE_HZ, extra={"event": "recording_rate"})
+    rate = detect_rate(t)
+    try:
+        check_rate(rate)
+    except InvalidInputError as exc:
+        log.warning("%s: %s", path, exc, extra={"event": "recording_rate"})
     for a in (t, q, dq, tau):
         a.flags.writeable = False  # the source hands out rows as JointState's own arrays
     return Recording(t=t, q=q, dq=dq, tau=tau)

@@ -20,6 +20,10 @@ one (the link kind ``recording``, rosbag2 and CSV), delivering the recorded time
 are: nothing is resampled or filled, the estimator's gap rule (:mod:`iem.signals.gaps`) decides what
 a gap is. :func:`open_recording` opens any of the three formats as a source.
 
+A recording's rate is its own: :class:`RecordingSource` reports the rate its time stamps show
+(:func:`iem.signals.rate.detect_rate`, the median step) or the one given, and
+:func:`can_log_rate` reads it off a CAN log's first joint states.
+
 A rosbag2 or CSV recording is read whole and checked before anything is delivered: a missing
 joint or column, a time stamp that does not increase strictly, a non-finite value (a single
 NaN refuses the whole file: a recording quietly shortened or patched would identify another
@@ -37,6 +41,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from iem.signals.rate import detect_rate
 from iem.signals.recording import Recording
 from iem.types import N_JOINTS, JointState
 
@@ -44,7 +49,7 @@ from .errors import BridgeConfigError, EndOfStream, LogFileError
 from .links import LinkCounters, open_link
 from .reassembly import CYCLE_MOD
 from .record import FORMATS as CAN_SUFFIXES
-from .recording_checks import RATE_HZ, checked_recording, refuse_nonfinite
+from .recording_checks import checked_recording, refuse_nonfinite
 from .ros2_link import DEFAULT_TOPIC
 from .rosbag2_reader import BAG_SUFFIXES, read_rosbag2
 
@@ -209,26 +214,29 @@ class RecordingSource:
     pace (gaps longer than ``skip`` s shortened to it), as python-can's ``MessageSync`` paces
     a CAN log for ``iem run``, whose reader thread drops the oldest states once the estimator
     is 0.5 s behind (:mod:`deploy.reader`). ``counters``: ``received`` and ``delivered`` count
-    joint states; ``lost`` counts the cycles at :data:`RATE_HZ` that the time stamps
+    joint states; ``lost`` counts the cycles at ``rate_hz`` that the time stamps
     skip (as the ``ros2`` link counts them), ``silences`` the gaps longer than
     ``silence_timeout`` (what a live link would have reported there). Nothing is dropped:
     the file was checked whole. ``truncated`` and ``bad_lines`` are those of a CAN log's
-    source, always False and 0 here.
+    source, always False and 0 here. ``rate_hz``: the recording's joint states a second, as
+    given or else detected from its time stamps (:func:`iem.signals.rate.detect_rate`).
     """
 
-    rate_hz = RATE_HZ
     last_frame_time = 0.0  # a recording has no receive time on this PC
     truncated = False
     bad_lines = 0
 
     def __init__(self, recording: Recording, name: str = "recording",
-                 silence_timeout: float = 0.1, pace: str = "fast", skip: float = 60.0) -> None:
+                 silence_timeout: float = 0.1, pace: str = "fast", skip: float = 60.0,
+                 rate_hz: float | None = None) -> None:
         from .replay import PACES
 
         if pace not in PACES:
             raise BridgeConfigError(f"unknown replay pace {pace!r}; valid are {', '.join(PACES)}")
         self.recording = recording
         self.name = name
+        self.rate_hz = detect_rate(recording.t) if rate_hz is None else float(rate_hz)
+        self.rate_detected = rate_hz is None
         self.silence_timeout = float(silence_timeout)
         self.counters = LinkCounters()
         self._k = 0
@@ -243,7 +251,7 @@ class RecordingSource:
         t = float(r.t[k])
         if k:
             dt = t - float(r.t[k - 1])
-            c.lost += max(round(dt * RATE_HZ) - 1, 0)
+            c.lost += max(round(dt * self.rate_hz) - 1, 0)
             if dt > self.silence_timeout:
                 c.silences += 1
             if self._paced:
@@ -278,18 +286,19 @@ class RecordingSource:
 def open_recording_link(kind: str, channel: str, *, profile: str = "fd",
                         silence_timeout: float = 0.1, format: str | None = None,
                         topic: str = DEFAULT_TOPIC, pace: str = "recorded",
-                        skip: float = 60.0) -> RecordingSource:
+                        skip: float = 60.0, rate_hz: float | None = None) -> RecordingSource:
     """Opener for :func:`firmware_bridge.links.open_link` (kind ``recording``): ``channel`` is
     a rosbag2 bag or a joint-state CSV (``format`` None: detected), read whole and checked
     now; ``topic``: the bag's JointState topic; ``pace``, ``skip``: see
     :class:`RecordingSource` (recorded pace by default, as the ``replay`` kind's);
-    ``profile`` is a CAN notion and not used."""
+    ``rate_hz``: the recording's rate (None: detected); ``profile`` is a CAN notion and not
+    used."""
     fmt = recording_format(channel, format)
     if fmt == "can":
         raise LogFileError(f"{channel}: a CAN log; open it as the link kind 'replay'")
     recording = read_recording(channel, fmt, topic=topic)
     what = f"{fmt} recording {channel}" + (f" ({topic})" if fmt == "rosbag2" else "")
-    return RecordingSource(recording, what, silence_timeout, pace, skip)
+    return RecordingSource(recording, what, silence_timeout, pace, skip, rate_hz)
 
 
 def recording_link(path, format: str | None = None, topic: str = DEFAULT_TOPIC
@@ -310,3 +319,25 @@ def open_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPI
     wire profile), a :class:`RecordingSource` for a rosbag2 bag (``topic``) or a CSV."""
     _, kind, options = recording_link(path, format, topic)
     return open_link(kind, str(path), profile=profile, **options)
+
+
+RATE_PEEK = 2000
+"""Joint states of a CAN log :func:`can_log_rate` reads its rate from."""
+
+
+def can_log_rate(path, profile: str = "fd", states: int = RATE_PEEK) -> float:
+    """The rate of a CAN log's joint states (:func:`iem.signals.rate.detect_rate` over its
+    first ``states``), without decoding the rest; LogFileError if it holds fewer than two
+    complete cycles of ``profile``."""
+    from .replay import ReplaySource
+
+    with ReplaySource(path, profile, pace="fast") as source:
+        t = []
+        for state in source:
+            t.append(state.t)
+            if len(t) >= states:
+                break
+    if len(t) < 2:
+        raise LogFileError(f"{path}: {len(t)} complete joint-state cycle(s) of the {profile} "
+                           f"profile ({source.counters.summary()}); a rate needs two")
+    return detect_rate(t)
