@@ -1,5 +1,6 @@
 # make demo: set up .venv and run the main job on the simulated robot.
 # make test: set up .venv and run the whole test suite.
+# make lint: ruff over the whole tree (.ci/run runs test, then lint).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -10,7 +11,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev,ros2,sim,plots]'
+	$(PY) -m pip install --quiet -e '.[dev,ros2,sim,plots,franka]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -1,12 +1,12 @@
 """The layers point one way: an import test over the packages' source (ast, every import,
 function-level ones included).
 
-The rules (issue 29): the value types and errors (``iem.types``, ``iem.payload``,
-``iem.errors``) are the numpy-only home everything imports; ``iem`` imports neither ``sim``
-nor ``deploy``; ``firmware_bridge`` and the safety gate (``deploy/gate*.py``) never import
-``sim``; ``sim`` imports neither ``deploy`` nor ``firmware_bridge``. An arrow that must
-point the wrong way for a while is listed in :data:`KNOWN` (none is): a new wrong arrow
-fails, and so does a listed one that is gone (shrink the list).
+The rules: the value types and errors (``iem.types``, ``iem.payload``, ``iem.errors``) are
+the numpy-only home everything imports; ``iem`` imports neither ``sim`` nor ``deploy``;
+``firmware_bridge`` and the safety gate (``deploy/gate*.py``) never import ``sim``; ``sim``
+imports neither ``deploy`` nor ``firmware_bridge``. So a definition every layer shares (the
+model kind's default, :data:`iem.persistence.DEFAULT_MODEL`) lives in the lowest layer that
+needs it.
 """
 
 import ast
@@ -21,9 +21,6 @@ FORBIDDEN = {
     "firmware_bridge": ("sim", "deploy"),
     "deploy/gate": ("sim",),
 }
-
-KNOWN: dict[str, set[str]] = {}
-
 
 def imported(path: Path) -> set[str]:
     """The top-level modules a source file imports (every import, function-level ones too;
@@ -58,32 +55,9 @@ def wrong_arrows() -> dict[str, set[str]]:
     return out
 
 
-def test_no_new_arrow_points_the_wrong_way():
-    found = wrong_arrows()
-    new = {f: sorted(b - KNOWN.get(f, set())) for f, b in found.items()
-           if b - KNOWN.get(f, set())}
-    assert not new, f"imports against the layers (see this test's docstring): {new}"
-
-
-def gone_arrows(known: dict[str, set[str]], found: dict[str, set[str]]) -> dict[str, list]:
-    """The arrows listed in ``known`` that ``found`` no longer holds."""
-    return {f: sorted(b - found.get(f, set())) for f, b in known.items()
-            if b - found.get(f, set())}
-
-
-def test_the_known_wrong_arrows_are_still_there():
-    """A listed arrow that is gone: take it off the list, so it cannot come back unseen."""
-    gone = gone_arrows(KNOWN, wrong_arrows())
-    assert not gone, f"remove from KNOWN: {gone}"
-
-
-def test_a_listed_arrow_that_is_gone_is_seen():
-    """The test above can fail: the arrows the list once held (commissioning's numerics in
-    iem, the simulated controller and ROS 2 peer in the bridge, all importing sim) are
-    reported gone."""
-    once = {"iem/identify.py": {"sim"}, "firmware_bridge/sim_controller.py": {"sim"},
-            "firmware_bridge/ros2_peers.py": {"sim"}}
-    assert gone_arrows(once, wrong_arrows()) == {f: ["sim"] for f in once}
+def test_no_arrow_points_the_wrong_way():
+    found = {f: sorted(b) for f, b in wrong_arrows().items()}
+    assert not found, f"imports against the layers (see this test's docstring): {found}"
 
 
 def test_the_value_types_home_is_numpy_only():

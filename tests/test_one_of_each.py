@@ -1,15 +1,120 @@
-"""One implementation per algorithm (issues 29 and 31): at 100 Hz block points the compiled
-numba twins of the per-sample numerics saved under 0.01 of a core and cost about 100 MB, so
-they went; nothing may bring back a second implementation chosen per call."""
+"""One of each: the model kind a cell runs unless told otherwise is defined once,
+:data:`iem.persistence.DEFAULT_MODEL`, and every default of a kind (the configuration's,
+``iem train``'s, ``iem replay``'s fresh model, the trainer's) is that constant, imported.
 
-from tests.test_layers import REPO, imported
+The source check reads every module of the packages (ast) for a model kind written as a
+default: a parameter's default, a ``default=`` keyword, a class field's default, a module
+constant, or the fallback of ``or`` and of ``x if c else y``."""
+
+import ast
+import inspect
+from pathlib import Path
+
+from tests.test_layers import PACKAGES, REPO
+
+THE_DEFINITION = ("iem/persistence.py", "DEFAULT_MODEL")
 
 
-def test_no_compiled_twins():
-    sources = [p for pkg in ("iem", "deploy", "sim", "firmware_bridge")
-               for p in (REPO / pkg).rglob("*.py")]
-    assert sources
-    assert not [p for p in sources if "numba" in imported(p)]
-    assert not [p for p in sources if p.stem == "kernels"]
-    assert not [p for p in sources if "IEM_KERNELS" in p.read_text(encoding="utf-8")]
-    assert "numba" not in (REPO / "pyproject.toml").read_text(encoding="utf-8")
+def _kind(node, kinds) -> bool:
+    return isinstance(node, ast.Constant) and node.value in kinds
+
+
+def kind_defaults(root: Path, kinds) -> list[tuple[str, int, str]]:
+    """``(file, line, what)`` of every model kind of ``kinds`` written as a default in the
+    packages under ``root``."""
+    found = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            for node in tree.body:  # module constants
+                if isinstance(node, ast.Assign | ast.AnnAssign) and _kind(node.value, kinds):
+                    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                    for target in targets:
+                        name = getattr(target, "id", "")
+                        if (rel, name) != THE_DEFINITION:
+                            found.append((rel, node.lineno, f"constant {name}"))
+            for node in ast.walk(tree):
+                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda):
+                    for d in [*node.args.defaults, *node.args.kw_defaults]:
+                        if _kind(d, kinds):
+                            found.append((rel, d.lineno, "parameter default"))
+                elif isinstance(node, ast.Call):
+                    for k in node.keywords:
+                        if k.arg == "default" and _kind(k.value, kinds):
+                            found.append((rel, k.value.lineno, "default= keyword"))
+                elif isinstance(node, ast.ClassDef):
+                    for stmt in node.body:  # a dataclass field's default
+                        if isinstance(stmt, ast.AnnAssign) and _kind(stmt.value, kinds):
+                            found.append((rel, stmt.lineno, "field default"))
+                elif isinstance(node, ast.BoolOp):
+                    if isinstance(node.op, ast.Or) and _kind(node.values[-1], kinds):
+                        found.append((rel, node.lineno, "'or' fallback"))
+                elif isinstance(node, ast.IfExp) and (_kind(node.body, kinds)
+                                                      or _kind(node.orelse, kinds)):
+                    found.append((rel, node.lineno, "conditional fallback"))
+    return found
+
+
+def _kinds():
+    from iem.persistence import MODELS
+
+    return set(MODELS)
+
+
+def test_the_model_kind_default_is_written_once():
+    assert kind_defaults(REPO, _kinds()) == []
+
+
+def test_the_check_sees_a_second_default(tmp_path):
+    """The test above can fail: each way of writing a second default is found."""
+    for package in PACKAGES:
+        (tmp_path / package).mkdir()
+    (tmp_path / "iem" / "persistence.py").write_text('DEFAULT_MODEL = "IEM+phys"\n')
+    (tmp_path / "deploy" / "more.py").write_text(
+        'from dataclasses import dataclass\n'
+        'DEFAULT_KIND = "IEM"\n'
+        'def train(kind="IEM"):\n    return kind or "IEM+phys"\n'
+        'def pick(ok):\n    return "IEM+phys" if ok else "IEM"\n'
+        '@dataclass\nclass C:\n    kind: str = "IEM+phys"\n'
+        'def configure(p):\n    p.add_argument("--kind", default="IEM")\n')
+    assert sorted(kind_defaults(tmp_path, _kinds())) == [
+        ("deploy/more.py", 2, "constant DEFAULT_KIND"), ("deploy/more.py", 3, "parameter default"),
+        ("deploy/more.py", 4, "'or' fallback"), ("deploy/more.py", 6, "conditional fallback"),
+        ("deploy/more.py", 9, "field default"), ("deploy/more.py", 11, "default= keyword")]
+
+
+class _Trained(Exception):
+    """What the replay asked the trainer for."""
+
+
+def test_every_default_of_a_kind_is_the_one_constant(tmp_path, monkeypatch):
+    import argparse
+
+    import deploy.training
+    from deploy.config import MODEL_KINDS, ModelConfig
+    from deploy.replay import replay
+    from iem.persistence import DEFAULT_MODEL, new_model
+
+    assert DEFAULT_MODEL in MODEL_KINDS
+    assert ModelConfig().kind == DEFAULT_MODEL
+    for function in (deploy.training.train_initial_model, new_model):
+        assert inspect.signature(function).parameters["kind"].default == DEFAULT_MODEL
+    parser = argparse.ArgumentParser()
+    deploy.training.configure(parser)
+    assert parser.parse_args(["--out", "m.msgpack"]).kind == DEFAULT_MODEL  # iem train
+
+    def trainer(kind, *args, **kwargs):
+        raise _Trained(kind, kwargs["rate_hz"], kwargs["block_frames"])
+
+    monkeypatch.setattr(deploy.training, "train_initial_model", trainer)
+    csv = tmp_path / "rec.csv"
+    header = ["t", *(f"{n}{j}" for n in ("q", "dq", "tau") for j in range(1, 8))]
+    rows = [",".join([f"{k * 1e-3:.3f}", *["0.1"] * 21]) for k in range(20)]
+    csv.write_text("\n".join([",".join(header), *rows]) + "\n", encoding="utf-8")
+    try:
+        replay(csv, log=lambda *a: None, block_frames=5)  # iem replay without --model
+    except _Trained as asked:
+        assert asked.args == (DEFAULT_MODEL, 1000.0, 5)  # at the recording's point rate
+    else:
+        raise AssertionError("the replay trained no fresh model")
