@@ -1,4 +1,5 @@
-"""Payload-change detection on the whitened torque residual (numpy only).
+"""Payload-change detection on the whitened torque residual (numpy; scipy's LAPACK via
+small_linalg).
 
 With the current estimate ``phi`` (covariance ``P``) the next regression equation
 ``r = Y phi + e`` (:mod:`iem.physics.regression`) has the innovation ``nu = r - Y phi`` with

@@ -1,4 +1,5 @@
-"""Physical consistency of payload parameters, and the projection onto it (numpy only).
+"""Physical consistency of payload parameters, and the projection onto it (numpy; scipy's
+LAPACK via small_linalg).
 
 A rigid body's parameters ``phi = [m, h, I]`` (paper order: ``h = m r`` in kg·m, ``I`` the
 inertia about the flange origin in kg·m², see :mod:`iem.types`) are physically consistent iff

@@ -5,8 +5,8 @@ takes under 1 µs at these sizes (10x10 symmetric inverse: 12.9 µs with ``chole
 ``solve``, 2.9 µs here; a 7x7 chi-square: 7.6 µs against 1.9 µs; measured on this machine).
 The cycle makes several of them per equation and per posterior refresh, so they are called
 here through SciPy's LAPACK wrappers (``dpotrf``, ``dtrtri``, ``dtrtrs``, ``dgesv``), the
-same routines numpy's functions call (SciPy is imported at the first call: ``iem`` stays
-numpy-only at import). Failures raise :class:`numpy.linalg.LinAlgError`, as
+same routines numpy's functions call (SciPy is imported at the first call: this module
+imports only numpy). Failures raise :class:`numpy.linalg.LinAlgError`, as
 numpy's would, so callers keep their ``except`` clauses.
 """
 
@@ -21,8 +21,8 @@ _LAPACK = None
 
 
 def _lapack():
-    """SciPy's LAPACK wrappers, imported at the first call (``iem`` stays numpy-only at
-    import)."""
+    """SciPy's LAPACK wrappers, imported at the first call (this module imports only numpy
+    itself)."""
     global _LAPACK
     if _LAPACK is None:
         from scipy.linalg import lapack
