@@ -18,8 +18,9 @@ ended and the link has gone quiet, so every frame sent is accounted for.
 Figures (``--json FILE`` writes them with these keys):
 
 - ``mae_groups_faulty``, ``mae_groups_clean``: MAE of the smoothed estimate (what the gate
-  sees) against the truth, per group (mass kg, com kg·m, inertia kg·m²), over the controller
-  cycles both runs estimated (``compared_cycles``), from a second after the later start;
+  sees) against the truth, per group (mass kg, com kg·m, inertia kg·m²), over the 10 ms bins
+  of controller time both runs estimated (``compared_cycles``), from a second after the
+  later start;
   ``mae_groups_raw_faulty``/``_clean``: the same for the raw estimate.
 - ``writes``: ``sent``, ``during_silence`` (loads sent between the last joint state before
   the silence and the first after it, judged by the clock of this process, not by the
@@ -62,6 +63,8 @@ FAULTS = {"drop": 0.05, "corrupt": 0.01, "duplicate": 0.02, "delay": 0.02}
 DELAY_CYCLES = 3
 SILENCE_S = 2.0
 WARMUP_S = 1.0
+BIN_CYCLES = 10
+"""Controller cycles per bin the two runs are compared over (10 ms: one block point each)."""
 JOINT_STATE = "JointStateFD"
 
 
@@ -170,7 +173,7 @@ def _serve(service, proc, cycles: list, writes: list, announce) -> dict:
 
 def _figures(cycles, writes, summary, service, controller, truth, seconds, faulty) -> dict:
     out = {"cycles": summary["cycles"], "summary": summary,
-           "per_cycle": {c[4]: (c[2], c[3]) for c in cycles}}
+           "per_cycle": {c[4] // BIN_CYCLES: (c[2], c[3]) for c in cycles}}
     during = 0
     if faulty:  # wall-clock window between the last state before and the first after
         start, end = seconds / 2.0, seconds / 2.0 + SILENCE_S
@@ -208,16 +211,17 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
 
 
 def _score(clean: dict, faulty: dict, truth) -> None:
-    """MAE of both runs over the same instants: the controller cycles both estimated, from
-    ``WARMUP_S`` after the later of their first cycles (the faulty run has holes, the silence
-    above all; comparing over all of each run's own cycles would weigh their starts
-    differently)."""
+    """MAE of both runs over the same instants: the :data:`BIN_CYCLES`-cycle bins of
+    controller time both estimated (a block point in each: their blocks end on different
+    cycles once a gap has shifted one run's), from ``WARMUP_S`` after the later of their
+    first bins (the faulty run has holes, the silence above all; comparing over all of each
+    run's own points would weigh their starts differently)."""
     from iem.metrics import mae_groups
 
     a, b = clean.pop("per_cycle"), faulty.pop("per_cycle")
     common = sorted(set(a) & set(b))
     if common:
-        start = max(min(a), min(b)) + round(WARMUP_S * 1000.0)
+        start = max(min(a), min(b)) + round(WARMUP_S * 1000.0 / BIN_CYCLES)
         common = [c for c in common if c >= start]
     phi = truth.to_phi()
     for run, per in ((clean, a), (faulty, b)):
