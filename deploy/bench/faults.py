@@ -195,8 +195,9 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
     out["injected"] = controller.get("faults_by_message", {})
     # the cycles read: a record's cycle is its block point's last frame's, and the first
     # block of the stream holds block_frames frames (no gap can come before its first)
+    # ... and the frames of the block still open when the run ended came after its last
     first = cycles[0][4] - (service.block_frames - 1) if cycles else 0
-    seen = (first, cycles[-1][4]) if cycles else (0, -1)
+    seen = (first, cycles[-1][4] + service.reader_former.pending) if cycles else (0, -1)
     failures = [tuple(f) for f in controller.get("send_failures", [])]
     out["adapter_dropped"] = len(failures)
     out["expected"] = expected_counters(controller.get("fault_events", []), *seen, failures)
