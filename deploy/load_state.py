@@ -37,6 +37,7 @@ HISTORY = 64
 
 MASS_TOL_KG = 1e-4
 COM_TOL_M = 1e-4
+INERTIA_TOL_KGM2 = 1e-6
 """How closely a controller's report of a load's values must match the written load (its
 own rounding: the CAN wire's resolution is 1 g and 0.1 mm, libfranka's doubles are exact)."""
 
@@ -51,14 +52,16 @@ class Pending:
 
 
 def same_load(a: Payload | None, b: Payload | None) -> bool:
-    """Two loads equal to the controller's rounding (None: the empty load; a zero mass is
-    empty too)."""
+    """Two loads equal to the controller's rounding: mass, CoM and inertia (None: the empty
+    load; a zero mass is empty too). The one test of whether a controller's report names a
+    load, for the gate and for ``iem set-load``."""
     a = None if a is None or a.mass <= MASS_TOL_KG else a
     b = None if b is None or b.mass <= MASS_TOL_KG else b
     if a is None or b is None:
         return a is None and b is None
     return abs(a.mass - b.mass) <= MASS_TOL_KG and all(
-        abs(x - y) <= COM_TOL_M for x, y in zip(a.com, b.com, strict=True))
+        abs(x - y) <= COM_TOL_M for x, y in zip(a.com, b.com, strict=True)) and all(
+        abs(x - y) <= INERTIA_TOL_KGM2 for x, y in zip(a.inertia, b.inertia, strict=True))
 
 
 def describe(load) -> str:

@@ -41,12 +41,14 @@ def point_rate(config: CellConfig) -> float:
     return link_rate(config) / block_frames_of(config)
 
 
-def block_frames_of(config: CellConfig) -> int:
-    """Frames per block point: ``[estimate] block_frames``, or (0) the link's rate over 100
-    (:func:`iem.signals.rate.block_frames_for`: about 100 points a second)."""
+def block_frames_of(config: CellConfig, rate_hz: float | None = None) -> int:
+    """Frames per block point: ``[estimate] block_frames``, or (0) the rate over 100
+    (:func:`iem.signals.rate.block_frames_for`: about 100 points a second); ``rate_hz``:
+    the joint states a second the link delivers (None: the configured link's)."""
     from iem.signals.rate import block_frames_for
 
-    return config.estimate.block_frames or block_frames_for(link_rate(config))
+    rate = link_rate(config) if rate_hz is None else rate_hz
+    return config.estimate.block_frames or block_frames_for(rate)
 
 
 def wire_check_of(link, kind: str | None = None):

@@ -44,7 +44,6 @@ from firmware_bridge.links import DiagnosticsSink, EstimatePublisher, link_kind
 from iem.online import OnlineIdentifier
 from iem.signals.blocks import BlockFormer
 from iem.signals.filters import StateFilter, usable_cutoff
-from iem.signals.rate import block_frames_for
 from iem.signals.smoothing import ExponentialSmoother
 
 from .arm_watch import ArmWatch
@@ -53,7 +52,7 @@ from .config import CellConfig
 from .gate import SafetyGate
 from .latency import LatencyWindow
 from .load_writer import LoadWriter
-from .model_setup import checked_model, link_rate, wire_check_of
+from .model_setup import block_frames_of, checked_model, link_rate, wire_check_of
 from .pacing import LearningPace
 from .sdnotify import Notifier
 from .service_report import log_rate, status_text, summary_of
@@ -187,7 +186,7 @@ class Service:
                                   **self.config.link_options())  # [ros2] for kind ros2
         est = self.config.estimate
         self.rate_hz = self._rate_hz or link_rate(self.config)
-        self.block_frames = est.block_frames or block_frames_for(self.rate_hz)
+        self.block_frames = block_frames_of(self.config, self.rate_hz)
         self.point_rate_hz = self.rate_hz / self.block_frames
         log_rate(self)
         self.kinematics = PandaModel()

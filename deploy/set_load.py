@@ -36,13 +36,13 @@ import time
 
 from iem.errors import InvalidInputError
 
+from .load_state import same_load
+
 EXIT_APPLIED = 0
 EXIT_NOT_APPLIED = 1
 """The controller refused the load or did not answer within the timeout."""
 POLL_S = 0.05
 """How long one wait for the answer lasts before the controller's load report is looked at."""
-REPORT_TOLERANCE = 1e-6
-"""Relative agreement of a reported load with the one sent (a report carries no seq)."""
 
 
 class SetLoadError(InvalidInputError):
@@ -77,15 +77,6 @@ def _empty_as_none(load):
     return None if load is None or not load.mass > 0.0 else load
 
 
-def _same_load(a, b) -> bool:
-    if a is None or b is None:
-        return (a is None or not a.mass > 0.0) and (b is None or not b.mass > 0.0)
-    x = [a.mass, *a.com, *a.inertia]
-    y = [b.mass, *b.com, *b.inertia]
-    return all(math.isclose(u, v, rel_tol=REPORT_TOLERANCE, abs_tol=1e-9)
-               for u, v in zip(x, y, strict=True))
-
-
 def _reported(link, load, sent_at: float):
     """The controller's own report, taken after ``sent_at`` (``time.perf_counter``), if it
     says the values of ``load`` are in force. A report of a sequence number alone confirms
@@ -94,7 +85,7 @@ def _reported(link, load, sent_at: float):
     report = link.load_report  # a PayloadSink's (None where its controller reports none)
     if report is None or not report.has_values or not report.t > sent_at:
         return None
-    return report if _same_load(report.load, load) else None
+    return report if same_load(report.load, load) else None
 
 
 def await_answer(link, seq: int, load, timeout: float, deadline: float | None = None,
