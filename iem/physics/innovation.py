@@ -82,7 +82,8 @@ class InnovationTest:
         ``S + diag((MODEL_ERROR_GAIN * curvature)²)`` too."""
         nu = r - Y @ mean
         S = R + Y @ cov @ Y.T
-        S = 0.5 * (S + S.T)
+        S += S.T  # symmetric: 0.5 (S + S^T), with no temporaries
+        S *= 0.5
         try:
             chi2 = chi_square(nu, S)
         except np.linalg.LinAlgError:
@@ -95,7 +96,7 @@ class InnovationTest:
             return False
         chi2_model = None
         if curvature is not None:
-            S[np.diag_indices(self.dof)] += np.square(MODEL_ERROR_GAIN * curvature)
+            S.flat[::self.dof + 1] += np.square(MODEL_ERROR_GAIN * curvature)  # the diagonal
             try:
                 chi2_model = chi_square(nu, S)
             except np.linalg.LinAlgError:

@@ -111,13 +111,14 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         self._weight = self._reg.correlation_weight
         # the arm model's error is correlated over its own time (noise.weight equations per
         # independent one, not the filter's): the window counts it so, the NIS one by one
-        self._info_var = None if noise is None else self._reg.model_var * np.maximum(
+        info_var = None if noise is None else self._reg.model_var * np.maximum(
             np.asarray(noise.weight) / self._weight - 1.0, 0.0)
+        self._info_cov = None if info_var is None else np.diag(info_var)  # made once
         self._holdoff_n = (self._reg.settle * self.update_every if self.holdoff_s < 0
                            else round(self.holdoff_s * self.rate_hz))
         # with the arm's own noise in R, the misfit the detector's level follows is in R
         self._innovation = InnovationTest(self.drift, self.threshold, level=noise is None)
-        self._floor = np.square(PRIOR_FLOOR)
+        self._floor = np.diag(np.square(PRIOR_FLOOR))  # added to every prior's covariance
         self.ensemble_prior = EnsemblePrior(self._ens)
         """The ensemble as the prior: its bags' calibration and the summary since a change."""
         self._window = EquationWindow(None if noise is None else np.square(noise.offset_std),
@@ -126,6 +127,7 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
             noise.bias_std)
         self._observed_x = np.full(21, math.nan)  # the last sample observed (a copy) and
         self._observed_bag = -2  # its bag (-2: none), so that predict_one at it routes once
+        self._report = None  # (posterior, (std, cov)) the last estimate reported
         self.reset()
 
     def _checked(self, project_budget: int) -> TorqueNoise | None:
@@ -304,18 +306,29 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         if not self._data_shown:
             extra["reset"] = True
             self._data_shown = bool(shown.equations)
-        var = np.square(shown.std) + shown.gain_var  # the sensors' gain error on the load
-        if self._bias_var is not None:  # what the arm model's error reads as payload
-            var = var + self._bias_var
-        std = np.sqrt(var)
-        cov = np.array(shown.cov, dtype=float)  # with the same terms, uncorrelated
-        np.fill_diagonal(cov, var)
+        std, cov = self._reported(shown)
         # the physics is the estimate: the learners' out-of-distribution inputs inflate the
         # prior instead of flagging it; the NIS is NaN until the first equation is tested
         return PayloadEstimate(t=t, phi=phi, std=std, cov=cov, bag=bag, learning=learning,
                                nis=self._innovation.nis, ood=False, unverified=unverified,
                                determined=self._determined(unverified),
                                extra=extra)
+
+    def _reported(self, shown: Posterior) -> tuple[np.ndarray, np.ndarray]:
+        """The standard deviations and covariance an estimate showing ``shown`` reports: its
+        own, with the sensors' gain error and the arm model's bias on the diagonal. Made once
+        per shown posterior (the estimates between two refreshes share them; read-only)."""
+        if self._report is not None and self._report[0] is shown:
+            return self._report[1]
+        var = np.square(shown.std) + shown.gain_var  # the sensors' gain error on the load
+        if self._bias_var is not None:  # what the arm model's error reads as payload
+            var = var + self._bias_var
+        std = np.sqrt(var)
+        cov = np.array(shown.cov, dtype=float)  # with the same terms, uncorrelated
+        cov.flat[::11] = var  # the diagonal
+        std.flags.writeable = cov.flags.writeable = False
+        self._report = (shown, (std, cov))
+        return std, cov
 
     def _determined(self, unverified: bool) -> tuple[str, ...]:
         """The groups the estimate does not take from a guess: those the window's equations

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .consistency import EPS, project
-from .small_linalg import eigh, sym_inv
+from .small_linalg import cholesky, cholesky_inverse, cholesky_solve, eigh, sym_inv
 
 DEFAULT_PRIOR_STD = (3.0, 0.3, 0.3, 0.3, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01)
 """Prior standard deviation per parameter (kg, kg·m, kg·m²) where nothing else is known: the
@@ -34,7 +34,7 @@ _COARSE = np.linspace(0.0, math.log(MAX_INFLATION), 49)
 _FINE = np.linspace(0.0, 1.0, 33)  # a bracket of the coarse grid, refined
 
 
-def prior_inflation(mu_p, c_p, info, eta) -> float:
+def prior_inflation(mu_p, c_p, info, eta, eig=None) -> float:
     """The factor ``s² >= 1`` on the prior covariance that makes the data most likely.
 
     The data's sufficient statistics ``eta = sum Y^T R^-1 r`` and ``info = sum Y^T R^-1 Y``
@@ -46,8 +46,10 @@ def prior_inflation(mu_p, c_p, info, eta) -> float:
     data agree with the prior, and grows when they show the prior's mean off by more than
     its covariance allows (e.g. an ensemble far outside its training data): then the prior's
     claims elsewhere, e.g. on the inertia the data barely see, are not trusted either.
+    ``eig``: ``eigh(0.5 (info + info^T))`` if the caller has it already
+    (:meth:`EquationWindow.info_eigh`).
     """
-    d, U = eigh(0.5 * (info + info.T))
+    d, U = eigh(0.5 * (info + info.T)) if eig is None else eig
     keep = d > 1e-9 * max(float(d.max()), 1e-300)
     if not keep.any():
         return 1.0
@@ -104,6 +106,7 @@ class EquationWindow:
     def __init__(self, offset_var=None, gain_var=None) -> None:
         self.offset_prec = (None if offset_var is None else
                             1.0 / np.asarray(offset_var, dtype=float).reshape(7))
+        self._offset_prec_matrix = None if offset_var is None else np.diag(self.offset_prec)
         self.gain_var = (None if gain_var is None or not np.any(gain_var) else
                          np.asarray(gain_var, dtype=float).reshape(7))
         self._info = np.zeros((10, 10))
@@ -114,13 +117,15 @@ class EquationWindow:
         self._gain = np.zeros((10, 7, 10))  # sum Y^T W diag(Y e_b), b the last axis
         self._gain_o = np.zeros((7, 7, 10))  # sum W diag(Y e_b)
         self._marginal: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._factor: np.ndarray | None = None  # Cholesky factor of sum W + P_o, made once
+        self._eig: tuple[np.ndarray, np.ndarray] | None = None  # of info, made once
         self.m = 0
         """Equations in the window."""
 
     def clear(self) -> None:
         for a in self._sums():
             a[:] = 0.0
-        self._marginal = None
+        self._marginal = self._factor = self._eig = None
         self.m = 0
 
     def _sums(self) -> tuple[np.ndarray, ...]:
@@ -142,19 +147,37 @@ class EquationWindow:
             self._eta_o += W @ r
             if self.gain_var is not None:
                 self._gain_o += W[:, :, None] * Y[None, :, :]
-            self._marginal = None
+            self._marginal = self._factor = None
+        self._eig = None
         self.m += 1
 
     def _marginalised(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(info, eta, S G)`` with the offsets marginalised (``S G``: the cross sums times
         the offsets' posterior covariance, what carries an offset's share to ``phi``)."""
         if self._marginal is None:
-            A = self._w + np.diag(self.offset_prec)
-            G = sym_inv(0.5 * (A + A.T))
+            G = cholesky_inverse(self._offset_factor())
             SG = self._cross @ G
             info = self._info - SG @ self._cross.T
             self._marginal = (0.5 * (info + info.T), self._eta - SG @ self._eta_o, SG)
         return self._marginal
+
+    def _offset_factor(self) -> np.ndarray:
+        """The lower Cholesky factor of the offsets' posterior precision ``sum W + P_o``,
+        made once per state of the window: the test of each new equation (:meth:`offsets`)
+        and the refresh after it (:meth:`_marginalised`) share it."""
+        if self._factor is None:
+            A = self._w + self._offset_prec_matrix
+            self._factor = cholesky(0.5 * (A + A.T))
+        return self._factor
+
+    def info_eigh(self) -> tuple[np.ndarray, np.ndarray]:
+        """Eigenvalues (ascending) and eigenvectors of :attr:`info` (symmetrised), made once
+        per state of the window: a refresh's :func:`prior_inflation` and :meth:`data_std`
+        share them (read them, do not write them)."""
+        if self._eig is None:
+            info = self.info
+            self._eig = eigh(0.5 * (info + info.T))
+        return self._eig
 
     def gain_sensitivity(self, phi: np.ndarray) -> np.ndarray | None:
         """What a unit gain error of each joint adds to :attr:`eta` if the payload is
@@ -173,8 +196,7 @@ class EquationWindow:
         innovation is to be judged net of."""
         if self.offset_prec is None:
             return None
-        A = self._w + np.diag(self.offset_prec)
-        return np.linalg.solve(0.5 * (A + A.T), self._eta_o - self._cross.T @ phi)
+        return cholesky_solve(self._offset_factor(), self._eta_o - self._cross.T @ phi)
 
     @property
     def info(self) -> np.ndarray:
@@ -193,8 +215,7 @@ class EquationWindow:
     def data_std(self) -> np.ndarray:
         """Standard deviation per parameter from the equations alone (inf along directions
         they do not see)."""
-        info = self.info
-        d, U = np.linalg.eigh(0.5 * (info + info.T))
+        d, U = self.info_eigh()
         if not d.size or d.max() <= 0.0:
             return np.full(10, math.inf)
         seen = d > 1e-12 * d.max()
@@ -217,7 +238,7 @@ class EquationWindow:
         self._info = np.array(state["info"], dtype=float).reshape(10, 10)
         self._eta = np.array(state["eta"], dtype=float).reshape(10)
         self.m = int(state["m"])
-        self._marginal = None
+        self._marginal = self._factor = self._eig = None
         offsets = state.get("offsets")
         if self.offset_prec is not None and offsets is not None:
             self._cross = np.array(offsets[0], dtype=float).reshape(10, 7)
@@ -310,7 +331,7 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
     g_j² J[:, j]²``)."""
     inflation = 1.0
     if not window.empty:
-        inflation = prior_inflation(mu_p, c_p, window.info, window.eta)
+        inflation = prior_inflation(mu_p, c_p, window.info, window.eta, window.info_eigh())
         c_p = c_p * inflation
     prec_p = sym_inv(c_p)
     precision = prec_p + window.info

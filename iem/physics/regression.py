@@ -27,9 +27,9 @@ that estimators stay plain data for persistence (a model file stores the name it
 ``dynamics`` is a spec of :data:`iem.factories.FACTORIES` (``"module:function[@ARG]"``), a
 factory returning ``f(q, dq, ddq) -> (tau_robot (7,), Y (7, 10), M (7, 7))`` (optionally
 with a method ``payload_mass_matrix(q, phi)``, else the payload's share is taken from
-``Y``), built only when the first equation is formed; the simulator's nominal Panda is
-``sim.robot.PANDA_DYNAMICS``, a calibrated arm ``"sim.arm:arm_dynamics@arm:CRC32"`` (the arm
-given at run time, :mod:`iem.factories`).
+``Y``), built only when the first equation is formed; the nominal arm of the default arm
+model is ``sim.arm.NOMINAL_DYNAMICS``, a calibrated arm or another arm model's
+``"sim.arm:arm_dynamics@arm:CRC32"`` (the arm given at run time, :mod:`iem.factories`).
 """
 
 from __future__ import annotations
@@ -115,8 +115,9 @@ def required_dynamics(dynamics, who: str):
             raise InvalidInputError(f"{who} needs dynamics, the robot's model: {exc}") from exc
         return dynamics
     raise InvalidInputError(f"{who} needs dynamics, the robot's model: the spec of its factory "
-                            f"(the simulator's nominal Panda is sim.robot.PANDA_DYNAMICS; valid "
-                            f"are {valid_specs()}) or the dynamics callable; got {dynamics!r}")
+                            f"(the default arm model's nominal arm is "
+                            f"sim.arm.NOMINAL_DYNAMICS; valid are {valid_specs()}) or the "
+                            f"dynamics callable; got {dynamics!r}")
 
 
 def load_dynamics(spec: str):
@@ -303,7 +304,7 @@ class PayloadRegression:
         if self.payload_inertia and phi is not None:
             M = M + self.payload_mass_matrix(q, dq, ddq, Y, np.asarray(phi, dtype=float))
         R = self.var_ddq * (M @ M.T)
-        R[np.diag_indices(7)] += self._r_diag
+        R.flat[::8] += self._r_diag  # the diagonal
         return Y, tau - tau_robot, R
 
     # -- persistence ---------------------------------------------------------------------

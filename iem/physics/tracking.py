@@ -170,8 +170,8 @@ class PayloadTracking:
             self.changes += 1
             self._holdoff = self._holdoff_n
         else:
-            if self._info_var is not None:
-                R = R + np.diag(self._info_var)
+            if self._info_cov is not None:
+                R = R + self._info_cov
             self._window.add(Y, r, R, weight=self._weight)
             self._schedule.equation_added(self._window.m)
 
@@ -223,7 +223,7 @@ class PayloadTracking:
             mean = np.zeros(10)
             cov = np.diag(np.square(DEFAULT_PRIOR_STD))
         cov = cov * self.prior_scale ** 2
-        return mean, 0.5 * (cov + cov.T) + np.diag(self._floor)
+        return mean, 0.5 * (cov + cov.T) + self._floor
 
     def posterior(self, x=None, flange=None):
         """``(mean, cov)`` of the payload before the projection, or None.
