@@ -30,7 +30,14 @@ import numpy as np
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
 
-from .options import add_end_effector, add_rate, add_recording_options
+from .options import (
+    add_arm_model,
+    add_end_effector,
+    add_rate,
+    add_recording_options,
+    arm_description_of,
+    joint_names_of,
+)
 
 
 def read_states(source, duration: float | None = None, silence_s: float = 1.0):
@@ -63,7 +70,7 @@ def read_states(source, duration: float | None = None, silence_s: float = 1.0):
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
                       profile: str = "fd", link=None, format: str | None = None,
                       topic: str = DEFAULT_TOPIC, end_effector=None,
-                      rate_hz: float | None = None, log=print):
+                      rate_hz: float | None = None, log=print, description=None):
     """The arm calibrated from the recordings ``logs`` (of ``format``, None: detected per
     file; ``topic``: a rosbag2 bag's JointState topic; ``profile``: a CAN log's wire profile)
     and/or a live link (see the module docstring): ``interface``/``channel`` opened here, or
@@ -71,7 +78,9 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
     (:mod:`sim.end_effector`; None: the Franka Hand). The arm carries the noise it leaves,
     measured on traffic its fit did not see (:mod:`sim.calibration_noise`). ``rate_hz``:
     the traffic's joint states a second (None: each recording's detected from its time
-    stamps and logged with ``log``; the recordings must share one).
+    stamps and logged with ``log``; the recordings must share one). ``description``: the
+    arm model (:mod:`sim.description`; None: the default), whose joint names a rosbag2 bag
+    must carry.
     """
     from firmware_bridge.links import open_link
     from firmware_bridge.recordings import open_recording
@@ -80,7 +89,8 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
 
     parts, names = [], []
     for log_file in logs:
-        replay = open_recording(log_file, format, topic=topic, profile=profile)
+        replay = open_recording(log_file, format, topic=topic, profile=profile,
+                                **joint_names_of(description))
         try:
             data = read_states(replay)
         finally:
@@ -110,7 +120,8 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
         raise InvalidInputError("give at least one REC, or --interface/--channel/--duration")
     rate = traffic_rate(parts, names, rate_hz, log)
     return calibrate_with_noise(parts, CalibrationSettings(recorded_rate_hz=rate),
-                                source=", ".join(names), end_effector=end_effector)
+                                source=", ".join(names), end_effector=end_effector,
+                                description=description)
 
 
 def traffic_rate(parts, names, rate_hz: float | None = None, log=print) -> float:
@@ -175,6 +186,7 @@ def configure(parser) -> None:
     parser.add_argument("--duration", type=float, metavar="S",
                         help="seconds of live traffic to record")
     add_end_effector(parser)
+    add_arm_model(parser)
     add_rate(parser)
 
 
@@ -183,8 +195,9 @@ def run(args) -> int:
 
     if args.write_motion:
         from sim.paths import calibration_path, save_path_csv
+        from sim.robot import ArmModel
 
-        motion = calibration_path()
+        motion = calibration_path(model=ArmModel(description=arm_description_of(args)))
         save_path_csv(motion, args.write_motion)
         print(f"wrote the calibration motion ({motion.duration:.0f} s) to {args.write_motion}")
         return 0
@@ -194,7 +207,7 @@ def run(args) -> int:
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
                             duration=args.duration, profile=args.profile, format=args.format,
                             topic=args.topic, end_effector=args.end_effector,
-                            rate_hz=args.rate)
+                            rate_hz=args.rate, description=arm_description_of(args))
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

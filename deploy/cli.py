@@ -61,7 +61,8 @@ BENCHES: Table = {
 }
 
 COMMANDS: Table = {
-    "demo": ("deploy.demo", "run the main job on the simulated Panda and print a summary"),
+    "demo": ("deploy.demo", "run the main job on the simulated arm (--arm-model; the Panda by "
+             "default) and print a summary"),
     "run": ("deploy.run", "the plug-in service: identify the payload, write it back"),
     "train": ("deploy.training", "make an initial model from the excitation path"),
     "calibrate": ("deploy.calibrate", "identify the arm's departure from its model from "

@@ -76,14 +76,27 @@ class ModelConfig:
 class ArmConfig:
     """The arm the plug-in runs on (``[arm]``).
 
-    ``end_effector``: what body 7 carries as part of the arm (:mod:`sim.end_effector`):
-    "franka_hand", "none" or the path of a payload-style TOML of the tool; the arm file and
-    the model must be made for it. ``noise``: IEM+phys's equation error when it trains a
+    ``model``: the arm's description (:mod:`sim.description`): "panda", "fr3" or the path of
+    a URDF; "": "fr3" on the ``franka`` link (libfranka serves the FR3 only) and on
+    a ``ros2`` link reading ``[ros2] joints = "fr3"``, else "panda". ``flange``: the flange
+    link of a description file that does not tell it ("": the file's own).
+    ``end_effector``: what the flange carries as part of the arm (:mod:`sim.end_effector`):
+    "franka_hand", "none" or the path of a payload-style TOML of the tool ("": the arm
+    model's default, the hand on the Panda and the FR3); the arm file and the model must be
+    made for it. ``noise``: IEM+phys's equation error when it trains a
     model (:data:`deploy.training.NOISE_SOURCES`): "arm", the arm file's measured noise (a
     conservative default without an arm file), or "sensor" (a simulated, exact arm)."""
 
-    end_effector: str = "franka_hand"
+    model: str = ""
+    flange: str = ""
+    end_effector: str = ""
     noise: str = "arm"
+
+    def description(self):
+        """The arm model (:func:`sim.description.arm_description`)."""
+        from sim.description import arm_description
+
+        return arm_description(self.model or None, self.flange or None)
 
 
 @dataclass(frozen=True)
@@ -181,8 +194,17 @@ class CellConfig:
 
     def link_options(self) -> dict:
         """Options of the configured link kind's opener beyond channel, profile and silence
-        timeout: ``[ros2]`` for the ``ros2`` kind, none for the others."""
-        return self.ros2.link_options() if self.link.kind == "ros2" else {}
+        timeout: ``[ros2]`` for the ``ros2`` kind (``joints`` "auto": the arm model's joint
+        names; ``flange_frame`` "": its flange), none for the others."""
+        if self.link.kind != "ros2":
+            return {}
+        out = self.ros2.link_options()
+        desc = self.arm.description()
+        if out["joints"] == "auto":
+            out["joints"] = list(desc.joint_names)
+        if not out["flange_frame"]:
+            out["flange_frame"] = desc.flange
+        return out
 
 
 SECTIONS = {"link": LinkConfig, "model": ModelConfig, "arm": ArmConfig,
@@ -215,7 +237,8 @@ INT_RANGES = {
     ("host", "cpu_dma_latency_us"): (-1, 1_000_000),  # µs; -1: no limit (deploy.host)
 }
 MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
-                ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm")}
+                ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm"),
+                ("arm", "model"), ("arm", "flange"), ("arm", "end_effector")}
 """String keys for which "" means "none" (the default the key's comment names)."""
 ROS_NAMES = {("ros2", "estimate_topic"), ("ros2", "estimate_std_topic"),
              ("ros2", "set_load_service"), ("ros2", "robot_state_topic"),
@@ -318,15 +341,60 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
                           "a log file (.blf, .log, .asc or .trc)")
+    built["arm"] = _arm_model(built["arm"], link, built["ros2"], where)
     ee = built["arm"].end_effector
-    if ee not in ("franka_hand", "none") and not ee.endswith(".toml"):
+    if ee not in ("", "franka_hand", "none") and not ee.endswith(".toml"):
         raise ConfigError(f"{where}: [arm] end_effector = {ee!r} is not valid; valid are "
                           "'franka_hand', 'none' or the path of a payload-style .toml file of "
                           "the tool on the flange")
     cfg = CellConfig(**built, source=where)
+    if "rated_mass_kg" not in doc.get("gate", {}):
+        cfg = _with_rated_payload(cfg)
+    if not FsPath(cfg.arm.model).suffix or FsPath(cfg.arm.model).is_absolute():
+        cfg = _with_description(cfg)  # a relative description file: once load_config found it
+    return cfg
+
+
+def _arm_model(arm: ArmConfig, link: LinkConfig, ros2: Ros2Config, where: str) -> ArmConfig:
+    """``[arm]`` with its model named: "" resolved by the link (:class:`ArmConfig`); the
+    ``franka`` link refuses another arm model than the FR3."""
+    model = arm.model
+    if not model:
+        model = "fr3" if link.kind == "franka" or (link.kind == "ros2"
+                                                  and ros2.joints == "fr3") else "panda"
+    if link.kind == "franka" and model != "fr3":
+        raise ConfigError(f"{where}: [arm] model = {model!r} with [link] kind = 'franka': "
+                          "libfranka (>= 0.10, pylibfranka) serves the FR3 only; set model = "
+                          "'fr3', or serve a Panda through another link")
+    return replace(arm, model=model)
+
+
+def _with_description(cfg: CellConfig) -> CellConfig:
+    """``cfg`` with its arm model read and checked (:mod:`sim.description`), the end
+    effector's default taken from it, and the end effector's mass counted on the gate."""
+    try:
+        desc = cfg.arm.description()
+    except (InvalidInputError, OSError) as exc:
+        raise ConfigError(f"{cfg.source}: [arm] model = {cfg.arm.model!r}: {exc}") from exc
+    if not cfg.arm.end_effector:
+        cfg = replace(cfg, arm=replace(cfg.arm, end_effector=desc.default_end_effector))
+    ee = cfg.arm.end_effector
     if ee in ("franka_hand", "none") or FsPath(ee).is_absolute():
         cfg = _with_end_effector(cfg)  # a relative tool file: once load_config found it
     return cfg
+
+
+def _with_rated_payload(cfg: CellConfig) -> CellConfig:
+    """``cfg`` whose gate's ``rated_mass_kg`` is the arm model's rated payload (a named arm
+    model's datasheet); an arm model from a file has none: the key must be set."""
+    from sim.description import BUILTINS
+
+    builtin = BUILTINS.get(cfg.arm.model)
+    if builtin is None:
+        raise ConfigError(f"{cfg.source}: [arm] model = {cfg.arm.model!r} gives no rated "
+                          "payload; set [gate] rated_mass_kg to the arm maker's rated payload, "
+                          "kg")
+    return replace(cfg, gate=replace(cfg.gate, rated_mass_kg=builtin.rated_payload_kg))
 
 
 def _with_end_effector(cfg: CellConfig) -> CellConfig:
@@ -370,6 +438,10 @@ def load_config(path) -> CellConfig:
                                "path": str(path.parent / model_path),
                                "arm": str(path.parent / arm_path) if cfg.model.arm else ""})
         cfg = replace(cfg, model=model)
+    model = cfg.arm.model
+    if FsPath(model).suffix and not FsPath(model).is_absolute():
+        cfg = replace(cfg, arm=replace(cfg.arm, model=str(path.parent / model)))
+        cfg = _with_description(cfg)  # the description file, found from the file's folder
     ee = cfg.arm.end_effector
     if ee not in ("franka_hand", "none") and not FsPath(ee).is_absolute():
         cfg = replace(cfg, arm=replace(cfg.arm, end_effector=str(path.parent / ee)))

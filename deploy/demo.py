@@ -1,13 +1,17 @@
-"""``iem demo``: the whole loop on the simulated Panda, in about a minute.
+"""``iem demo``: the whole loop on the simulated arm, in about a minute.
 
-The simulated controller (the MuJoCo Panda with the default test payload, 1 kHz in real
-time) plays the excitation path (20 s), a transfer (4 s) and the new task path (6 s) once,
-on python-can's virtual bus; the plug-in service runs against it over the same frames a cell
-would carry: it trains its initial model on the excitation path, estimates the payload as
-the arm moves, forms new bags on the new path, and writes the load back through the safety
-gate, which the controller acknowledges. Progress shows on the status line; at the end the
-summary is printed and a report folder is written (``summary.json``, ``error.png``: error
-against time as in the paper's Fig. 6, ``bags.png``: bag centres in the workspace).
+The simulated controller (the MuJoCo arm of ``--arm-model``, the Panda by default, with the
+default test payload, 1 kHz in real time) plays the excitation path (20 s), a transfer (4 s)
+and the new task path (6 s) once, on python-can's virtual bus; the plug-in service runs
+against it over the same frames a cell would carry: it trains its initial model on the
+excitation path, estimates the payload as the arm moves, forms new bags on the new path, and
+writes the load back through the safety gate, which the controller acknowledges. The paths
+are the arm model's (made for its limits, around its home configuration), and the plug-in's
+configuration names the same arm model (``[arm] model``, with ``[gate] rated_mass_kg`` from
+``--rated-mass-kg`` for an arm model from a file, which gives no rated payload). Progress
+shows on the status line; at the end the summary is printed and a report folder is written
+(``summary.json``, ``error.png``: error against time as in the paper's Fig. 6, ``bags.png``:
+bag centres in the workspace).
 
 The controller runs in a thread of this process (the virtual bus does not cross processes;
 see :mod:`deploy.inprocess`).
@@ -22,17 +26,23 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from .options import add_arm_model, arm_description_of
+
 TRANSFER_S = 4.0
 HOLD_S = 1.0
 
 
-def demo_path():
-    """Excitation, transfer to the new task's start, new task path: one continuous path."""
-    from sim.paths import Q0, Q_START, excitation_path, linear_path, new_task_path
+def demo_path(description=None):
+    """Excitation, transfer to the new task's start, new task path: one continuous path, on
+    the arm model ``description`` (None: the default)."""
+    from sim.paths import excitation_path, linear_path, new_task_path
+    from sim.robot import arm_model
 
-    exc = excitation_path()
-    transfer = linear_path(Q0, Q_START, TRANSFER_S, "transfer")
-    new = new_task_path()
+    model = arm_model(description)
+    home, task = model.description.home, model.description.task
+    exc = excitation_path(model=model)
+    transfer = linear_path(home, task[0], TRANSFER_S, "transfer", model=model)
+    new = new_task_path(model=model)
     phases = [("excitation", 0.0, exc.duration),
               ("transfer", exc.duration, exc.duration + TRANSFER_S),
               ("new task", exc.duration + TRANSFER_S,
@@ -42,16 +52,20 @@ def demo_path():
 
 def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
              status: bool = True, log=print, arm_file=None,
-             cpu_dma_latency_us: int = -1) -> dict:
+             cpu_dma_latency_us: int = -1, description=None,
+             rated_mass_kg: float | None = None) -> dict:
     """The demo (see the module docstring); ``arm_file``: the plug-in runs on this arm file
     (``iem calibrate``; its model is trained for it). The simulated controller's plant is
-    the nominal arm either way. ``cpu_dma_latency_us``: as ``[host]`` in ``cell.toml``.
+    the nominal arm of the arm model ``description`` (None: the default) either way.
+    ``rated_mass_kg``: the gate's rated payload (None: the arm model's; an arm model from a
+    file has none). ``cpu_dma_latency_us``: as ``[host]`` in ``cell.toml``.
     Without the extras it needs (``sim``: MuJoCo; ``plots``: matplotlib) it stops at once
     with :class:`iem.errors.MissingExtraError`, before a minute of simulation."""
     from iem.extras import require
 
-    require("mujoco", "iem demo (the simulated Panda)")
+    require("mujoco", "iem demo (the simulated arm)")
     require("matplotlib", "iem demo (its figures)")
+    from sim.description import described
     from sim.family import default_test_payload
 
     from .inprocess import simulated_cell
@@ -63,15 +77,18 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     kind = kind or best_model_kind()
     payload = default_test_payload()
     truth = payload.to_phi()
-    path, phases = demo_path()
-    model_file = out / "model.msgpack"
-    model_file.unlink(missing_ok=True)  # the demo always starts from the excitation path
-    config = _demo_config(model_file, kind, seed, arm_file, status, cpu_dma_latency_us)
-    log(f"iem demo: payload {payload.name} ({payload.mass:.3f} kg), path {path.duration:.0f} s "
-        f"(excitation, transfer, new task), model {kind}")
+    description = described(description)
+    config = _demo_config(out / "model.msgpack", kind, seed, arm_file, status,
+                          cpu_dma_latency_us, description, rated_mass_kg)
+    path, phases = demo_path(description)
+    (out / "model.msgpack").unlink(missing_ok=True)  # always from the excitation path
+    log(f"iem demo: arm model {description.name}, payload {payload.name} "
+        f"({payload.mass:.3f} kg), path {path.duration:.0f} s (excitation, transfer, new task), "
+        f"model {kind}")
     rows: list[tuple] = []
     with simulated_cell(config, path=path, payload=payload, once=True, seed=seed,
-                        status=StatusLine(status, sys.stderr, 0.25)) as (controller, service):
+                        status=StatusLine(status, sys.stderr, 0.25),
+                        description=description) as (controller, service):
         service.on_cycle.append(lambda r: rows.append(
             (r.state.t, r.raw.bag, r.smoothed.copy(), r.state.q)))
         announced = set()
@@ -95,6 +112,7 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
     bags = np.array([r[1] for r in rows])
     summary.update(_figures_of_the_run(t, est, truth, phases, wall, summary, controller))
     summary["payload"] = payload.name
+    summary["arm_model"] = description.record()
     _figures(out, t, est, bags, truth, phases, service, rows)
     text = json.dumps(summary, indent=2, default=float)
     (out / "summary.json").write_text(text + "\n")
@@ -105,21 +123,28 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
 
 
 def _demo_config(model_file, kind: str, seed: int, arm_file, status: bool,
-                 cpu_dma_latency_us: int):
+                 cpu_dma_latency_us: int, description=None, rated_mass_kg=None):
     """The demo cell's configuration: the virtual bus, a model trained afresh at
-    ``model_file``, the gate as a cell of that model kind needs it."""
+    ``model_file``, the arm model ``description`` (an
+    :class:`~sim.description.ArmDescription`; None: the default), the gate as a cell of that
+    model kind needs it, rated for ``rated_mass_kg`` (None: the arm model's rated payload).
+
+    Raises:
+        deploy.config.ConfigError: an arm model from a file without ``rated_mass_kg``."""
     from .config import config_from_dict
     from .inprocess import virtual_channel
+    from .sim_controller import cell_sections
 
+    cell = cell_sections(description, rated_mass_kg)
     return config_from_dict({
         "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
         "model": {"path": str(model_file), "kind": kind, "seed": seed,
                   "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
         # the demo's plant without an arm file is the nominal model itself: the sensor's
         # noise is all its equations carry; with one, the arm's measured noise
-        "arm": {"noise": "arm" if arm_file else "sensor"},
+        "arm": {**cell["arm"], "noise": "arm" if arm_file else "sensor"},
         # the paper's IEM reports no uncertainty: the demo lets it write, as a cell must
-        "gate": {"allow_without_uncertainty": kind == "IEM"},
+        "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
         "log": {"status_line": "on" if status else "off"},
         "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
     }, where="demo")
@@ -226,13 +251,16 @@ def configure(parser) -> None:
     from .host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
+    add_arm_model(parser)
 
 
 def run(args) -> int:
     from .logs import setup_logging
 
+    description = arm_description_of(args)  # a bad arm model before anything runs
     setup_logging("warning", "text")
     run_demo(args.out, seed=args.seed, kind=args.model, json_path=args.json,
              status=not args.no_status, arm_file=args.arm,
-             cpu_dma_latency_us=args.cpu_dma_latency_us)
+             cpu_dma_latency_us=args.cpu_dma_latency_us, description=description,
+             rated_mass_kg=args.rated_mass_kg)
     return 0

@@ -33,14 +33,21 @@ from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
 
-from .options import add_end_effector, add_rate, add_recording_options
+from .options import (
+    add_arm_model,
+    add_end_effector,
+    add_rate,
+    add_recording_options,
+    arm_description_of,
+    joint_names_of,
+)
 
 
 def read_log(path, profile: str = "fd", format: str | None = None,
-             topic: str = DEFAULT_TOPIC):
+             topic: str = DEFAULT_TOPIC, joints: tuple[str, ...] | None = None):
     """The joint states of a recording (``format`` None: detected; ``profile``: a CAN log's
-    wire profile; ``topic``: a rosbag2 bag's JointState topic) as a
-    :class:`iem.signals.recording.Recording`."""
+    wire profile; ``topic``: a rosbag2 bag's JointState topic; ``joints``: the joint names
+    it must carry, the arm model's) as a :class:`iem.signals.recording.Recording`."""
     from firmware_bridge.errors import LogFileError
     from firmware_bridge.recordings import read_recording, recording_format
     from firmware_bridge.replay import ReplaySource
@@ -48,7 +55,7 @@ def read_log(path, profile: str = "fd", format: str | None = None,
 
     fmt = recording_format(path, format)
     if fmt != "can":  # read whole and checked (at least 2 joint states)
-        return read_recording(path, fmt, topic=topic)
+        return read_recording(path, fmt, topic=topic, joints=joints)
     with ReplaySource(path, profile, pace="fast") as source:
         states = list(source)
         counters = source.counters
@@ -83,6 +90,7 @@ def configure(parser) -> None:
     parser.add_argument("--arm", metavar="ARM",
                         help="arm file from 'iem calibrate' instead of --bare (any motion)")
     add_end_effector(parser)
+    add_arm_model(parser)
     parser.add_argument("--out", required=True, metavar="P.toml",
                         help="payload file to write (mass, CoM, inertia about the CoM)")
     parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
@@ -126,20 +134,25 @@ def run(args) -> int:
                                 "motion) or --arm ARM (an arm file from 'iem calibrate')")
     if args.bare is not None and args.arm is not None:
         raise InvalidInputError("iem identify takes one of --bare and --arm, not both")
+    from sim.robot import ArmModel
+
+    from .training import load_arm_file
+
+    description = arm_description_of(args)
+    joints = joint_names_of(description)["joints"]
     start = time.perf_counter()
-    loaded = read_log(args.loaded, args.profile, args.format, args.topic)
-    bare = (read_log(args.bare, args.profile, args.format, args.topic)
+    loaded = read_log(args.loaded, args.profile, args.format, args.topic, joints)
+    bare = (read_log(args.bare, args.profile, args.format, args.topic, joints)
             if args.bare is not None else None)
     decoded = time.perf_counter()
     for name, rec in (("loaded", loaded), ("bare", bare)):
         if rec is not None:
             print(recording_rate_line(rec, args.rate, f"{name} recording"))
-    arm = args.arm
-    if arm is not None and args.end_effector:  # the arm file must be for the declared one
-        from .training import load_arm_file
-
-        load_arm_file(arm, args.end_effector)
-    result = identify(loaded, bare=bare, arm=arm, recorded_rate_hz=args.rate)
+    arm = None
+    if args.arm is not None:  # the arm file must be for the declared end effector and model
+        arm, _ = load_arm_file(args.arm, args.end_effector, description)
+    result = identify(loaded, bare=bare, arm=arm, recorded_rate_hz=args.rate,
+                      model=ArmModel(description=description))
     done = time.perf_counter()
     name = args.name or FsPath(args.out).stem or "identified"
     summary = result.summary(name)

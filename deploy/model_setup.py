@@ -82,7 +82,8 @@ def model_resources(config: CellConfig) -> dict:
     end_effector`` (None: the nominal arm with the Franka Hand)."""
     from .training import load_arm_file
 
-    arm, _ = load_arm_file(config.model.arm or None, config.arm.end_effector)
+    arm, _ = load_arm_file(config.model.arm or None, config.arm.end_effector,
+                           config.arm.description())
     return {"arm": arm}
 
 
@@ -127,7 +128,8 @@ def load_or_train_model(config: CellConfig, resources: dict | None = None):
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
                                 log=lambda msg: log.info(msg, extra={"event": "trained"}),
                                 rate_hz=rate, block_frames=frames, arm_file=mc.arm or None,
-                                end_effector=config.arm.end_effector, noise=config.arm.noise)
+                                end_effector=config.arm.end_effector, noise=config.arm.noise,
+                                description=config.arm.description())
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})
@@ -147,7 +149,8 @@ def checked_model(config: CellConfig, model=None):
     """
     from .training import check_model_arm, check_model_family, load_arm_file
 
-    arm, arm_record = load_arm_file(config.model.arm or None, config.arm.end_effector)
+    arm, arm_record = load_arm_file(config.model.arm or None, config.arm.end_effector,
+                                    config.arm.description())
     path = FsPath(config.model.path)
     restored = model is None and path.exists()  # a restart from the last checkpoint
     if model is None:

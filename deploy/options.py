@@ -2,9 +2,42 @@
 
 from __future__ import annotations
 
-END_EFFECTOR_HELP = ("what the arm carries as part of itself: franka_hand (default), none, or "
-                     "a payload-style .toml of the tool, as set in Franka Desk; an arm file "
-                     "or a model made for another is refused")
+END_EFFECTOR_HELP = ("what the arm carries as part of itself: franka_hand, none, or a "
+                     "payload-style .toml of the tool, as set in Franka Desk (default: the arm "
+                     "model's, the hand on panda and fr3); an arm file or a model made for "
+                     "another is refused")
+
+
+def add_arm_model(parser) -> None:
+    """``--arm-model MODEL`` and ``--arm-flange LINK`` (:mod:`sim.description`)."""
+    parser.add_argument("--arm-model", metavar="MODEL", default=None,
+                        help="the arm's description: panda (default), fr3, or the path of a "
+                        "URDF of another 7-joint torque-sensing arm; an arm file or "
+                        "a model made for another is refused")
+    parser.add_argument("--arm-flange", metavar="LINK", default=None,
+                        help="the flange link of an --arm-model file that does not tell it")
+    parser.add_argument("--rated-mass-kg", metavar="KG", type=float, default=None,
+                        help="the arm's rated payload, kg, which the gate checks (default: "
+                        "the arm model's; an --arm-model file has none and needs it)")
+
+
+def joint_names_of(description) -> dict:
+    """The options of :func:`firmware_bridge.recordings.open_recording` that make a rosbag2
+    bag be read by the joint names of the arm model ``description`` (None: the default)."""
+    from sim.description import described
+
+    return {"joints": tuple(described(description).joint_names)}
+
+
+def arm_description_of(args):
+    """The arm model ``args`` name (``--arm-model``, ``--arm-flange``), read and checked.
+
+    Raises:
+        iem.errors.InvalidInputError: the description cannot be used, saying why."""
+    from sim.description import arm_description
+
+    return arm_description(getattr(args, "arm_model", None) or None,
+                           getattr(args, "arm_flange", None) or None)
 
 
 def add_end_effector(parser, help: str = END_EFFECTOR_HELP) -> None:

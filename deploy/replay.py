@@ -43,6 +43,9 @@ stamps that do not increase, is a :class:`firmware_bridge.errors.LogFileError` (
 status 2). A damaged CAN log loses only what is damaged: a truncated one replays what it holds
 and says so on stderr and in the summary (``"truncated": true``); a bad line of a ``.log``,
 ``.asc`` or ``.trc`` is skipped and counted (``frames.malformed``).
+
+A folder of recordings, a glob or several paths replay each recording on its own, in
+``--jobs`` processes, then print a table over all: :mod:`deploy.replay_many`.
 """
 
 from __future__ import annotations
@@ -60,7 +63,14 @@ from iem.errors import InvalidInputError
 from iem.persistence import DEFAULT_MODEL
 from iem.types import PARAMS
 
-from .options import add_block_frames, add_end_effector, add_rate, add_recording_options
+from .options import (
+    add_arm_model,
+    add_block_frames,
+    add_end_effector,
+    add_rate,
+    add_recording_options,
+    arm_description_of,
+)
 from .replay_report import add_replay_figures, print_summary
 
 CSV_HEADER = ("t", "cycle", "bag", *PARAMS, *(f"{p}_s" for p in PARAMS),
@@ -121,10 +131,11 @@ class Estimates:
         return "\n".join(lines) + "\n"
 
     def write_csv(self, path) -> None:
-        _write(path, self.csv_text())
+        write_output(path, self.csv_text())
 
 
-def _write(path, text: str) -> None:
+def write_output(path, text: str) -> None:
+    """Write ``text`` to ``path`` (an output of ``iem replay``); InvalidInputError naming it."""
     try:
         FsPath(path).write_text(text, encoding="utf-8")
     except OSError as exc:
@@ -135,7 +146,8 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
            status: bool = False, log=print, arm_file=None, format: str | None = None,
            topic: str = DEFAULT_TOPIC, end_effector=None,
            block_frames: int | None = None,
-           rate_hz: float | None = None) -> tuple[dict, Estimates]:
+           rate_hz: float | None = None, description=None,
+           rated_mass_kg: float | None = None) -> tuple[dict, Estimates]:
     """Run the plug-in over ``log_file`` as fast as possible, writes off.
 
     Args:
@@ -162,6 +174,10 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
             the model must be made for the same point rate.
         rate_hz: the recording's joint states a second (None: detected,
             :func:`firmware_bridge.recordings.can_log_rate` for a CAN log).
+        description: the recorded arm's model (:mod:`sim.description`; an
+            :class:`~sim.description.ArmDescription`, None: the default), whose joint names
+            a rosbag2 bag must carry; the arm file and the model must be made for it.
+        rated_mass_kg: its rated payload for the gate's verdicts (None: the arm model's).
 
     Returns:
         ``(summary, estimates)``: the summary dict (the keys of the demo's summary where
@@ -172,9 +188,11 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     from iem.persistence import save_model
     from sim.family import DEPLOY_FAMILY
 
+    from .options import joint_names_of
     from .training import check_model_rate, train_initial_model
 
-    fmt, kind, options = recording_link(log_file, format, topic)
+    fmt, kind, options = recording_link(log_file, format, topic,
+                                        joint_names_of(description)["joints"])
     if fmt != "can":
         options["rate_hz"] = rate_hz
     link = open_link(kind, str(log_file), profile=profile, **options)
@@ -184,12 +202,14 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
         if model is None:
             model = train_initial_model(DEFAULT_MODEL, DEPLOY_FAMILY, "builtin", 0, log=log,
                                         rate_hz=rate, block_frames=block_frames,
-                                        arm_file=arm_file, end_effector=end_effector)
+                                        arm_file=arm_file, end_effector=end_effector,
+                                        description=description)
         else:
             check_model_rate(model, rate, block_frames, f"the recording {log_file}")
             model = copy.deepcopy(model)
         service = _replay_service(link, kind, str(log_file), profile, model, save_model_to,
-                                  arm_file, end_effector, block_frames, status, rate)
+                                  arm_file, end_effector, block_frames, status, rate,
+                                  description, rated_mass_kg)
         estimates = Estimates()
         service.on_cycle.append(estimates)
         service.open()
@@ -243,17 +263,21 @@ def _against(estimates: Estimates, truth) -> dict:
 
 
 def _replay_service(link, kind: str, channel: str, profile: str, model, save_model_to,
-                    arm_file, end_effector, block_frames: int, status: bool, rate_hz: float):
+                    arm_file, end_effector, block_frames: int, status: bool, rate_hz: float,
+                    description=None, rated_mass_kg: float | None = None):
     """The service over an open recording ``link`` of ``rate_hz`` joint states a second in
     blocks of ``block_frames``, writes off, deciding on the recorded clock (a fast replay
     decides as the cell did)."""
     from iem.persistence import DEFAULT_FAMILY
+    from sim.description import described
 
     from .config import config_from_dict
     from .sdnotify import Notifier
     from .service import Service
     from .status import StatusLine
 
+    desc = described(description)
+    gate = {} if rated_mass_kg is None else {"gate": {"rated_mass_kg": float(rated_mass_kg)}}
     config = config_from_dict({
         "link": {"kind": kind, "channel": channel, "profile": profile},
         # the model path is only written by --save-model; no periodic checkpoints
@@ -262,7 +286,9 @@ def _replay_service(link, kind: str, channel: str, profile: str, model, save_mod
                   "arm": str(arm_file or ""),
                   # the model's own family: new bags learn from the simulators it knew
                   "family": model.trained_family or DEFAULT_FAMILY},
-        "arm": {"end_effector": str(end_effector or "franka_hand")},
+        "arm": {"end_effector": str(end_effector or ""), "model": desc.source_spec,
+                "flange": desc.flange},
+        **gate,
         "estimate": {"block_frames": int(block_frames)},
         "log": {"status_line": "on" if status else "off"}}, where="iem replay")
     return Service(config, link=link, model=model, notifier=Notifier(environ={}),
@@ -288,55 +314,82 @@ def _nothing_estimated(log_file, link, profile: str) -> None:
 
 
 def configure(parser) -> None:
-    parser.add_argument("file", metavar="REC", help="the recording: a CAN log (.blf, .log, "
-                        ".asc, .trc), a rosbag2 bag (directory, .db3, .mcap) or a joint-state "
-                        "CSV (t,q1..q7,dq1..dq7,tau1..tau7)")
+    from .replay_many import add_jobs
+
+    parser.add_argument("files", nargs="+", metavar="REC", help="the recording: a CAN log "
+                        "(.blf, .log, .asc, .trc), a rosbag2 bag (directory, .db3, .mcap) or "
+                        "a joint-state CSV (t,q1..q7,dq1..dq7,tau1..tau7); or a folder of "
+                        "them, a quoted glob or several, each replayed on its own (--jobs)")
     add_recording_options(parser, "wire profile a CAN log was recorded with (default fd)")
     parser.add_argument("--model", metavar="FILE", help="model file to start from (read "
                         f"only; default: a fresh {DEFAULT_MODEL} trained on the built-in "
                         "excitation path, seed 0)")
     parser.add_argument("--truth", metavar="PAYLOAD", help="payload TOML: report the MAE of "
                         "the smoothed estimates against it")
-    parser.add_argument("--out", metavar="CSV", help="write every estimate (raw and smoothed)")
-    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    parser.add_argument("--out", metavar="CSV", help="write every estimate (raw and smoothed); "
+                        "with several recordings a folder, one CSV each")
+    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON (with "
+                        "several recordings, every one's)")
     parser.add_argument("--arm", metavar="ARM", help="arm file of the recorded arm (from "
                         "'iem calibrate'; the model must have been trained for it)")
     add_end_effector(parser)
+    add_arm_model(parser)
     add_rate(parser, help="joint states a second of the recording (default: detected from "
              "its time stamps, the median step)")
     add_block_frames(parser)
     parser.add_argument("--save-model", metavar="FILE",
-                        help="save the model learnt during the replay here")
+                        help="save the model learnt during the replay here (with several "
+                        "recordings a folder, one model each)")
     parser.add_argument("--no-status", action="store_true", help="no live status line")
+    add_jobs(parser)
 
 
-def run(args) -> int:
+def replay_inputs(args) -> tuple:
+    """``(truth, model)`` that ``iem replay``'s ``--truth`` and ``--model`` name (None where
+    not given), the model loaded with the arm it runs on (``--arm``, ``--end-effector``): a
+    model file references its arm by content."""
     from iem.persistence import load_model
     from sim.payload import load_payload
 
-    from .logs import setup_logging
-
-    setup_logging("warning", "text")
     truth = load_payload(args.truth) if args.truth else None  # fail early on a bad file
     model = None
-    if args.model:  # with the arm it runs on: a model file references its arm by content
+    if args.model:
         from .training import load_arm_file
 
-        arm, _ = load_arm_file(args.arm, args.end_effector)
+        arm, _ = load_arm_file(args.arm, args.end_effector, arm_description_of(args))
         model = load_model(args.model, resources={"arm": arm})
+    return truth, model
+
+
+def replay_options(args) -> dict:
+    """The keyword arguments of :func:`replay` that ``iem replay``'s options give about how
+    to read and estimate a recording (not its model, truth or outputs)."""
+    return {"profile": args.profile, "arm_file": args.arm, "format": args.format,
+            "topic": args.topic, "end_effector": args.end_effector,
+            "block_frames": args.block_frames, "rate_hz": args.rate,
+            "description": arm_description_of(args), "rated_mass_kg": args.rated_mass_kg}
+
+
+def run(args) -> int:
+    from .logs import setup_logging
+    from .replay_many import recordings_of, run_many
+
+    setup_logging("warning", "text")
+    files = recordings_of(args.files, args.format)
+    if files is not None:  # a folder, a glob or several: each on its own, then a table
+        return run_many(args, files)
+    truth, model = replay_inputs(args)
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    summary, estimates = replay(args.file, profile=args.profile, model=model, truth=truth,
+    summary, estimates = replay(args.files[0], model=model, truth=truth,
                                 save_model_to=args.save_model,
                                 status=not args.no_status and sys.stderr.isatty(), log=log,
-                                arm_file=args.arm, format=args.format, topic=args.topic,
-                                end_effector=args.end_effector,
-                                block_frames=args.block_frames, rate_hz=args.rate)
+                                **replay_options(args))
     if args.out:
         estimates.write_csv(args.out)
     if args.json:
-        _write(args.json, json.dumps(summary, indent=2, default=float) + "\n")
+        write_output(args.json, json.dumps(summary, indent=2, default=float) + "\n")
     print_summary(summary)
     return 0

@@ -72,3 +72,36 @@ def print_summary(s: dict, log=print) -> None:
     f = s["frames"]
     drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
     log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}")
+
+
+TABLE_COLUMNS = ("recording", "frames", "recorded s", "wall s", "speed", "mass kg",
+                 "CoM mm", "error")
+"""The table over many recordings (:mod:`deploy.replay_many`): per recording, the frames
+received, the recorded and the wall time, the replay's speed (recorded over wall time), the
+last smoothed estimate's mass and centre of mass (flange frame), and why it failed."""
+
+
+def table_row(entry: dict) -> tuple[str, ...]:
+    """``entry`` (a recording's entry of the many-recording JSON) as the table's cells."""
+    s, phi = entry["summary"], entry["final_phi"]
+    if s is None:
+        return (entry["file"], *("-",) * 6, entry["error"])
+    mass = phi[0]
+    com = ("[" + ", ".join(f"{1000 * v / mass:.1f}" for v in phi[1:4]) + "]"
+           if abs(mass) > 1e-3 else "-")  # no CoM of a massless estimate
+    speed = f"{s['speed']:.1f}x" if s["speed"] else "-"
+    return (entry["file"], str(s["frames"]["received"]), f"{s['recorded_s']:.2f}",
+            f"{s['wall_s']:.2f}", speed, f"{mass:+.4f}", com, "")
+
+
+def print_table(entries: list[dict], wall_s: float, jobs: int, log=print) -> None:
+    """The table over many recordings, then the total wall time."""
+    rows = [TABLE_COLUMNS, *map(table_row, entries)]
+    widths = [max(len(r[j]) for r in rows) for j in range(len(TABLE_COLUMNS) - 1)]
+    for row in rows:
+        cells = [c.ljust(w) if j == 0 else c.rjust(w)
+                 for j, (c, w) in enumerate(zip(row, widths, strict=False))]
+        log("  ".join([*cells, row[-1]]).rstrip())
+    failed = sum(e["error"] is not None for e in entries)
+    log(f"{len(entries)} recordings, {failed} failed, in {wall_s:.2f} s wall with {jobs} "
+        f"job{'s' if jobs > 1 else ''}")

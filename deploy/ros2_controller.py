@@ -57,7 +57,9 @@ def main(argv=None) -> int:
     ctl.add_argument("--domain", type=int, default=0)
     ctl.add_argument("--interface", default="")
     ctl.add_argument("--peer", action="append", default=[])
-    ctl.add_argument("--arm", choices=sorted(JOINT_SETS), default="fr3")
+    ctl.add_argument("--arm", choices=sorted(JOINT_SETS), default="panda",
+                     help="the joint names it publishes (default panda: the plant is the "
+                     "default arm model's)")
     ctl.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
     ctl.add_argument("--once", action="store_true", help="play the path once, then hold")
     ctl.add_argument("--duration", type=float, default=10.0, help="s of controller time")

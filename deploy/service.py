@@ -161,7 +161,7 @@ class Service:
 
     # -- set-up ----------------------------------------------------------------------------
     def open(self) -> Service:
-        from sim.robot import PandaModel
+        from sim.robot import ArmModel
 
         from .host import hold_cpu_latency
         from .training import tandem_for
@@ -189,7 +189,7 @@ class Service:
         self.block_frames = block_frames_of(self.config, self.rate_hz)
         self.point_rate_hz = self.rate_hz / self.block_frames
         log_rate(self)
-        self.kinematics = PandaModel()
+        self.kinematics = ArmModel(arm=arm, description=self.config.arm.description())
         self._zeros = np.zeros(7)
         self.tandem = tandem_for(self.config.model.family, arm)
         self.online = OnlineIdentifier(

@@ -1,6 +1,6 @@
 """The simulated controller: the MuJoCo plant at 1 kHz behind a real bus or link.
 
-:class:`SimController` runs :class:`sim.plant.PandaPlant` cycle by cycle, tracking a
+:class:`SimController` runs :class:`sim.plant.ArmPlant` cycle by cycle, tracking a
 :class:`sim.paths.Path` (default :func:`sim.paths.excitation_path`): forward, then backward,
 then forward again (both ends are at rest, so the turns are smooth), or once and then at
 rest at its end (``once=True``). Each cycle it
@@ -41,6 +41,7 @@ from firmware_bridge.errors import BridgeConfigError
 from firmware_bridge.messages import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
 from firmware_bridge.protocol import PROFILES
 
+from .options import add_arm_model, arm_description_of
 from .path_player import PathPlayer
 from .payload_schedule import SPEC_HELP, PayloadSchedule, parse_schedule
 
@@ -73,18 +74,22 @@ class SimController:
             :mod:`deploy.payload_schedule`.
         gap: the plant's reality gap (:class:`sim.plant.RealityGap`: an arm that departs
             from its model as a real one does); None: the ideal plant, the nominal model.
+        description: the arm model (:mod:`sim.description`; None: the default): the plant's
+            arm and, without ``path``, the excitation path made for its limits.
     """
 
     def __init__(self, port, *, path=None, payload=None, once: bool = False, seed: int = 0,
                  sensor=None, realtime: bool = True, heartbeat_period: float = 0.1,
                  spin_us: float = 200.0, refuse_while_moving: bool = False,
-                 drop_commands: int = 0, payload_schedule=(), gap=None) -> None:
+                 drop_commands: int = 0, payload_schedule=(), gap=None,
+                 description=None) -> None:
         from iem.extras import require
         from sim.family import default_test_payload
         from sim.paths import excitation_path
 
         require("mujoco", "the simulated controller")
-        from sim.plant import DT, PandaPlant
+        from sim.description import described
+        from sim.plant import DT, ArmPlant
 
         if isinstance(drop_commands, bool) or not isinstance(drop_commands, int) \
                 or drop_commands < 0:
@@ -92,13 +97,15 @@ class SimController:
                                     ">= 0")
         self.schedule = PayloadSchedule(payload_schedule, DT)
         self.port = port
-        self.path = excitation_path() if path is None else path
+        self.description = described(description)
+        self.path = excitation_path(model=self.plant_model()) if path is None else path
         self.payload = default_test_payload() if payload is None else payload
         at_start, first = self.schedule.at_start()
         if at_start:
             self.payload = first
         self.player = PathPlayer(self.path, once=once)
-        self.plant = PandaPlant(payload=self.payload, sensor=sensor, seed=seed, gap=gap)
+        self.plant = ArmPlant(payload=self.payload, sensor=sensor, seed=seed, gap=gap,
+                              description=self.description)
         self.plant.reset(self.path.q[0], self.path.dq[0])
         self.period = DT
         self.realtime = realtime
@@ -118,6 +125,12 @@ class SimController:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
+
+    def plant_model(self):
+        """The arm model's kinematics and limits (:class:`sim.robot.ArmModel`)."""
+        from sim.robot import arm_model
+
+        return arm_model(self.description)
 
     # -- one cycle -------------------------------------------------------------------------
     def moving(self, k: int) -> bool:
@@ -255,6 +268,32 @@ def _set_load_args(load) -> tuple[float, list[float], list[float]]:
     return float(mass), [float(v) for v in com], [float(v) for v in inertia]
 
 
+def cell_sections(description=None, rated_mass_kg: float | None = None) -> dict:
+    """The ``[arm]`` and ``[gate]`` entries of a cell that runs against this controller on
+    the arm model ``description`` (an :class:`~sim.description.ArmDescription`; None: the
+    default): ``[arm] model`` (a named arm model by its name, else its file) and ``flange``,
+    and ``[gate] rated_mass_kg`` when ``rated_mass_kg`` is given.
+
+    Raises:
+        iem.errors.InvalidInputError: an arm model from a file, which gives no rated
+            payload, without ``rated_mass_kg`` (``--rated-mass-kg``)."""
+    from iem.errors import InvalidInputError
+    from sim.description import BUILTIN
+
+    if description is not None and description.rated_payload_kg is None \
+            and rated_mass_kg is None:
+        raise InvalidInputError(f"the arm model {description.name!r} ({description.source}) "
+                                "gives no rated payload, which the gate checks; give the arm "
+                                "maker's rated payload with --rated-mass-kg KG")
+    out: dict = {"arm": {}, "gate": {}}
+    if description is not None:
+        out["arm"] = {"model": description.name if description.name in BUILTIN
+                      else description.source, "flange": description.flange}
+    if rated_mass_kg is not None:
+        out["gate"]["rated_mass_kg"] = float(rated_mass_kg)
+    return out
+
+
 # -- command line --------------------------------------------------------------------------
 def configure(parser) -> None:
     from firmware_bridge.links import controller_interfaces
@@ -266,7 +305,8 @@ def configure(parser) -> None:
                         help="bus channel, device or URL (not used by the *-pty interfaces)")
     parser.add_argument("--profile", default="fd", choices=PROFILES,
                         help="wire profile on CAN (default fd)")
-    parser.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
+    parser.add_argument("--path", metavar="FILE",
+                        help="path CSV (default: the arm model's excitation path)")
     parser.add_argument("--payload", metavar="FILE",
                         help="true payload TOML, mounted from the start (default: the default "
                              "test payload) until --payload-schedule changes it")
@@ -299,6 +339,7 @@ def configure(parser) -> None:
                         help="at exit, write the controller's counts (cycles, overruns, "
                              "commands, dropped_commands, faults injected per message) and "
                              "its own record (load_in_force, applied, mounted) as JSON")
+    add_arm_model(parser)
 
 
 def _schedule_arg(text: str):
@@ -331,15 +372,17 @@ def run(args) -> int:
     from sim.paths import load_path_csv
     from sim.payload import load_payload
 
-    require("mujoco", "iem sim-controller (the simulated Panda)")  # before a port opens
+    require("mujoco", "iem sim-controller (the simulated arm)")  # before a port opens
 
+    description = arm_description_of(args)
     path = load_path_csv(args.path) if args.path else None
     payload = load_payload(args.payload) if args.payload else None
     port, announce = open_port(args.interface, args.channel, args.profile, fault_spec(args))
     controller = SimController(port, path=path, payload=payload, once=args.once, seed=args.seed,
                                refuse_while_moving=args.refuse_while_moving,
                                drop_commands=args.drop_commands,
-                               payload_schedule=args.payload_schedule or ())
+                               payload_schedule=args.payload_schedule or (),
+                               description=description)
 
     def _stop(signum, frame):
         controller._stop.set()
@@ -348,7 +391,8 @@ def run(args) -> int:
     signal.signal(signal.SIGINT, _stop)
     if announce:
         print(announce, flush=True)
-    print(f"sim-controller: {args.interface} {announce or args.channel!r}, profile "
+    print(f"sim-controller: {description.name}, {args.interface} "
+          f"{announce or args.channel!r}, profile "
           f"{args.profile}, path {controller.path.name!r} "
           f"({'once' if args.once else 'back and forth'}), payload "
           f"{getattr(controller.payload, 'name', None)!r}"

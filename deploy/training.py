@@ -7,7 +7,7 @@ the model's ``fit`` forms the initial bags and trains their learners. The model 
 those of :data:`iem.persistence.MODELS` that can learn online (``IEM``, ``IEM+phys``).
 
 With an arm file (``--arm ARM``, from ``iem calibrate``) the tandem simulators are the
-calibrated arm (:class:`sim.robot.PandaModel` with ``arm=``: its bodies, friction and
+calibrated arm (:class:`sim.robot.ArmModel` with ``arm=``: its bodies, friction and
 offsets), so the learners' samples are the real arm's; IEM+phys's regression and the
 learners' reversal name the same arm by content (:func:`sim.arm.arm_spec`,
 :func:`sim.coverage.reversal_spec`: ``...@arm:CRC32``, never a path); and the model file
@@ -28,7 +28,7 @@ from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_
 from sim.family import DEPLOY_FAMILY, FAMILIES
 
 from .config import MODEL_KINDS
-from .options import add_block_frames, add_end_effector, add_rate
+from .options import add_arm_model, add_block_frames, add_end_effector, add_rate, arm_description_of
 
 
 def best_model_kind() -> str:
@@ -58,13 +58,14 @@ conservative default, for an arm that was not calibrated), the right choice on a
 
 def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
                end_effector=None, noise: str = "arm", arm=None,
-               block_frames: int = DEFAULT_BLOCK_FRAMES, **params):
+               block_frames: int = DEFAULT_BLOCK_FRAMES, description=None, **params):
     """A fresh model of ``kind`` for joint states at ``rate_hz`` formed into block points of
     ``block_frames`` (:mod:`iem.signals.blocks`: the model works at ``rate_hz / block_frames``
     points per second); ``params`` go to its IEM;
     ``arm_file``: the arm file its physics uses (None: the nominal arm carrying
     ``end_effector``, :mod:`sim.end_effector`); ``noise``: one of :data:`NOISE_SOURCES`;
-    ``arm``: :func:`load_arm_file`'s result for them, if the caller has it already."""
+    ``arm``: :func:`load_arm_file`'s result for them, if the caller has it already;
+    ``description``: the arm model (:mod:`sim.description`; None: the default)."""
     if kind not in MODEL_KINDS or kind not in MODELS:
         valid = [k for k in MODEL_KINDS if k in MODELS]
         raise InvalidInputError(f"model kind {kind!r} cannot be trained here; valid kinds are "
@@ -74,19 +75,18 @@ def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_f
     if noise not in NOISE_SOURCES:
         raise InvalidInputError(f"noise {noise!r} is not valid; valid are "
                                 f"{', '.join(NOISE_SOURCES)}")
-    arm, _ = load_arm_file(arm_file, end_effector) if arm is None else arm
+    arm, _ = load_arm_file(arm_file, end_effector, description) if arm is None else arm
     # the nominal arm (a tool's or not) has no friction: its reversal is the plain one
     params = {**DEPLOY_ENSEMBLE, "reversal": reversal_spec(arm if arm_file else None),
               **params}
     if kind == "IEM+phys":  # the physics part filters at the link's rate; it holds an IEM
-        from sim.arm import arm_spec, nominal_spec
-        from sim.robot import PANDA_DYNAMICS
+        from sim.arm import NOMINAL_DYNAMICS, arm_spec, nominal_spec
 
-        extra = {"dynamics": PANDA_DYNAMICS}
+        extra = {"dynamics": NOMINAL_DYNAMICS}
         if arm_file is not None:
             extra["dynamics"] = arm_spec(arm)
         elif arm is not None:
-            extra["dynamics"] = nominal_spec(end_effector)
+            extra["dynamics"] = nominal_spec(end_effector, arm.description)
         point_rate = rate_hz / block_frames
         if noise == "arm":
             extra["torque_noise"] = arm_torque_noise(arm, point_rate)
@@ -145,21 +145,25 @@ def check_model_rate(model, rate_hz: float, block_frames: int, source: str,
                              f"{rate_hz:g} --block-frames {block_frames} --out MODEL'")
 
 
-def load_arm_file(arm_file, end_effector=None):
+def load_arm_file(arm_file, end_effector=None, description=None):
     """The arm of ``arm_file`` and its record for model files; without a file, the nominal
-    arm carrying ``end_effector`` (``(None, None)``: the nominal arm with the Franka Hand).
-    An ``end_effector`` other than the arm file's is refused, naming both."""
+    arm of the arm model ``description`` (:mod:`sim.description`; None: the default)
+    carrying ``end_effector`` (None: the arm model's default; ``(None, None)``: the default
+    arm model's nominal arm with its default end effector). An ``end_effector`` or an arm
+    model other than the arm file's is refused, naming both."""
     from sim.arm import ArmParams, arm_record, load_arm
+    from sim.description import DEFAULT_ARM_MODEL, described
     from sim.end_effector import check_same
     from sim.end_effector import end_effector as resolve
 
+    desc = described(description)
     if arm_file is None:
-        ee = resolve(end_effector)
-        if ee.spec == "franka_hand":
+        ee = resolve(end_effector or desc.default_end_effector)
+        if desc.name == DEFAULT_ARM_MODEL and ee.spec == desc.default_end_effector:
             return None, None
-        arm = ArmParams.nominal(ee)
+        arm = ArmParams.nominal(ee, desc)
         return arm, arm_record(arm)
-    arm = load_arm(arm_file)
+    arm = load_arm(arm_file, desc)
     if end_effector:
         check_same(arm.end_effector, resolve(end_effector).label, f"the arm file {arm_file}",
                    "the configuration")
@@ -180,44 +184,49 @@ def arm_torque_noise(arm, point_rate_hz: float = NOMINAL_POINT_RATE_HZ) -> dict:
     return replace(NOMINAL_ARM_NOISE, rate_hz=point_rate_hz).to_dict()
 
 
-def excitation(spec: str = "builtin"):
-    """The excitation path: ``builtin`` (:func:`sim.paths.excitation_path`) or a CSV file."""
+def excitation(spec: str = "builtin", model=None):
+    """The excitation path: ``builtin`` (:func:`sim.paths.excitation_path` of the arm model
+    ``model``, None: the default) or a CSV file (checked against its limits)."""
     from sim.paths import excitation_path, load_path_csv
 
-    return excitation_path() if spec == "builtin" else load_path_csv(spec)
+    if spec == "builtin":
+        return excitation_path(model=model)
+    return load_path_csv(spec).check_limits(model)
 
 
 def tandem_for(family: str, arm=None):
     """The tandem simulators of ``family`` on the arm ``arm`` (:class:`sim.arm.ArmParams`;
-    None: the nominal arm)."""
+    None: the default arm model's nominal arm)."""
     from sim.family import family as family_payloads
-    from sim.robot import PandaModel
+    from sim.robot import ArmModel
     from sim.tandem import TandemSimulators
 
-    return TandemSimulators(family_payloads(family), model=PandaModel(arm=arm))
+    return TandemSimulators(family_payloads(family), model=ArmModel(arm=arm))
 
 
 def train_initial_model(kind: str = DEFAULT_MODEL, family: str = DEPLOY_FAMILY,
                         excitation_spec="builtin",
                         seed: int = 0, log=print, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,
                         end_effector=None, noise: str = "arm",
-                        block_frames: int = DEFAULT_BLOCK_FRAMES, **params):
+                        block_frames: int = DEFAULT_BLOCK_FRAMES, description=None, **params):
     """A new model of ``kind`` trained on the excitation path with ``family``'s payloads,
     for joint states arriving at ``rate_hz`` (1000 on the fd profile, 500 on classic) in
     block points of ``block_frames``, on
     the arm of ``arm_file`` (None: the nominal arm carrying ``end_effector``), with the
-    equations' error of ``noise`` (:data:`NOISE_SOURCES`)."""
-    from sim.robot import PandaModel
+    equations' error of ``noise`` (:data:`NOISE_SOURCES`), on the arm model ``description``
+    (:mod:`sim.description`; None: the default), whose limits the excitation path keeps."""
+    from sim.robot import ArmModel
 
-    arm, record = loaded = load_arm_file(arm_file, end_effector)
+    arm, record = loaded = load_arm_file(arm_file, end_effector, description)
     model = make_model(kind, seed, rate_hz, arm_file=arm_file, end_effector=end_effector,
                        noise=noise, arm=loaded, block_frames=block_frames, **params)
     model.trained_arm = record
     model.trained_family = family
-    path = excitation(excitation_spec)
+    kinematics = ArmModel(arm=arm, description=description)
+    path = excitation(excitation_spec, kinematics)
     tandem = tandem_for(family, arm)
     t0 = time.perf_counter()
-    model.fit(path.q, PandaModel().flange_positions(path.q),
+    model.fit(path.q, kinematics.flange_positions(path.q),
               lambda i: tandem.samples(path.q[i], path.dq[i], path.ddq[i]))
     log(f"trained {kind} on {path.name!r} ({path.duration:.0f} s, {len(tandem)} training "
         f"payloads{'' if arm_file is None else f', arm {arm_file}'}): {model.n_bags} bags "
@@ -256,6 +265,7 @@ def configure(parser) -> None:
     parser.add_argument("--arm", metavar="ARM", help="arm file from 'iem calibrate' (default: "
                         "the nominal arm)")
     add_end_effector(parser)
+    add_arm_model(parser)
     parser.add_argument("--noise", choices=NOISE_SOURCES, default="arm",
                         help="IEM+phys's equation error: 'arm' (default), the arm file's "
                              "measured noise, or a conservative default for an uncalibrated "
@@ -271,7 +281,7 @@ def run(args) -> int:
     model = train_initial_model(args.kind, args.family, args.excitation, args.seed,
                                 rate_hz=args.rate, arm_file=args.arm,
                                 end_effector=args.end_effector, noise=args.noise,
-                                block_frames=frames)
+                                block_frames=frames, description=arm_description_of(args))
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

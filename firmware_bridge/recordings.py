@@ -194,13 +194,15 @@ def _read_can(path, profile: str) -> Recording:
 
 
 def read_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPIC,
-                   profile: str = "fd") -> Recording:
+                   profile: str = "fd", joints: tuple[str, ...] | None = None) -> Recording:
     """The joint states of a recording of any format as arrays (``format`` None: detected;
-    ``topic``: rosbag2's JointState topic; ``profile``: a CAN log's wire profile)."""
+    ``topic``: rosbag2's JointState topic; ``profile``: a CAN log's wire profile;
+    ``joints``: the arm model's joint names a rosbag2 bag must carry, None: fr3's or
+    panda's)."""
     fmt = recording_format(path, format)
     if fmt == "can":
         return _read_can(path, profile)
-    return read_rosbag2(path, topic) if fmt == "rosbag2" else read_csv(path)
+    return read_rosbag2(path, topic, joints) if fmt == "rosbag2" else read_csv(path)
 
 
 # -- the source --------------------------------------------------------------------------------
@@ -286,38 +288,41 @@ class RecordingSource:
 def open_recording_link(kind: str, channel: str, *, profile: str = "fd",
                         silence_timeout: float = 0.1, format: str | None = None,
                         topic: str = DEFAULT_TOPIC, pace: str = "recorded",
-                        skip: float = 60.0, rate_hz: float | None = None) -> RecordingSource:
+                        skip: float = 60.0, rate_hz: float | None = None,
+                        joints: tuple[str, ...] | None = None) -> RecordingSource:
     """Opener for :func:`firmware_bridge.links.open_link` (kind ``recording``): ``channel`` is
     a rosbag2 bag or a joint-state CSV (``format`` None: detected), read whole and checked
     now; ``topic``: the bag's JointState topic; ``pace``, ``skip``: see
     :class:`RecordingSource` (recorded pace by default, as the ``replay`` kind's);
-    ``rate_hz``: the recording's rate (None: detected); ``profile`` is a CAN notion and not
+    ``rate_hz``: the recording's rate (None: detected); ``joints``: the arm model's joint
+    names a bag must carry (None: fr3's or panda's); ``profile`` is a CAN notion and not
     used."""
     fmt = recording_format(channel, format)
     if fmt == "can":
         raise LogFileError(f"{channel}: a CAN log; open it as the link kind 'replay'")
-    recording = read_recording(channel, fmt, topic=topic)
+    recording = read_recording(channel, fmt, topic=topic, joints=joints)
     what = f"{fmt} recording {channel}" + (f" ({topic})" if fmt == "rosbag2" else "")
     return RecordingSource(recording, what, silence_timeout, pace, skip, rate_hz)
 
 
-def recording_link(path, format: str | None = None, topic: str = DEFAULT_TOPIC
-                   ) -> tuple[str, str, dict]:
+def recording_link(path, format: str | None = None, topic: str = DEFAULT_TOPIC,
+                   joints: tuple[str, ...] | None = None) -> tuple[str, str, dict]:
     """``(format, link kind, opener options)`` that open the recording at ``path`` with
     :func:`firmware_bridge.links.open_link`: ``replay`` (as fast as it decodes) for a CAN log,
     ``recording`` for the others (``format`` None: detected)."""
     fmt = recording_format(path, format)
     if fmt == "can":
         return fmt, "replay", {"pace": "fast"}
-    return fmt, "recording", {"format": fmt, "topic": topic, "pace": "fast"}
+    options = {"format": fmt, "topic": topic, "pace": "fast"}
+    return fmt, "recording", options if joints is None else {**options, "joints": joints}
 
 
 def open_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPIC,
-                   profile: str = "fd"):
+                   profile: str = "fd", joints: tuple[str, ...] | None = None):
     """A joint-state source over the recording at ``path`` of any format (``format`` None:
     detected): a :class:`~firmware_bridge.replay.ReplaySource` for a CAN log (``profile``: its
     wire profile), a :class:`RecordingSource` for a rosbag2 bag (``topic``) or a CSV."""
-    _, kind, options = recording_link(path, format, topic)
+    _, kind, options = recording_link(path, format, topic, joints)
     return open_link(kind, str(path), profile=profile, **options)
 
 

@@ -32,7 +32,8 @@ BAG_SUFFIXES = (".db3", ".mcap")
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
 
-def read_rosbag2(path, topic: str = DEFAULT_TOPIC) -> Recording:
+def read_rosbag2(path, topic: str = DEFAULT_TOPIC, joints: tuple[str, ...] | None = None
+                 ) -> Recording:
     """The ``sensor_msgs/msg/JointState`` messages of ``topic`` in a rosbag2 bag (see the
     module docstring) as arrays; LogFileError naming the message and joint of anything wrong,
     or the bag's topics if ``topic`` is not one of them."""
@@ -45,7 +46,7 @@ def read_rosbag2(path, topic: str = DEFAULT_TOPIC) -> Recording:
         raise LogFileError(f"{path}: cannot read as a rosbag2 bag: {exc}") from exc
     try:
         connections = _joint_state_connections(reader, path, topic)
-        messages = _read_messages(reader, connections, path, f"{topic} message")
+        messages = _read_messages(reader, connections, path, f"{topic} message", joints)
     finally:
         reader.close()
     if not messages.stamps:
@@ -110,9 +111,11 @@ class _Messages:
     """The arm's joint names in the first message (to name a joint in an error)."""
 
 
-def _read_messages(reader, connections: list, path: FsPath, where: str) -> _Messages:
-    """Every message of ``connections``, deserialised, the arm's joints picked by name;
-    LogFileError naming the message of anything wrong."""
+def _read_messages(reader, connections: list, path: FsPath, where: str,
+                   joints: tuple[str, ...] | None = None) -> _Messages:
+    """Every message of ``connections``, deserialised, the arm's joints (``joints``, the arm
+    model's seven names; None: fr3's or panda's) picked by name; LogFileError naming the
+    message of anything wrong."""
     from rosbags.typesys import Stores, get_typestore
 
     deserialize = get_typestore(Stores.LATEST).deserialize_cdr
@@ -123,7 +126,7 @@ def _read_messages(reader, connections: list, path: FsPath, where: str) -> _Mess
             msg = deserialize(raw, JOINT_STATE_TYPE)
             names = tuple(msg.name)
             if names not in index:
-                index[names], matched = _joint_index(path, names, f"{where} {k}")
+                index[names], matched = _joint_index(path, names, f"{where} {k}", joints)
                 out.joint_set = matched if k == 0 else out.joint_set
             at = index[names]
             fields = []
@@ -147,12 +150,19 @@ def _read_messages(reader, connections: list, path: FsPath, where: str) -> _Mess
     return out
 
 
-def _joint_index(path, names: tuple[str, ...], what: str
-                 ) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Where the arm's joints are among ``names`` (the ros2 link's rule), and their names."""
-    found = match_joints(names)
+def _joint_index(path, names: tuple[str, ...], what: str,
+                 joints: tuple[str, ...] | None = None) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Where the arm's joints (``joints``; None: fr3's or panda's, the ros2 link's rule) are
+    among ``names``, and their names."""
+    found = match_joints(names, None if joints is None else tuple(joints))
     if found is not None:
         return np.array(found[0]), found[1]
+    if joints is not None:
+        missing = [n for n in joints if n not in names]
+        raise LogFileError(f"{path}: {what} names the joints {', '.join(names) or 'none'}; the "
+                           f"arm model's joints are {', '.join(joints)} (missing: "
+                           f"{', '.join(missing)}); give the recording's arm model "
+                           "(--arm-model, [arm] model)")
     closest = max(JOINT_SETS.values(), key=lambda s: sum(n in names for n in s))
     missing = [n for n in closest if n not in names]
     raise LogFileError(f"{path}: {what} names the joints {', '.join(names) or 'none'}; a "

@@ -67,7 +67,6 @@ class Factory:
 
 
 FACTORIES: dict[str, Factory] = {
-    "sim.robot:panda_dynamics": Factory("sim.robot:panda_dynamics"),
     "sim.arm:nominal_dynamics": Factory("sim.arm:nominal_dynamics",
                                         names=("franka_hand", "none")),
     "sim.arm:arm_dynamics": Factory("sim.arm:arm_dynamics", resource="arm"),

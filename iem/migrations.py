@@ -55,6 +55,8 @@ Step = Callable[..., dict]
 """``step(kind, state, records=None) -> state``."""
 
 ALIASES: dict[str, str] = {
+    # the nominal arm's dynamics: one factory for every arm model (sim.description)
+    "sim.robot:panda_dynamics": "sim.arm:arm_dynamics",
     # iem's modules into sub-packages: the estimators' classes (iem.persistence.MODELS)
     "iem.ensemble:IncrementalEnsemble": "iem.ensemble.model:IncrementalEnsemble",
     "iem.physics:PhysicsInformedEnsemble": "iem.physics.model:PhysicsInformedEnsemble",

@@ -37,7 +37,7 @@ in :class:`iem.base.BaseEstimator`.
 
 The kinematics and the tandem simulators are passed in as callables, so this module stays
 numpy-only: ``flange_position(q) -> (3,)`` and ``tandem(q, dq, ddq) -> (X, Y)``
-(``sim.robot.PandaModel.flange_position`` and ``sim.tandem.TandemSimulators.samples``).
+(``sim.robot.ArmModel.flange_position`` and ``sim.tandem.TandemSimulators.samples``).
 """
 
 from __future__ import annotations

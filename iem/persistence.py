@@ -141,7 +141,12 @@ DEFAULT_FAMILY = "paper"
 
 
 def _arm_record(model) -> dict | None:
-    arm = getattr(model, "trained_arm", None)
+    return arm_record_of(getattr(model, "trained_arm", None))
+
+
+def arm_record_of(arm: dict | None) -> dict | None:
+    """The arm record a model file keeps of ``arm`` (``trained_arm``): its CRC32, source,
+    end effector and arm model (name and digest), checked."""
     if arm is None:
         return None
     if not (isinstance(arm, dict) and isinstance(arm.get("crc32"), int)
@@ -151,6 +156,9 @@ def _arm_record(model) -> dict | None:
     out = {"crc32": int(arm["crc32"]), "source": str(arm["source"])}
     if arm.get("end_effector"):
         out["end_effector"] = str(arm["end_effector"])
+    if isinstance(arm.get("description"), dict):  # the arm model, by content
+        out["description"] = {"name": str(arm["description"].get("name")),
+                              "digest": str(arm["description"].get("digest"))}
     return out
 
 
@@ -200,16 +208,21 @@ def _arm_mismatch(have: dict | None, given: dict | None, where: str) -> str:
 
     def say(r):
         if r is None:
-            return "the nominal arm with the end effector 'franka_hand' (no arm file)"
+            return ("the default arm model's nominal arm with the end effector 'franka_hand' "
+                    "(no arm file)")
         ee = f"the end effector {r.get('end_effector') or 'franka_hand'!r}"
+        d = r.get("description")
+        model = (f"the arm model {d['name']!r} ({d['digest']})" if d
+                 else "the default arm model")
         if r["source"] == "nominal":
-            return f"the nominal arm with {ee} (no arm file)"
-        return f"arm file {r['source']} (CRC32 {r['crc32'] & 0xFFFFFFFF:#010x}, {ee})"
+            return f"{model}'s nominal arm with {ee} (no arm file)"
+        return (f"arm file {r['source']} (CRC32 {r['crc32'] & 0xFFFFFFFF:#010x}, {model}, "
+                f"{ee})")
 
     return (f"{where} was trained for {say(have)} but is run with {say(given)}; use the arm "
-            f"it was trained with ([model] arm and [arm] end_effector, --arm and "
-            f"--end-effector), or make a model for this arm with 'iem train --arm ARM --out "
-            f"MODEL'")
+            f"it was trained with ([model] arm, [arm] model and end_effector; --arm, "
+            f"--arm-model and --end-effector), or make a model for this arm with 'iem train "
+            f"--arm ARM --arm-model MODEL --out MODEL_FILE'")
 
 
 def _given_resources(state: dict, arm: dict | None, resources: Mapping, where: str) -> dict:
@@ -284,9 +297,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
         raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
                              f"{label}: {type(exc).__name__}: {exc}") from exc
     if arm is not None:
-        model.trained_arm = {"crc32": int(arm["crc32"]), "source": str(arm["source"]),
-                             **({"end_effector": str(arm["end_effector"])}
-                                if arm.get("end_effector") else {})}
+        model.trained_arm = arm_record_of(arm)
     if schema == SCHEMA:  # a model file without the record was trained on the paper's
         model.trained_family = family if family is not None else DEFAULT_FAMILY
     return model

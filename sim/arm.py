@@ -1,7 +1,7 @@
 """The arm as it is: link parameters, joint friction and torque offsets, and its file.
 
-A real Panda departs from its nominal model (example-robot-data's URDF) in three ways that
-show in the measured link-side torque ``tau_J``:
+A real arm departs from its nominal model (its description, :mod:`sim.description`) in three
+ways that show in the measured link-side torque ``tau_J``:
 
 - its links' masses, CoMs and inertias differ by percents;
 - joint friction (:func:`friction_torque`): Coulomb friction in Gaz et al.'s sigmoid form
@@ -20,7 +20,7 @@ about the joint origin; joint 7 includes the hand), the friction per joint and t
 offsets. The simulated arm's departure (:meth:`sim.reality_gap.RealityGap.realise`) and the one
 identified from traffic (:mod:`sim.calibration`, ``iem calibrate``) are both an ArmParams, so
 the plant, the tandem simulators and the estimators' regression use one arm model:
-:class:`sim.robot.PandaModel` built with ``arm=`` gives
+:class:`sim.robot.ArmModel` built with ``arm=`` gives
 ``tau_J = RNEA_arm(q, dq, ddq) + tau_f(dq) + offset``.
 
 The arm file is the model file's format (:mod:`iem.persistence`: msgpack, schema
@@ -42,6 +42,8 @@ import msgpack
 import numpy as np
 
 from iem.errors import InvalidInputError
+
+from .description import DEFAULT_ARM_MODEL, ArmDescription, arm_description, described_by
 
 ARM_SCHEMA = "iem-arm"
 """The ``schema`` field of an arm file."""
@@ -211,6 +213,9 @@ class ArmParams:
             default applies).
         source: the name of the arm file it was read from (:func:`load_arm`; not part of
             its state or CRC), for messages; None: made in memory.
+        description: the arm model it is an instance of (:mod:`sim.description`; None: the
+            default). Its state records it by content (name and digest), but for the default
+            arm model: a file that records none was made for it.
     """
 
     link_params: np.ndarray
@@ -220,6 +225,7 @@ class ArmParams:
     end_effector: str = "franka_hand"
     noise: dict | None = None
     source: str | None = field(default=None, repr=False)
+    description: ArmDescription | None = field(default=None, repr=False)
 
     name: ClassVar[str] = "arm"
     """The kind recorded in the arm file."""
@@ -229,22 +235,28 @@ class ArmParams:
                                                        (7, 10)))
         object.__setattr__(self, "friction", _friction_array(self.friction))
         object.__setattr__(self, "offset", _array("offset", self.offset, (7,)))
+        if self.description is None:
+            object.__setattr__(self, "description", arm_description(None))
         if np.any(self.link_params[:, 0] <= 0.0):
             raise InvalidInputError(f"arm link masses must be > 0 kg, got "
                                     f"{self.link_params[:, 0]}")
 
     @classmethod
-    def nominal(cls, end_effector=None) -> ArmParams:
-        """The nominal Panda: the URDF's bodies with ``end_effector`` on body 7 (a spec or
-        :class:`sim.end_effector.EndEffector`; None: the Franka Hand), no friction, no
-        offsets."""
+    def nominal(cls, end_effector=None, description=None) -> ArmParams:
+        """The nominal arm of ``description`` (an arm model's name, path or
+        :class:`~sim.description.ArmDescription`; None: the default): its file's bodies with
+        ``end_effector`` on body 7 (a spec or :class:`sim.end_effector.EndEffector`; None:
+        the description's default), no friction, no offsets."""
+        from .description import described
         from .end_effector import EndEffector
         from .end_effector import end_effector as resolve
         from .robot import nominal_link_params
 
-        ee = end_effector if isinstance(end_effector, EndEffector) else resolve(end_effector)
-        return cls(nominal_link_params(ee), np.zeros((7, 3)), np.zeros(7),
-                   {"source": "nominal"}, end_effector=ee.label)
+        desc = described(description)
+        ee = end_effector if isinstance(end_effector, EndEffector) else \
+            resolve(end_effector or desc.default_end_effector)
+        return cls(nominal_link_params(ee, desc), np.zeros((7, 3)), np.zeros(7),
+                   {"source": "nominal"}, end_effector=ee.label, description=desc)
 
     def joint_torque(self, dq) -> np.ndarray:
         """Friction plus offset at ``dq`` (rad/s, ``(..., 7)``), N·m."""
@@ -260,14 +272,18 @@ class ArmParams:
             state["end_effector"] = self.end_effector
         if self.noise is not None:
             state["noise"] = self.noise
+        if self.description.name != DEFAULT_ARM_MODEL:
+            state["description"] = self.description.record()
         return state
 
     @classmethod
     def from_state(cls, state: dict) -> ArmParams:
+        """The arm of ``state``, an instance of the arm model it records (none: the
+        default; :func:`sim.description.described_by`)."""
         return cls(state["link_params"], state["friction"], state["offset"],
                    dict(state.get("report") or {}),
                    end_effector=str(state.get("end_effector") or "franka_hand"),
-                   noise=state.get("noise"))
+                   noise=state.get("noise"), description=described_by(state.get("description")))
 
     @property
     def crc32(self) -> int:
@@ -287,16 +303,28 @@ def save_arm(arm: ArmParams, path) -> None:
     save_model(arm, path, schema=ARM_SCHEMA, label="arm")
 
 
-def load_arm(path) -> ArmParams:
-    """The arm in the arm file ``path``.
+def load_arm(path, description=None) -> ArmParams:
+    """The arm in the arm file ``path``, which must be an instance of the arm model
+    ``description`` (None: any; :mod:`sim.description`).
 
     Raises:
         iem.errors.ModelFileError: missing, unreadable, corrupt or not an arm file.
+        iem.errors.InvalidInputError: an arm of another arm model, naming both.
     """
     from iem.persistence import load_model
 
     arm = load_model(path, registry={ArmParams.name: "sim.arm:ArmParams"},
                      schema=ARM_SCHEMA, label="arm")
+    if description is not None:
+        from .description import described
+
+        want = described(description)
+        if want.digest != arm.description.digest:
+            raise InvalidInputError(
+                f"arm model mismatch: the arm file {FsPath(path).name} is of the arm model "
+                f"{arm.description.name!r} ({arm.description.digest}), the configuration's "
+                f"is {want.name!r} ({want.digest}); set [arm] model (--arm-model) to the "
+                f"arm's, or calibrate this arm with 'iem calibrate --arm-model {want.name}'")
     return replace(arm, source=FsPath(path).name)
 
 
@@ -315,6 +343,8 @@ def arm_record(arm: ArmParams | None, path=None) -> dict | None:
     record = {"crc32": arm.crc32, "source": source}
     if arm.end_effector != "franka_hand":
         record["end_effector"] = arm.end_effector
+    if arm.description.name != DEFAULT_ARM_MODEL:
+        record["description"] = arm.description.record()
     return record
 
 
@@ -330,13 +360,16 @@ def arm_spec(arm: ArmParams) -> str:
 class ArmDynamics:
     """``(q, dq, ddq) -> (tau_arm (7,), Y (7, 10), M (7, 7))`` of an arm: the torques of the
     arm without payload (friction and offsets included), the payload regressor, the arm's
-    mass matrix; plus ``payload_mass_matrix(q, phi)`` (as :class:`sim.robot.PandaDynamics`)."""
+    mass matrix; plus ``payload_mass_matrix(q, phi)`` (the fast path
+    :class:`iem.physics.regression.PayloadRegression` uses when it is there).
+
+    ``arm`` None: the nominal arm of the default arm model."""
 
     def __init__(self, arm: ArmParams | None = None) -> None:
-        from .robot import PandaModel
+        from .robot import ArmModel
 
         self.arm = arm
-        self.model = PandaModel(arm=arm)
+        self.model = ArmModel(arm=arm)
 
     def __call__(self, q, dq, ddq):
         return self.model.rnea_regressor_mass(q, dq, ddq)
@@ -345,21 +378,31 @@ class ArmDynamics:
         return self.model.payload_mass_matrix(q, phi)
 
 
-def nominal_spec(end_effector) -> str:
-    """The dynamics spec of the nominal arm carrying ``end_effector`` (a name, or a tool
-    file): a named one by its name, ``"sim.arm:nominal_dynamics@NAME"``; a tool file by the
-    content of the nominal arm carrying it (:func:`arm_spec`), never by its path."""
+NOMINAL_DYNAMICS = "sim.arm:arm_dynamics"
+"""The dynamics spec of the default arm model's nominal arm (:func:`arm_dynamics` of no arm),
+which callers give the least-squares estimators (``dynamics=``;
+:mod:`iem.physics.regression`) and model files store."""
+
+
+def nominal_spec(end_effector, description=None) -> str:
+    """The dynamics spec of the nominal arm of ``description`` (None: the default arm model)
+    carrying ``end_effector`` (a name, or a tool file): on the default arm model a named one by
+    its name, ``"sim.arm:nominal_dynamics@NAME"``; else by the content of that nominal arm
+    (:func:`arm_spec`), never by a path."""
+    from .description import described
     from .end_effector import NAMED
 
-    spec = str(end_effector or "franka_hand")
-    if spec in NAMED:
+    desc = described(description)
+    spec = str(end_effector or desc.default_end_effector)
+    if spec in NAMED and desc.name == DEFAULT_ARM_MODEL:
         return f"sim.arm:nominal_dynamics@{spec}"
-    return arm_spec(ArmParams.nominal(spec))
+    return arm_spec(ArmParams.nominal(spec, desc))
 
 
 def nominal_dynamics(end_effector: str | None = None) -> ArmDynamics:
-    """The robot-model factory of ``"sim.arm:nominal_dynamics@NAME"``: the nominal arm with
-    the named end effector (:mod:`sim.end_effector`), no friction, no offsets."""
+    """The robot-model factory of ``"sim.arm:nominal_dynamics@NAME"``: the default arm model's
+    nominal arm with the named end effector (:mod:`sim.end_effector`), no friction, no
+    offsets."""
     return ArmDynamics(ArmParams.nominal(end_effector))
 
 

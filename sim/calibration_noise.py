@@ -92,9 +92,11 @@ def folds(parts, n_folds: int = FOLDS, block_s: float = BLOCK_S) -> list[tuple[l
 
 
 def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
-                         source: str = "traffic", end_effector=None) -> ArmParams:
-    """The arm fitted on all ``parts``, carrying the noise its fits measured on traffic they
-    did not see (see the module docstring)."""
+                         source: str = "traffic", end_effector=None,
+                         description=None) -> ArmParams:
+    """The arm of the arm model ``description`` (None: the default) fitted on all ``parts``,
+    carrying the noise its fits measured on traffic they did not see (see the module
+    docstring)."""
     from .calibration import segments
 
     settings = CalibrationSettings() if settings is None else settings
@@ -102,7 +104,8 @@ def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
     for fit, held in folds(parts):
         shortest = 4.0 * settings.trim_s + 2.0 + 0.01  # what a fit filters (prepare)
         fit = [s for p in fit for s in segments(*p, min_s=shortest)]
-        partial = calibrate_segments(fit, settings, source, end_effector, refuse=False)
+        partial = calibrate_segments(fit, settings, source, end_effector, refuse=False,
+                                     description=description)
         held_residuals.append((partial, held))
     from iem.signals.rate import detect_rate
 
@@ -112,7 +115,7 @@ def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
     q = np.vstack([np.asarray(p[1], dtype=float) for p in parts])
     unseen = pose_floor([a for a, _ in held_residuals], q.min(axis=0), q.max(axis=0), noise)
     noise = replace(noise, bias_std=tuple(np.maximum(noise.bias_std, unseen)))
-    arm = calibrate_segments(parts, settings, source, end_effector)
+    arm = calibrate_segments(parts, settings, source, end_effector, description=description)
     report = {**arm.report, "noise": noise.to_dict()}
     return replace(arm, noise=noise.to_dict(), report=report)
 

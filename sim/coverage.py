@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .robot import PandaModel
+from .robot import ArmModel
 from .tandem import TandemSimulators
 
 
@@ -39,8 +39,8 @@ class OtherVelocities:
     Not thread-safe (it owns a Pinocchio model): one per thread.
     """
 
-    def __init__(self, fraction: float = 0.9, model: PandaModel | None = None) -> None:
-        self.model = PandaModel() if model is None else model
+    def __init__(self, fraction: float = 0.9, model: ArmModel | None = None) -> None:
+        self.model = ArmModel() if model is None else model
         self.fraction = float(fraction)
         self.dq_max = self.fraction * self.model.dq_max
         self.ddq_max = self.fraction * self.model.ddq_max

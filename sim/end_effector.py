@@ -1,28 +1,27 @@
 """The end effector: what is mounted on the flange as part of the arm, not the payload.
 
-The nominal Panda model (example-robot-data's URDF, :mod:`sim.robot`) fuses the Franka Hand
-(0.73 kg and two 15 g fingers) into the body of joint 7. An arm may carry the hand, another
-tool, or nothing: what it carries is the arm's, and what the plug-in identifies is the payload
-beyond it. A wrong end effector reads as a payload: a bare arm through the hand's model reads
-about -0.7 kg.
+An arm may carry the Franka Hand, another tool, or nothing: what it carries is the arm's, and
+what the plug-in identifies is the payload beyond it. A wrong end effector reads as a payload:
+a bare arm through the hand's model reads about -0.7 kg.
 
 An end effector is declared (``[arm] end_effector`` in ``cell.toml``, ``--end-effector`` on
 the commands that take ``--arm``) as one of:
 
-- ``"franka_hand"`` (the default): the URDF's hand and fingers, as the nominal model has them;
-- ``"none"``: a bare flange: body 7 is ``panda_link7`` of the URDF alone;
+- ``"franka_hand"``: the Franka Hand and its fingers (0.73 kg and two 15 g fingers), as
+  example-robot-data's Panda description has them, mounted on any arm's flange (the default
+  on the Panda and the FR3);
+- ``"none"``: a bare flange (the default on an arm model given by a file);
 - a path to a payload-style TOML file (:mod:`sim.payload`: mass, CoM in the flange frame,
-  inertia about the CoM) of the tool that is part of the arm: body 7 is ``panda_link7`` plus
-  that tool.
+  inertia about the CoM) of the tool that is part of the arm.
 
-:class:`EndEffector` holds one, with the ten Pinocchio dynamic parameters it adds to body 7
-(in the joint-7 frame) and a label that arm files and model files record, so that a model or
-an arm made for one end effector is refused with another.
+Body 7 of the arm model is then the arm's bodies from joint 7 to the flange plus the end
+effector (:meth:`EndEffector.body7`). :class:`EndEffector` holds one, as an inertia in the
+flange frame, with a label that arm files and model files record, so that a model or an arm
+made for one end effector is refused with another.
 """
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 import zlib
 from dataclasses import dataclass
 from functools import cache
@@ -39,26 +38,6 @@ NAMED = ("franka_hand", "none")
 """End effectors known by name; anything else must be a payload TOML file."""
 
 
-@cache
-def link7_params() -> np.ndarray:
-    """``(10,)`` Pinocchio dynamic parameters of ``panda_link7`` alone (the URDF's inertial,
-    joint-7 frame): body 7 without any end effector."""
-    from .robot import panda_urdf
-
-    root = ET.parse(panda_urdf()).getroot()
-    link = next(e for e in root.findall("link") if e.get("name") == "panda_link7")
-    inertial = link.find("inertial")
-    xyz = np.array([float(v) for v in inertial.find("origin").get("xyz").split()])
-    mass = float(inertial.find("mass").get("value"))
-    a = inertial.find("inertia").attrib
-    ixx, ixy, ixz, iyy, iyz, izz = (float(a[k]) for k in
-                                    ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    out = pin.Inertia(mass, xyz, inertia).toDynamicParameters()
-    out.flags.writeable = False
-    return out
-
-
 @dataclass(frozen=True, eq=False)
 class EndEffector:
     """One end effector.
@@ -66,28 +45,58 @@ class EndEffector:
     Attributes:
         spec: as declared: ``"franka_hand"``, ``"none"`` or the tool file's path.
         label: what files record: the name, or ``"<file stem>:<CRC32 of its parameters>"``.
-        params: ``(10,)`` Pinocchio dynamic parameters it adds to body 7, joint-7 frame
-            (kg, kg·m, kg·m² about the joint origin).
+        inertia: the body as a ``pin.Inertia`` in the flange frame (None: nothing).
     """
 
     spec: str
     label: str
-    params: np.ndarray
+    inertia: pin.Inertia | None
 
     @property
     def mass(self) -> float:
         """Its mass, kg."""
-        return float(self.params[0])
+        return 0.0 if self.inertia is None else float(self.inertia.mass)
 
-    def body7(self) -> np.ndarray:
-        """``(10,)`` parameters of body 7 carrying it: ``panda_link7`` plus the tool."""
-        return link7_params() + self.params
+    def params(self, description=None) -> np.ndarray:
+        """``(10,)`` Pinocchio dynamic parameters it adds to body 7 of the arm ``description``
+        (None: the default arm model), in the joint-7 frame."""
+        from .description import described
+        from .robot import flange_placement
+
+        desc = described(description)
+        if self.inertia is None:
+            return np.zeros(10)
+        if desc.own_end_effector is not None and self.spec == desc.own_end_effector:
+            return _own_hand(desc)  # the file's own, exactly as the file gives it
+        return flange_placement(desc).act(self.inertia).toDynamicParameters()
+
+    def body7(self, description=None) -> np.ndarray:
+        """``(10,)`` parameters of body 7 carrying it: the arm's bodies from joint 7 to the
+        flange plus the end effector."""
+        from .robot import link7_params
+
+        return link7_params(description) + self.params(description)
 
 
-def _hand_params() -> np.ndarray:
-    from .robot import nominal_link_params
+@cache
+def _own_hand(description) -> np.ndarray:
+    """The hand a description's own file fuses into body 7 (joint-7 frame)."""
+    from .robot import _nominal_model, link7_params
 
-    return nominal_link_params()[6] - link7_params()
+    return _nominal_model(description).inertias[7].toDynamicParameters() - \
+        link7_params(description)
+
+
+@cache
+def _franka_hand() -> pin.Inertia:
+    """The Franka Hand with its fingers, in the flange frame: example-robot-data's Panda
+    hand, taken off that description's flange."""
+    from .description import arm_description
+    from .robot import flange_placement
+
+    panda = arm_description("panda")
+    return flange_placement(panda).actInv(
+        pin.Inertia.FromDynamicParameters(_own_hand(panda)))
 
 
 def end_effector(spec: str | None) -> EndEffector:
@@ -98,23 +107,20 @@ def end_effector(spec: str | None) -> EndEffector:
     """
     spec = str(spec or DEFAULT_END_EFFECTOR)
     if spec == "franka_hand":
-        return EndEffector(spec, spec, _hand_params())
+        return EndEffector(spec, spec, _franka_hand())
     if spec == "none":
-        return EndEffector(spec, spec, np.zeros(10))
+        return EndEffector(spec, spec, None)
     path = FsPath(spec)
     if path.suffix != ".toml":
         raise InvalidInputError(f"end effector {spec!r} is not valid: give 'franka_hand', "
                                 f"'none', or the path of a payload-style .toml file of the "
                                 f"tool mounted on the flange")
     from .payload import load_payload
-    from .robot import flange_placement
 
     tool = load_payload(path)
-    inertia = flange_placement().act(
-        pin.Inertia(tool.mass, np.asarray(tool.com), tool.inertia_matrix))
-    params = inertia.toDynamicParameters()
+    inertia = pin.Inertia(tool.mass, np.asarray(tool.com), tool.inertia_matrix)
     crc = zlib.crc32(np.round(tool.to_phi(), 12).tobytes())
-    return EndEffector(str(path), f"{path.stem}:{crc:08x}", params)
+    return EndEffector(str(path), f"{path.stem}:{crc:08x}", inertia)
 
 
 def label_of(record_value) -> str:

@@ -1,5 +1,5 @@
 """The joint path a controller follows (:class:`Path`), sampled at ``RATE_HZ`` = 1 kHz: its
-arrays (read-only), its check against the Panda's limits, joining two paths and slicing one.
+arrays (read-only), its check against the arm model's limits, joining two paths and slicing one.
 The paths themselves are :mod:`sim.paths`'s."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 
 from iem.errors import PathError
 from iem.types import NOMINAL_RATE_HZ
-from sim.robot import PandaModel, panda
+from sim.robot import ArmModel, arm_model
 
 RATE_HZ = NOMINAL_RATE_HZ
 """Sample rate of every :class:`Path`, Hz."""
@@ -97,9 +97,9 @@ class Path:
         return int(self.t.shape[0])
 
     # -- checks ----------------------------------------------------------------------------
-    def first_violation(self, model: PandaModel | None = None) -> tuple[int, str] | None:
+    def first_violation(self, model: ArmModel | None = None) -> tuple[int, str] | None:
         """``(sample index, message)`` of the first limit violation in time, or None."""
-        m = model if model is not None else panda()
+        m = model if model is not None else arm_model()
         kinds = (
             ("position", "rad", self.q, m.q_min, m.q_max),
             ("velocity", "rad/s", self.dq, -m.dq_max, m.dq_max),
@@ -127,10 +127,11 @@ class Path:
         return k, (f"path {self.name!r}: joint {j + 1} {kind} {vs} {unit} {verb} {ls} {unit} "
                    f"at t={self.t[k]:.3f} s (valid is {rng} {unit})")
 
-    def check_limits(self, model: PandaModel | None = None) -> Path:
+    def check_limits(self, model: ArmModel | None = None) -> Path:
         """Raise :class:`PathError` at the first position, velocity or acceleration limit
         violation in time (joint 1-based, time in s, value and limit); return self if fine.
-        Limits come from ``model`` or, if None, the nominal :func:`sim.robot.panda`."""
+        Limits come from ``model`` or, if None, the default arm model
+        (:func:`sim.robot.arm_model`)."""
         found = self.first_violation(model)
         if found is not None:
             raise PathError(found[1])

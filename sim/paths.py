@@ -1,4 +1,4 @@
-"""Joint paths for the simulated Panda: the excitation path, the new task path and CSV files.
+"""Joint paths for the simulated arm: the excitation path, the new task path and CSV files.
 
 A :class:`Path` is the reference a controller follows, sampled at ``RATE_HZ`` = 1 kHz:
 
@@ -11,9 +11,12 @@ A :class:`Path` is the reference a controller follows, sampled at ``RATE_HZ`` = 
 from closed-form derivatives, never from finite differences. Arrays are read-only.
 
 :meth:`Path.check_limits` checks ``q_min <= q <= q_max``, ``|dq| <= dq_max`` and
-``|ddq| <= ddq_max`` (the Panda's datasheet limits, :mod:`sim.robot`) and raises
+``|ddq| <= ddq_max`` (the arm model's limits, :mod:`sim.description`) and raises
 :class:`~iem.errors.PathError` for the first violation in time, naming the joint (1-based), the
-time (s), the value and the limit. Every generator below returns a checked path.
+time (s), the value and the limit. Every generator below returns a checked path; each takes
+``model=``, the arm model (:class:`sim.robot.ArmModel`; None: the default arm model's), whose
+limits it keeps and whose home (``description.home``, the Panda's :data:`Q0`) and task
+(``description.task``, the Panda's :data:`Q_START`, :data:`Q_END`) it moves around.
 
 The paths of the paper (Taie et al. 2024, sections 4.1 and 5.2):
 
@@ -50,7 +53,7 @@ import numpy as np
 
 from iem.errors import PathError
 from iem.types import vec7
-from sim.robot import panda
+from sim.robot import arm_model
 
 from .joint_path import N_JOINTS, RATE_HZ, Path
 from .path_csv import CSV_HEADER, MIN_CSV_RATE_HZ, MIN_CSV_ROWS, load_path_csv, save_path_csv
@@ -61,16 +64,19 @@ __all__ = ["CALIBRATION_AMPLITUDE", "CALIBRATION_SEED", "CSV_HEADER", "EXCITATIO
            "calibration_path", "excitation_path", "linear_path", "load_path_csv",
            "new_task_path", "rest_path", "save_path_csv"]
 
-Q0 = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8])
-"""Mid-range configuration the excitation path moves around and starts and ends at, rad."""
+Q0 = np.array(arm_model().description.home)
+"""The default arm model's mid-range configuration the excitation path moves around and
+starts and ends at, rad."""
 Q0.flags.writeable = False
 
-Q_START = np.array([-1.0, 0.2, 0.5, -1.6, 0.5, 1.6, 0.0])
-"""First configuration of the default new task path, rad (outside the excitation's bags)."""
+Q_START = np.array(arm_model().description.task[0])
+"""The default arm model's first configuration of the new task path, rad (outside the
+excitation's bags)."""
 Q_START.flags.writeable = False
 
-Q_END = np.array([1.2, 0.4, -0.6, -1.4, 0.7, 2.6, -0.5])
-"""Final configuration of the default new task path, rad (outside the excitation's bags)."""
+Q_END = np.array(arm_model().description.task[1])
+"""The default arm model's final configuration of the new task path, rad (outside the
+excitation's bags)."""
 Q_END.flags.writeable = False
 
 EXCITATION_PERIOD = 10.0
@@ -124,7 +130,7 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
                     period: float = EXCITATION_PERIOD,
                     harmonics: int = EXCITATION_HARMONICS,
                     amplitude=EXCITATION_AMPLITUDE,
-                    name: str = "excitation") -> Path:
+                    name: str = "excitation", model=None) -> Path:
     """The training path: a seeded finite Fourier series per joint around :data:`Q0`.
 
     ``q_j(t) = Q0_j + s_j f_j(t)`` with ``f_j`` a series of ``harmonics`` harmonics whose
@@ -151,7 +157,8 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
     amp = vec7("amplitude", amplitude, PathError, finite=True)
     if np.any(amp < 0.0):
         raise PathError(f"excitation path {name!r}: amplitude must be >= 0 rad, got {amp}")
-    m = panda()
+    m = arm_model() if model is None else model
+    q0 = m.description.home
     n_periods = max(1, round(t[-1] / period))
     omega = 2.0 * math.pi * n_periods / t[-1]
     a, b = _constrained_coefficients(np.random.default_rng(seed), int(harmonics))
@@ -159,14 +166,14 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
     one = t[: round(t[-1] / n_periods * RATE_HZ) + 1]
     f, df, ddf = _fourier(a, b, omega, one)
     peak = np.abs(f).max(axis=0)
-    room = np.minimum(Q0 - m.q_min, m.q_max - Q0) * 0.9
+    room = np.minimum(q0 - m.q_min, m.q_max - q0) * 0.9
     scale = np.minimum.reduce([
         np.minimum(amp, room) / peak,
         LIMIT_FRACTION * m.dq_max / np.abs(df).max(axis=0),
         LIMIT_FRACTION * m.ddq_max / np.abs(ddf).max(axis=0),
     ])
     f, df, ddf = _fourier(a * scale, b * scale, omega, t)
-    return Path(name=name, t=t, q=Q0 + f, dq=df, ddq=ddf).check_limits(m)
+    return Path(name=name, t=t, q=q0 + f, dq=df, ddq=ddf).check_limits(m)
 
 
 CALIBRATION_SEED = 11
@@ -177,15 +184,16 @@ and 75 % of the velocity and acceleration limits cap it)."""
 CALIBRATION_AMPLITUDE.flags.writeable = False
 
 
-def calibration_path(duration: float = 30.0, seed: int = CALIBRATION_SEED) -> Path:
+def calibration_path(duration: float = 30.0, seed: int = CALIBRATION_SEED, model=None) -> Path:
     """The bare-arm calibration motion ``iem calibrate`` is meant for: the excitation's
     Fourier series (:func:`excitation_path`) with a wide amplitude on every joint, so that
     gravity, inertia and friction of each joint are seen over much of its range and at
     velocities of both signs (three 10 s periods, 30 s by default)."""
-    return excitation_path(duration, seed, amplitude=CALIBRATION_AMPLITUDE, name="calibration")
+    return excitation_path(duration, seed, amplitude=CALIBRATION_AMPLITUDE, name="calibration",
+                           model=model)
 
 
-def linear_path(q_start, q_end, duration: float, name: str = "linear") -> Path:
+def linear_path(q_start, q_end, duration: float, name: str = "linear", model=None) -> Path:
     """Every joint from ``q_start`` to ``q_end`` (rad) in ``duration`` s (> 0) with the
     quintic time scaling ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, ``τ = t / duration``: a straight line
     in joint space, at rest (zero velocity and acceleration) at both ends."""
@@ -201,22 +209,23 @@ def linear_path(q_start, q_end, duration: float, name: str = "linear") -> Path:
     dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / T**2
     dq_total = q_b - q_a
     return Path(name=name, t=t, q=q_a + np.outer(s, dq_total), dq=np.outer(ds, dq_total),
-                ddq=np.outer(dds, dq_total)).check_limits()
+                ddq=np.outer(dds, dq_total)).check_limits(model)
 
 
 def new_task_path(q_start=None, q_end=None, duration: float = 6.0,
-                  name: str = "new-task") -> Path:
+                  name: str = "new-task", model=None) -> Path:
     """The paper's novel task path: all joints from ``q_start`` (default :data:`Q_START`) to
     ``q_end`` (default :data:`Q_END`) in ``duration`` s (default 6), with the quintic time
     scaling of :func:`linear_path`."""
-    return linear_path(Q_START if q_start is None else q_start,
-                       Q_END if q_end is None else q_end,
-                       duration, name=name)
+    task = (arm_model() if model is None else model).description.task
+    return linear_path(task[0] if q_start is None else q_start,
+                       task[1] if q_end is None else q_end,
+                       duration, name=name, model=model)
 
 
-def rest_path(q, duration: float, name: str = "rest") -> Path:
+def rest_path(q, duration: float, name: str = "rest", model=None) -> Path:
     """Standing still at ``q`` (rad) for ``duration`` s (>= 0)."""
     q = vec7("q", q, PathError, finite=True)
     t = _time_grid(duration, f"path {name!r}")
     zeros = np.zeros((t.shape[0], N_JOINTS))
-    return Path(name=name, t=t, q=zeros + q, dq=zeros, ddq=zeros).check_limits()
+    return Path(name=name, t=t, q=zeros + q, dq=zeros, ddq=zeros).check_limits(model)

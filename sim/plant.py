@@ -1,9 +1,9 @@
-"""The MuJoCo plant that stands in for the real Panda, and its sensor model.
+"""The MuJoCo plant that stands in for the real arm, and its sensor model.
 
-The plant is MuJoCo's model of the same arm (example-robot-data's ``panda_collision.urdf``,
-fingers welded, joint damping, armature and friction zeroed, contacts and joint limits off so
-the collision geoms never touch each other) with the payload as a body on the flange
-(``panda_link8``). The payload's mass, CoM and inertia can be changed between two steps
+The plant is MuJoCo's model of the same arm (its description, :mod:`sim.description`, read
+without meshes; a gripper's fingers welded, joint damping, armature and friction zeroed,
+contacts and joint limits off; :mod:`sim.mujoco_model`) with its end effector and the payload
+as bodies on the flange. The payload's mass, CoM and inertia can be changed between two steps
 without rebuilding the model.
 
 Each 1 ms step a computed-torque controller, running on the controller's arm model (the
@@ -29,10 +29,11 @@ inertias, joint friction (Coulomb, viscous and Stribeck, per direction:
 :func:`sim.arm.friction_torque`) and torque-sensor offsets. MuJoCo integrates the perturbed
 links under the applied torque minus the friction; the measured ``tau_J`` is the applied
 torque plus the offset, so that ``tau_J = RNEA_arm(q, dq, ddq) + tau_f(dq) + offset``
-(``PandaModel(arm=...).rnea``). The rest no arm model here describes
+(``ArmModel(arm=...).rnea``). The rest no arm model here describes
 (:class:`Unmodelled`): friction that changes with load and as the joints warm, a position
 ripple, the torque sensor's gain error and the slow drift of its offset; it is what a
-calibrated arm leaves in the residual, tuned to look like a real Panda's.
+calibrated arm leaves in the residual, tuned to look like a real Panda's (the one
+recording of a real arm there is).
 """
 
 from __future__ import annotations
@@ -47,12 +48,12 @@ from iem.sensor import SensorModel
 from iem.types import JointState
 
 from .arm import ArmParams, friction_torque
-from .mujoco_model import DT, LINK_BODIES, PAYLOAD_BODY, build_mujoco_model, payload_principal
+from .mujoco_model import DT, PAYLOAD_BODY, build_mujoco_model, payload_principal
 from .payload import Payload
 from .reality_gap import RealityGap, Unmodelled
-from .robot import PandaModel
+from .robot import ArmModel
 
-__all__ = ["DT", "Gains", "PandaPlant", "RealityGap", "Rollout", "SensorModel", "Unmodelled",
+__all__ = ["DT", "ArmPlant", "Gains", "RealityGap", "Rollout", "SensorModel", "Unmodelled",
            "build_mujoco_model"]
 
 
@@ -82,7 +83,7 @@ def _has_friction(friction: np.ndarray) -> bool:
     return bool(np.any(friction[:, amplitudes]))
 
 
-class PandaPlant:
+class ArmPlant:
     """The simulated robot: MuJoCo arm, payload, computed-torque control and sensors.
 
     Args:
@@ -98,17 +99,29 @@ class PandaPlant:
         controller_arm: the arm model the controller computes its torques with
             (:class:`sim.arm.ArmParams`, e.g. a calibrated one; its friction is compensated,
             its offsets are the sensors' and play no part); None: the nominal model.
+        description: the arm model (:mod:`sim.description`) when ``controller_arm`` is None;
+            None: the default.
+        end_effector: what the flange carries (:mod:`sim.end_effector`; None: the arm
+            model's default), on the plant and on the controller's nominal model.
     """
 
     def __init__(self, payload: Payload | None = None, sensor: SensorModel | None = None,
                  gap: RealityGap | None = None, seed: int = 0, gains: Gains | None = None,
                  controller_load: Payload | None = None,
-                 controller_arm: ArmParams | None = None) -> None:
+                 controller_arm: ArmParams | None = None, description=None,
+                 end_effector: str | None = None) -> None:
+        from .description import described
+
+        self.description = (controller_arm.description if controller_arm is not None
+                            else described(description))
+        if controller_arm is None and end_effector:
+            controller_arm = ArmParams.nominal(end_effector, self.description)
+        self.end_effector = end_effector
         self.sensor = SensorModel() if sensor is None else sensor
         self.gap = gap
         self.seed = seed
         self.gains = Gains() if gains is None else gains
-        self.model = build_mujoco_model()
+        self.model = build_mujoco_model(self.description, end_effector)
         self.data = mujoco.MjData(self.model)
         self._scratch = mujoco.MjData(self.model)
         self._payload_id = self.model.body(PAYLOAD_BODY).id
@@ -123,7 +136,7 @@ class PandaPlant:
         self._ctrl_friction = (None if controller_arm is None
                                or not _has_friction(controller_arm.friction)
                                else controller_arm.friction)
-        self._ctrl = PandaModel(arm=controller_arm)
+        self._ctrl = ArmModel(arm=controller_arm, description=self.description)
         self._ctrl_model = self._ctrl.model.copy()
         self._ctrl_data = self._ctrl_model.createData()
         self._ctrl_link7 = self._ctrl_model.inertias[self._ctrl.last_joint].copy()
@@ -138,9 +151,10 @@ class PandaPlant:
 
     # -- configuration ---------------------------------------------------------------------
     def _apply_gap(self, gap: RealityGap) -> None:
-        self.arm = gap.realise(self.model)
+        desc = self.description
+        self.arm = gap.realise(self.model, desc, self.end_effector)
         m = self.model
-        for name, (mass, com, moments) in zip(LINK_BODIES, gap.bodies(self.model),
+        for name, (mass, com, moments) in zip(desc.link_bodies, gap.bodies(self.model, desc),
                                               strict=True):
             b = m.body(name).id
             m.body_mass[b] = mass
@@ -149,7 +163,7 @@ class PandaPlant:
         self._set_const()
         self._friction = self.arm.friction if _has_friction(self.arm.friction) else None
         self._offset = self.arm.offset
-        unmodelled = gap.unmodelled()
+        unmodelled = gap.unmodelled(desc)
         self._unmodelled = unmodelled if unmodelled.any else None
 
     def _set_const(self) -> None:
@@ -217,7 +231,7 @@ class PandaPlant:
         torque applied during it as the sensor reads it (plus its offset; ``last_tau``,
         noise-free); ``last_ddq`` is the true acceleration of that cycle, so that
         ``RNEA(q_true, dq_true, last_ddq) == last_tau`` with the mounted payload, ``RNEA`` of
-        the plant's arm (``PandaModel(arm=plant.arm)``: its links, friction and offsets),
+        the plant's arm (``ArmModel(arm=plant.arm)``: its links, friction and offsets),
         up to what the gap leaves unmodelled (:class:`Unmodelled`; without it: exactly).
         """
         d = self.data

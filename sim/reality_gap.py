@@ -12,8 +12,8 @@ import numpy as np
 import pinocchio as pin
 
 from .arm import GAZ_PHI, ArmParams, full_friction
-from .mujoco_model import LINK_BODIES, build_mujoco_model
-from .robot import TAU_MAX
+from .description import described
+from .mujoco_model import build_mujoco_model
 
 
 @dataclass(frozen=True, eq=False)
@@ -22,7 +22,7 @@ class Unmodelled:
     :meth:`RealityGap.unmodelled`. At time ``t`` (s the plant has run, resets included),
     joint state ``q``, ``dq`` and applied torque ``tau``, the links move under ``tau`` less::
 
-        tau_f(dq) (1 + load |tau| / TAU_MAX) (1 - warmup (1 - exp(-t / WARMUP_S)))
+        tau_f(dq) (1 + load |tau| / tau_max) (1 - warmup (1 - exp(-t / WARMUP_S)))
         + sum_i ripple_i sin(wavenumber_i q + ripple_phase_i)
 
     (``tau_f`` the arm's friction, :func:`sim.arm.friction_torque`; two ripples, a slow and
@@ -50,6 +50,8 @@ class Unmodelled:
     drift: np.ndarray
     drift_period: np.ndarray
     drift_phase: np.ndarray
+    tau_max: np.ndarray
+    """The arm's torque limits, N·m, ``(7,)``, the scale of the load dependence."""
 
     @property
     def any(self) -> bool:
@@ -59,7 +61,7 @@ class Unmodelled:
 
     def friction_scale(self, t: float, tau) -> np.ndarray:
         """The factor on the arm's friction at time ``t`` under the applied torque ``tau``."""
-        return ((1.0 + self.load * np.abs(tau) / TAU_MAX)
+        return ((1.0 + self.load * np.abs(tau) / self.tau_max)
                 * (1.0 - self.warmup * (1.0 - np.exp(-t / WARMUP_S))))
 
     def position_torque(self, q) -> np.ndarray:
@@ -76,8 +78,11 @@ class Unmodelled:
 
 WARMUP_S = 600.0
 """Time constant of the joints' warm-up (:attr:`Unmodelled.warmup`), s."""
-LARGE_DRIVES = np.array([True, True, True, True, False, False, False])
-"""The Panda's joints 1-4 have the large drives (87 N·m), 5-7 the small ones (12 N·m)."""
+def large_drives(tau_max: np.ndarray) -> np.ndarray:
+    """The joints with the large drives (the Panda's and FR3's 1-4): torque limits of at least
+    half the largest."""
+    tau_max = np.asarray(tau_max, dtype=float)
+    return tau_max >= 0.5 * tau_max.max()
 
 
 @dataclass(frozen=True)
@@ -101,8 +106,9 @@ class RealityGap:
     calibrated arm leaves in the residual, per joint:
 
     - friction that grows with the joint's load, by ``U(0, load_friction)`` at the rated
-      torque (:data:`sim.robot.TAU_MAX`), and falls by ``U(0, warmup)`` as the joint warms
-      (time constant :data:`WARMUP_S`, over the time the plant has run);
+      torque (the arm model's, :class:`sim.description.Limits`), and falls by
+      ``U(0, warmup)`` as the joint warms (time constant :data:`WARMUP_S`, over the time the
+      plant has run);
     - a torque-sensor gain error ``U(-gain_rel, gain_rel)`` and a slow drift of its offset,
       ``U(0, offset_drift)`` N·m in a sine of period ``U(*drift_period_s)`` s;
     - two position ripples ``a sin(k q + phase)``, a slow one and a fast one (the fast one
@@ -155,13 +161,14 @@ class RealityGap:
         return replace(self, load_friction=0.0, warmup=0.0, gain_rel=0.0, offset_drift=0.0,
                        ripple_large=(0.0, 0.0), ripple_small=(0.0, 0.0))
 
-    def bodies(self, model: mujoco.MjModel) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    def bodies(self, model: mujoco.MjModel,
+               description=None) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """The perturbed link bodies ``(mass, com (3,), principal moments (3,))`` in their
         frames (principal axes unchanged), from the nominal bodies of ``model`` (a fresh
-        plant model)."""
+        plant model of the arm model ``description``, None: the default)."""
         rng = np.random.default_rng(self.seed)
         out = []
-        for name in LINK_BODIES:
+        for name in described(description).link_bodies:
             b = model.body(name)
             mass = float(b.mass[0]) * (1.0 + self.mass_rel * rng.uniform(-1, 1))
             moments = b.inertia * (1.0 + self.inertia_rel * rng.uniform(-1, 1, 3))
@@ -187,12 +194,14 @@ class RealityGap:
             friction[:, 7:9] = more.uniform(*self.stribeck_vs, (7, 2))
         return friction, offset
 
-    def unmodelled(self) -> Unmodelled:
-        """The effects no arm model describes (:class:`Unmodelled`), from their own stream
-        of the seed (each drawn whatever the others' bounds)."""
+    def unmodelled(self, description=None) -> Unmodelled:
+        """The effects no arm model describes (:class:`Unmodelled`) on the arm model
+        ``description`` (None: the default), from their own stream of the seed (each drawn
+        whatever the others' bounds)."""
+        tau_max = described(description).limits.tau_max
         rng = np.random.default_rng([self.seed, 3])
         u = lambda lo=0.0, hi=1.0, shape=7: rng.uniform(lo, hi, shape)  # noqa: E731
-        size = np.where(LARGE_DRIVES[:, None], self.ripple_large, self.ripple_small)
+        size = np.where(large_drives(tau_max)[:, None], self.ripple_large, self.ripple_small)
         (k0, k1), (k2, k3) = self.ripple_wavenumber
         return Unmodelled(
             load=self.load_friction * u(), warmup=self.warmup * u(),
@@ -200,17 +209,21 @@ class RealityGap:
             wavenumber=np.column_stack((u(k0, k1), u(k2, k3))),
             ripple_phase=u(0.0, 2.0 * np.pi, (7, 2)),
             drift=self.offset_drift * u(), drift_period=u(*self.drift_period_s),
-            drift_phase=u(0.0, 2.0 * np.pi))
+            drift_phase=u(0.0, 2.0 * np.pi), tau_max=tau_max)
 
-    def realise(self, model: mujoco.MjModel | None = None) -> ArmParams:
-        """The arm this gap describes, as the arm model uses it (Pinocchio joint bodies:
-        the nominal ones with each link's perturbation added; body 7 keeps the hand)."""
+    def realise(self, model: mujoco.MjModel | None = None, description=None,
+                end_effector: str | None = None) -> ArmParams:
+        """The arm this gap describes on the arm model ``description`` (None: the default),
+        as the arm model uses it (Pinocchio joint bodies: the nominal ones with each link's
+        perturbation added; body 7 keeps ``end_effector``, None: the arm model's default);
+        ``model``: the plant's MuJoCo model of it (None: a fresh one)."""
         from .robot import nominal_link_params
 
-        model = build_mujoco_model() if model is None else model
-        params = nominal_link_params()
+        desc = described(description)
+        model = build_mujoco_model(desc, end_effector) if model is None else model
+        params = nominal_link_params(end_effector, desc)
         for j, (name, (mass, com, moments)) in enumerate(
-                zip(LINK_BODIES, self.bodies(model), strict=True)):
+                zip(desc.link_bodies, self.bodies(model, desc), strict=True)):
             b = model.body(name)
             rot = np.empty(9)
             mujoco.mju_quat2Mat(rot, b.iquat)
@@ -220,4 +233,12 @@ class RealityGap:
             real = pin.Inertia(mass, com, rot @ np.diag(moments) @ rot.T)
             params[j] += real.toDynamicParameters() - nominal.toDynamicParameters()
         friction, offset = self.joints()
-        return ArmParams(params, friction, offset, {"source": f"reality gap {self}"})
+        return ArmParams(params, friction, offset, {"source": f"reality gap {self}"},
+                         end_effector=_ee_label(end_effector or desc.default_end_effector),
+                         description=desc)
+
+
+def _ee_label(spec: str) -> str:
+    from .end_effector import end_effector
+
+    return end_effector(spec).label

@@ -1,10 +1,9 @@
-"""The 7-DoF Panda in Pinocchio: kinematics, inverse dynamics and the payload regressor.
+"""The 7-joint arm in Pinocchio: kinematics, inverse dynamics and the payload regressor.
 
-The model comes from example-robot-data's ``panda.urdf`` with the two finger joints locked
-(``pinocchio.buildReducedModel``), so the hand is rigid and part of link 7. Frames:
-
-- ``panda_link8``: the flange, Franka's frame F in which ``F_x_Cload`` is given;
-- ``panda_hand_tcp``: the tool centre point of the Franka Hand.
+The model comes from the arm's description (:mod:`sim.description`: ``[arm] model``, the
+Panda by default). Bodies 1..7 are the seven arm joints' bodies; body 7 carries the end
+effector (:mod:`sim.end_effector`), fixed to the flange frame (the Panda's ``panda_link8``,
+the FR3's ``fr3_link8``: Franka's frame F, in which ``F_x_Cload`` is given).
 
 A payload is a rigid body fixed to the flange. Its parameters ``phi`` (paper order, inertia
 about the flange origin) enter the joint torques linearly: ``tau_payload = Y(q, dq, ddq) @ phi``.
@@ -12,21 +11,12 @@ about the flange origin) enter the joint torques linearly: ``tau_payload = Y(q, 
 
 from __future__ import annotations
 
-import site
-import sys
 from functools import cache
-from pathlib import Path as FsPath
 
 import numpy as np
 import pinocchio as pin
 
-FLANGE_FRAME = "panda_link8"
-TCP_FRAME = "panda_hand_tcp"
-
-# Franka Emika Panda datasheet limits (joint 1..7).
-DQ_MAX = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])  # rad/s
-DDQ_MAX = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])  # rad/s²
-TAU_MAX = np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0])  # N·m
+from .description import ArmDescription, described
 
 # Paper order [m, mrx, mry, mrz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz] -> Pinocchio's dynamic
 # parameter order [m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz].
@@ -34,94 +24,118 @@ PAPER_TO_PIN = np.array([0, 1, 2, 3, 4, 5, 7, 6, 8, 9])
 """``phi_pin = phi_paper[PAPER_TO_PIN]``, ``phi_paper = phi_pin[PAPER_TO_PIN]`` (involution)."""
 
 
-@cache
-def panda_description_dir() -> FsPath:
-    """Folder of example-robot-data's Panda description (under the cmeel prefix)."""
-    roots = [*site.getsitepackages(), site.getusersitepackages(), *sys.path]
-    for root in roots:
-        cand = FsPath(root) / "cmeel.prefix/share/example-robot-data/robots/panda_description"
-        if (cand / "urdf/panda.urdf").is_file():
-            return cand
-    raise FileNotFoundError(
-        "example-robot-data's panda.urdf not found under any site-packages "
-        "'cmeel.prefix/share/example-robot-data/robots/panda_description/urdf'; "
-        "install the package example-robot-data"
-    )
-
-
-def panda_urdf(collision: bool = False) -> FsPath:
-    """Path of ``panda.urdf`` (or ``panda_collision.urdf``, which MuJoCo can load)."""
-    name = "panda_collision.urdf" if collision else "panda.urdf"
-    return panda_description_dir() / "urdf" / name
-
-
 def phi_to_pin(phi: np.ndarray) -> np.ndarray:
     """Paper order -> Pinocchio dynamic-parameter order (works on ``(..., 10)`` arrays)."""
     return np.asarray(phi)[..., PAPER_TO_PIN]
 
 
-def _nominal_model() -> pin.Model:
-    full = pin.buildModelFromUrdf(str(panda_urdf()))
-    locked = [full.getJointId(n) for n in ("panda_finger_joint1", "panda_finger_joint2")]
-    return pin.buildReducedModel(full, locked, pin.neutral(full))
+@cache
+def _pin_model(description: ArmDescription, full: bool) -> pin.Model:
+    """The Pinocchio model of ``description``: its text (``full``: with what hangs beyond the
+    flange, the joints there locked at zero)."""
+    from iem.errors import InvalidInputError
+
+    text = description.full_text if full else description.text
+    try:
+        model = pin.buildModelFromXML(text)
+    except (RuntimeError, ValueError) as exc:
+        raise InvalidInputError(f"arm model {description.source}: Pinocchio cannot read it: "
+                                f"{exc}") from exc
+    locked = [model.getJointId(n) for n in description.locked if model.existJointName(n)]
+    if locked:
+        model = pin.buildReducedModel(model, locked, pin.neutral(model))
+    names = tuple(model.names[1:])
+    if model.nq != 7 or model.nv != 7 or names != description.joint_names:
+        raise InvalidInputError(f"arm model {description.source}: Pinocchio reads joints "
+                                f"{names} (nq {model.nq}, nv {model.nv}), the description's "
+                                f"arm joints are {description.joint_names}")
+    return model
 
 
-def nominal_link_params(end_effector=None) -> np.ndarray:
-    """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7, body 7
-    carrying ``end_effector`` (a :class:`sim.end_effector.EndEffector` or its spec; None:
-    the URDF's Franka Hand)."""
-    model = _nominal_model()
-    out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
-    if end_effector is not None:
-        from .end_effector import EndEffector
-        from .end_effector import end_effector as resolve
+def _nominal_model(description=None) -> pin.Model:
+    return _pin_model(described(description), True)
 
-        ee = end_effector if isinstance(end_effector, EndEffector) else resolve(end_effector)
-        if ee.spec != "franka_hand":
-            out[6] = ee.body7()
+
+def link7_params(description=None) -> np.ndarray:
+    """``(10,)`` Pinocchio dynamic parameters of body 7 without any end effector (the bodies
+    from joint 7 to the flange, joint-7 frame)."""
+    out = _pin_model(described(description), False).inertias[7].toDynamicParameters()
+    out.flags.writeable = False
     return out
 
 
-@cache
-def flange_placement() -> pin.SE3:
-    """The flange frame (``panda_link8``) in the joint-7 frame."""
-    model = _nominal_model()
-    return model.frames[model.getFrameId(FLANGE_FRAME)].placement.copy()
+def nominal_link_params(end_effector=None, description=None) -> np.ndarray:
+    """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7 of the arm
+    ``description`` (None: the default arm model), body 7 carrying ``end_effector`` (a
+    :class:`sim.end_effector.EndEffector` or its spec; None: the description's default)."""
+    from .end_effector import EndEffector
+    from .end_effector import end_effector as resolve
+
+    desc = described(description)
+    model = _nominal_model(desc)
+    out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
+    ee = end_effector if isinstance(end_effector, EndEffector) else \
+        resolve(end_effector or desc.default_end_effector)
+    if not _carries_own_hand(desc, ee.spec):
+        out[6] = ee.body7(desc)
+    return out
 
 
-class PandaModel:
-    """Pinocchio model of the 7-DoF Panda (fingers locked, hand rigid) with the flange frame.
+def _carries_own_hand(description: ArmDescription, spec: str | None) -> bool:
+    """Whether the end effector ``spec`` (None: the default) is the one the description's own
+    file fuses into body 7 (the Panda's Franka Hand)."""
+    spec = spec or description.default_end_effector
+    return description.own_end_effector is not None and spec == description.own_end_effector
+
+
+def flange_placement(description=None) -> pin.SE3:
+    """The flange frame in the joint-7 frame."""
+    desc = described(description)
+    model = _pin_model(desc, False)
+    return model.frames[model.getFrameId(desc.flange)].placement.copy()
+
+
+class ArmModel:
+    """Pinocchio model of the 7-joint arm with the flange frame.
 
     Args:
-        arm: the arm's own bodies, friction and offsets (:class:`sim.arm.ArmParams`); None:
-            the nominal arm (the URDF's bodies, no friction, no offsets). With an arm, every
-            torque this model gives (``rnea``, ``rnea_with_payload``,
+        arm: the arm's own bodies, friction and offsets (:class:`sim.arm.ArmParams`, which
+            names its description); None: the nominal arm of ``description`` (the file's
+            bodies with its default end effector, no friction, no offsets). With an arm,
+            every torque this model gives (``rnea``, ``rnea_with_payload``,
             ``rnea_and_regressor``) is the measured ``tau_J`` of that arm: its bodies' RNEA
             plus friction plus offsets; the payload regressor depends only on kinematics.
+        description: the arm model (:mod:`sim.description`; a name, a path or an
+            :class:`~sim.description.ArmDescription`) when ``arm`` is None; None: the
+            default.
 
     Not thread-safe: it owns one Pinocchio ``Data``. Make one per thread.
     """
 
     nq = 7
 
-    def __init__(self, arm=None) -> None:
-        self.model = _nominal_model()
+    def __init__(self, arm=None, description=None) -> None:
+        self.description = arm.description if arm is not None else described(description)
+        self.model = _nominal_model(self.description).copy()
         self.arm = arm
         if arm is not None:
             for j in range(1, 8):
                 self.model.inertias[j] = pin.Inertia.FromDynamicParameters(
                     np.asarray(arm.link_params[j - 1], dtype=float))
+        elif not _carries_own_hand(self.description, None):  # the end effector on body 7
+            self.model.inertias[7] = pin.Inertia.FromDynamicParameters(
+                nominal_link_params(None, self.description)[6])
         self._extra = None if arm is None else arm.joint_torque
         self.data = self.model.createData()
-        self.flange_id = self.model.getFrameId(FLANGE_FRAME)
-        self.tcp_id = self.model.getFrameId(TCP_FRAME)
+        self.flange_id = self.model.getFrameId(self.description.flange)
         self.last_joint = self.model.frames[self.flange_id].parentJoint
         self.flange_placement = self.model.frames[self.flange_id].placement.copy()
-        self.q_min = self.model.lowerPositionLimit.copy()
-        self.q_max = self.model.upperPositionLimit.copy()
-        self.dq_max = DQ_MAX.copy()
-        self.ddq_max = DDQ_MAX.copy()
-        self.tau_max = TAU_MAX.copy()
+        limits = self.description.limits
+        self.q_min = limits.q_min.copy()
+        self.q_max = limits.q_max.copy()
+        self.dq_max = limits.dq_max.copy()
+        self.ddq_max = limits.ddq_max.copy()
+        self.tau_max = limits.tau_max.copy()
         self._link7 = self.model.inertias[self.last_joint].copy()
         # model with a payload body at the flange (its inertia is set by set_payload_phi)
         self._pl_model = self.model.copy()
@@ -223,33 +237,8 @@ def spatial_inertia(phi) -> np.ndarray:
     return out
 
 
-class PandaDynamics:
-    """``(q, dq, ddq) -> (tau_robot, Y, M)`` of a nominal Panda (:meth:`PandaModel.
-    rnea_regressor_mass`), plus the payload's mass matrix ``payload_mass_matrix(q, phi)``
-    (the fast path :class:`iem.physics.regression.PayloadRegression` uses when it is there)."""
-
-    def __init__(self) -> None:
-        self.model = PandaModel()
-
-    def __call__(self, q, dq, ddq):
-        return self.model.rnea_regressor_mass(q, dq, ddq)
-
-    def payload_mass_matrix(self, q, phi) -> np.ndarray:
-        return self.model.payload_mass_matrix(q, phi)
-
-
-def panda_dynamics() -> PandaDynamics:
-    """The robot-model factory of :data:`PANDA_DYNAMICS`; each call builds its own model,
-    since a model owns its scratch data."""
-    return PandaDynamics()
-
-
-PANDA_DYNAMICS = "sim.robot:panda_dynamics"
-"""The dynamics spec of the nominal Panda (:func:`panda_dynamics`), which callers give the
-least-squares estimators (``dynamics=``; :mod:`iem.physics.regression`) and model files store."""
-
-
 @cache
-def panda() -> PandaModel:
-    """A shared nominal Panda model (loading the URDF takes a few ms)."""
-    return PandaModel()
+def arm_model(description=None) -> ArmModel:
+    """A shared nominal model of the arm ``description`` (None: the default arm model; loading
+    a description takes a few ms)."""
+    return ArmModel(description=description)

@@ -19,11 +19,12 @@ import numpy as np
 from iem.errors import InvalidInputError
 
 from .payload import Payload
-from .robot import PandaModel
+from .robot import ArmModel
 
 
 class TandemSimulators:
-    """Noise-free simulators of the nominal Panda, one per training payload.
+    """Noise-free simulators of the arm ``model`` (the default arm model's nominal arm by
+    default), one per training payload.
 
     Args:
         payloads: the training payloads, or their ``(K, 10)`` phi in the paper's order.
@@ -32,7 +33,7 @@ class TandemSimulators:
     """
 
     def __init__(self, payloads: Sequence[Payload] | np.ndarray,
-                 model: PandaModel | None = None) -> None:
+                 model: ArmModel | None = None) -> None:
         if isinstance(payloads, np.ndarray):
             phi = np.array(payloads, dtype=float)
         else:
@@ -42,7 +43,7 @@ class TandemSimulators:
                 f"payloads must give a (K, 10) phi with K >= 1, got {phi.shape}")
         phi.flags.writeable = False
         self.phi = phi
-        self.model = PandaModel() if model is None else model
+        self.model = ArmModel() if model is None else model
 
     def __len__(self) -> int:
         return self.phi.shape[0]

@@ -345,13 +345,13 @@ def test_the_commissioning_procedure_runs_on_simulated_traffic(tmp_path, capsys)
     from sim.family import default_test_payload
     from sim.paths import calibration_path
     from sim.payload import load_payload
-    from sim.plant import PandaPlant, RealityGap
+    from sim.plant import ArmPlant, RealityGap
     from tests.deploy.test_identify import write_log
 
     gap = RealityGap(seed=3).modelled_only()
     truth = default_test_payload()
-    recordings = {"bare-arm.blf": PandaPlant(gap=gap, seed=21),
-                  "tool-loaded.blf": PandaPlant(gap=gap, seed=24, payload=truth)}
+    recordings = {"bare-arm.blf": ArmPlant(gap=gap, seed=21),
+                  "tool-loaded.blf": ArmPlant(gap=gap, seed=24, payload=truth)}
     for name, plant in recordings.items():
         write_log(plant.follow(calibration_path()), tmp_path / name)
 

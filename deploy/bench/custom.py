@@ -16,20 +16,24 @@ from pathlib import Path as FsPath
 
 from iem.types import PARAMS
 
+from ..options import add_arm_model, arm_description_of
 from .harness import Bench
 
 
 def run_custom(payload_file, path_file, out_dir, quick: bool = False, seed: int = 0,
-               log=print, extra_models: dict | None = None) -> dict:
+               log=print, extra_models: dict | None = None, description=None) -> dict:
+    """The paper benchmark's models on the arm model ``description`` (None: the default),
+    trained on its excitation path, then along the path of ``path_file`` (checked against
+    the arm model's limits) with the payload of ``payload_file``."""
     from sim.paths import load_path_csv
     from sim.payload import load_payload
 
     started = time.perf_counter()
     payload = load_payload(payload_file)
-    path = load_path_csv(path_file)
+    bench = Bench(quick=quick, seed=seed, log=log, description=description)
+    path = load_path_csv(path_file).check_limits(bench.kin)
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    bench = Bench(quick=quick, seed=seed, log=log)
     models = bench.trained_models(extra_models)
     bags_before = models["IEM"].n_bags
     rollout = bench.rollout(path, payload, seed + 2)
@@ -44,7 +48,8 @@ def run_custom(payload_file, path_file, out_dir, quick: bool = False, seed: int 
     results = {
         "params": list(PARAMS), "models": list(models), "scenarios": {"custom": scen},
         "bags": {"after_excitation": bags_before, "after_custom": models["IEM"].n_bags},
-        "setup": {"quick": quick, "seed": seed, "payload": payload.name,
+        "setup": {"quick": quick, "seed": seed, "arm_model": bench.description.record(),
+                  "payload": payload.name,
                   "payload_file": str(payload_file), "path_file": str(path_file),
                   "path_s": path.duration, "phi": phi.tolist(),
                   "wall_s": time.perf_counter() - started},
@@ -61,8 +66,10 @@ def configure(parser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
     parser.add_argument("--quick", action="store_true", help="smaller training")
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and learners")
+    add_arm_model(parser)
 
 
 def run(args) -> int:
-    run_custom(args.payload, args.path, args.out, quick=args.quick, seed=args.seed)
+    run_custom(args.payload, args.path, args.out, quick=args.quick, seed=args.seed,
+               description=arm_description_of(args))
     return 0

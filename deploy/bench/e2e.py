@@ -44,28 +44,37 @@ REPO = FsPath(__file__).resolve().parents[2]
 
 
 def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=print,
-            link: str = "virtual", cpu_dma_latency_us: int = -1) -> dict:
+            link: str = "virtual", cpu_dma_latency_us: int = -1, description=None,
+            rated_mass_kg: float | None = None) -> dict:
+    """The figures on the arm model ``description`` (None: the default), the gate rated for
+    ``rated_mass_kg`` (None: the arm model's rated payload)."""
     from deploy.config import config_from_dict
+    from deploy.sim_controller import cell_sections
     from deploy.training import best_model_kind
 
     kind = kind or best_model_kind()
     host = {"cpu_dma_latency_us": cpu_dma_latency_us}
-    config_from_dict({"host": host}, where="bench e2e")  # a bad limit fails before training
+    cell = cell_sections(description, rated_mass_kg)
+    # a bad limit or an arm model without a rated payload fails before training
+    config_from_dict({"host": host, "arm": cell["arm"], "gate": cell["gate"]},
+                     where="bench e2e")
     if link == "slcan-pty":
-        return _measure_slcan_pty(seconds, kind, seed, log, host)
+        return _measure_slcan_pty(seconds, kind, seed, log, host, description, cell)
     from deploy.inprocess import simulated_cell, virtual_channel
 
     with tempfile.TemporaryDirectory() as tmp:
         config = config_from_dict({
             "link": {"kind": "virtual", "channel": virtual_channel("bench-e2e"),
                      "profile": "fd"},
-            "gate": {"allow_without_uncertainty": kind == "IEM"},  # the paper's IEM
+            "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
+            "arm": cell["arm"],
             "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                       "seed": seed, "checkpoint_period_s": 30.0},
             "log": {"status_line": "off"}, "host": host,
         }, where="bench e2e")
         # the controller plays the excitation path back and forth
-        with simulated_cell(config, seed=seed) as (controller, service):
+        with simulated_cell(config, seed=seed, description=description) as (controller,
+                                                                             service):
             log(f"bench e2e: {kind} with {service.model.n_bags} bags; {seconds:g} s at 1 kHz "
                 "on the virtual bus")
             controller.start()
@@ -73,7 +82,8 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     return _figures(summary, controller.stats(), link="virtual")
 
 
-def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) -> dict:
+def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
+                       description=None, cell: dict | None = None) -> dict:
     """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
     from deploy.config import config_from_dict
     from deploy.service import Service
@@ -81,9 +91,13 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) ->
     from deploy.training import train_initial_model
 
     model = train_initial_model(kind, seed=seed, log=lambda *a: None,
-                                noise="sensor")  # the simulated arm is its model
+                                noise="sensor",  # the simulated arm is its model
+                                description=description)
+    cell = cell or {"arm": {}, "gate": {}}
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
            "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30)]
+    if cell["arm"]:
+        cmd += ["--arm-model", cell["arm"]["model"], "--arm-flange", cell["arm"]["flange"]]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
@@ -93,7 +107,8 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict) ->
         with tempfile.TemporaryDirectory() as tmp:
             config = config_from_dict({
                 "link": {"kind": "slcan", "channel": pty, "profile": "fd"},
-                "gate": {"allow_without_uncertainty": kind == "IEM"},  # the paper's IEM
+                "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
+                "arm": cell["arm"],
                 "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
                           "checkpoint_period_s": 30.0},
                 "log": {"status_line": "off"}, "host": host,
@@ -156,11 +171,17 @@ def configure(parser) -> None:
     from deploy.host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
+    from deploy.options import add_arm_model
+
+    add_arm_model(parser)
 
 
 def run(args) -> int:
+    from deploy.options import arm_description_of
+
     f = measure(args.seconds, kind=args.model, link=args.link,
-                cpu_dma_latency_us=args.cpu_dma_latency_us)
+                cpu_dma_latency_us=args.cpu_dma_latency_us,
+                description=arm_description_of(args), rated_mass_kg=args.rated_mass_kg)
     lat = f["latency_us"]
     age = f["age_us"]
     print(f"block points estimated {f['cycles']} ({f['block_frames']} frames each), cycles "

@@ -69,10 +69,12 @@ JOINT_STATE = "JointStateFD"
 
 
 def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
-                    faults: dict | None, fault_seed: int) -> list[str]:
+                    faults: dict | None, fault_seed: int, arm: dict | None = None) -> list[str]:
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
            "--profile", "fd", "--seed", str(seed), "--duration", f"{seconds:g}",
            "--payload", payload_file, "--stats-json", stats]
+    if arm:
+        cmd += ["--arm-model", arm["model"], "--arm-flange", arm["flange"]]
     if faults:
         for name, value in faults.items():
             cmd += [f"--{name}", f"{value:g}"]
@@ -83,14 +85,16 @@ def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
 
 
 def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dict | None,
-         fault_seed: int, log) -> dict:
+         fault_seed: int, log, cell: dict | None = None) -> dict:
     """One run: the controller process, the service here; what it estimated and wrote."""
     from deploy.service import Service
     from deploy.status import StatusLine
 
+    cell = cell or {"arm": {}, "gate": {}}
     with tempfile.TemporaryDirectory() as tmp:
         stats_file = str(FsPath(tmp) / "controller.json")
-        cmd = _controller_cmd(seconds, seed, payload_file, stats_file, faults, fault_seed)
+        cmd = _controller_cmd(seconds, seed, payload_file, stats_file, faults, fault_seed,
+                              cell["arm"])
         proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         try:
@@ -98,7 +102,7 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
             if not pty.startswith("/dev/"):
                 raise RuntimeError(f"sim-controller did not announce its pty: {pty!r}; "
                                    f"{proc.stderr.read()[-2000:]}")
-            service = Service(_cell_config(pty, model, tmp), model=model,
+            service = Service(_cell_config(pty, model, tmp, cell), model=model,
                               status=StatusLine(False))
             cycles: list[tuple[float, float, np.ndarray, np.ndarray]] = []
             writes: list[tuple[float, object]] = []
@@ -119,14 +123,18 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
                     faults is not None)
 
 
-def _cell_config(pty: str, model, tmp: str):
-    """The cell of a run: slcan on the controller's pty, the model checkpointed in ``tmp``."""
+def _cell_config(pty: str, model, tmp: str, cell: dict | None = None):
+    """The cell of a run: slcan on the controller's pty, the model checkpointed in ``tmp``,
+    the arm model and the gate's rating of ``cell``
+    (:func:`deploy.sim_controller.cell_sections`)."""
     from deploy.config import config_from_dict
 
+    cell = cell or {"arm": {}, "gate": {}}
     return config_from_dict({
+        "arm": cell["arm"],
         "link": {"kind": "slcan", "channel": pty, "profile": "fd",
                  "silence_timeout_s": 0.2},
-        "gate": {"allow_without_uncertainty": model.name == "IEM"},  # the paper's IEM
+        "gate": {**cell["gate"], "allow_without_uncertainty": model.name == "IEM"},
         "model": {"path": str(FsPath(tmp) / "model.msgpack"),
                   "checkpoint_period_s": 3600.0},
         "log": {"status_line": "off"},
@@ -279,18 +287,27 @@ def expected_counters(events, first: int, last: int, failures=()) -> dict:
 
 
 def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str | None = None,
-            log=print) -> dict:
+            log=print, description=None, rated_mass_kg: float | None = None) -> dict:
+    """Both runs on the arm model ``description`` (None: the default), the gate rated for
+    ``rated_mass_kg`` (None: the arm model's rated payload)."""
+    from deploy.config import config_from_dict
+    from deploy.sim_controller import cell_sections
     from deploy.training import best_model_kind, train_initial_model
     from sim.family import test_payloads
 
     kind = kind or best_model_kind()
     payload_file = str(REPO / "sim" / "payloads" / "test-3w.toml")
     truth = test_payloads()["test-3w"]
+    cell = cell_sections(description, rated_mass_kg)
+    # an arm model without a rated payload fails before training
+    config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench faults")
     model = train_initial_model(kind, seed=0, log=lambda *a: None,
-                                noise="sensor")  # the simulated arm is its model
-    clean = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, None, fault_seed, log)
+                                noise="sensor",  # the simulated arm is its model
+                                description=description)
+    clean = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, None, fault_seed, log,
+                 cell)
     faulty = _run(copy.deepcopy(model), seconds, seed, payload_file, truth, FAULTS, fault_seed,
-                  log)
+                  log, cell)
     _score(clean, faulty, truth)
     expected = faulty["expected"]
     counters = faulty["counters"]
@@ -320,16 +337,21 @@ def configure(parser) -> None:
     parser.add_argument("--model", choices=["IEM", "IEM+phys"], default=None,
                         help="model kind (default: the best available)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    from deploy.options import add_arm_model
+
+    add_arm_model(parser)
 
 
 def run(args) -> int:
+    from deploy.options import arm_description_of
     from iem.errors import InvalidInputError
 
     if not args.seconds >= 2 * SILENCE_S + 2 * WARMUP_S:
         raise InvalidInputError(f"--seconds {args.seconds:g}: valid is at least "
                                 f"{2 * SILENCE_S + 2 * WARMUP_S:g} s (the run holds a "
                                 f"{SILENCE_S:g} s silence in its middle)")
-    f = measure(args.seconds, seed=args.seed, fault_seed=args.fault_seed, kind=args.model)
+    f = measure(args.seconds, seed=args.seed, fault_seed=args.fault_seed, kind=args.model,
+                description=arm_description_of(args), rated_mass_kg=args.rated_mass_kg)
     mf, mc = f["mae_groups_faulty"], f["mae_groups_clean"]
     rf, rc = f["mae_groups_raw_faulty"], f["mae_groups_raw_clean"]
     target = max(1.5 * mc["mass"], 0.001)

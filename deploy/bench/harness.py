@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, partial
 
 import numpy as np
 
@@ -64,31 +64,49 @@ class Run:
 
 
 class Bench:
-    """The shared set-up of the paper benchmark and of ``iem bench custom``."""
+    """The shared set-up of the paper benchmark and of ``iem bench custom``, on the arm model
+    ``description`` (:mod:`sim.description`; None: the default): its plant, its kinematics,
+    its paths (made for its limits, home and task) and its nominal dynamics for the models
+    that compute with one (LS, IEM+phys)."""
 
-    def __init__(self, quick: bool = False, seed: int = 0, log=print) -> None:
+    def __init__(self, quick: bool = False, seed: int = 0, log=print,
+                 description=None) -> None:
         from iem.extras import require
         from sim.family import default_test_payload, test_payloads, training_payloads
         from sim.paths import excitation_path, new_task_path
 
-        require("mujoco", "the benchmark's simulated Panda")
-        from sim.plant import PandaPlant
-        from sim.robot import PandaModel
+        require("mujoco", "the benchmark's simulated arm")
+        from sim.description import described
+        from sim.plant import ArmPlant
+        from sim.robot import ArmModel
         from sim.tandem import TandemSimulators
 
         self.quick = quick
         self.seed = seed
         self.log = log
-        self.kin = PandaModel()
-        self.tandem = TandemSimulators(training_payloads(), model=PandaModel())
+        self.description = described(description)
+        self.kin = ArmModel(description=self.description)
+        self.tandem = TandemSimulators(training_payloads(),
+                                       model=ArmModel(description=self.description))
         self.payload = default_test_payload()
         self.phi = self.payload.to_phi()
-        self.excitation = excitation_path()
-        self.new_path = new_task_path()
+        self.excitation = excitation_path(model=self.kin)
+        self.new_path = new_task_path(model=self.kin)
         self.change_payload = test_payloads()[CHANGE_TO]
         self.change_at = len(self.new_path) // 2
         """Sample of the new task path at which ``payload_change`` switches the payload."""
-        self._plant_cls = PandaPlant
+        self._plant_cls = partial(ArmPlant, description=self.description)
+
+    @property
+    def dynamics(self) -> str:
+        """The dynamics spec of the arm model's nominal arm: :data:`sim.arm.NOMINAL_DYNAMICS`
+        on the default arm model, else :func:`sim.arm.nominal_spec` (the arm by content)."""
+        from sim.arm import NOMINAL_DYNAMICS, nominal_spec
+        from sim.description import DEFAULT_ARM_MODEL
+
+        if self.description.name == DEFAULT_ARM_MODEL:
+            return NOMINAL_DYNAMICS
+        return nominal_spec(None, self.description)
 
     @cached_property
     def exc_rollout(self):
@@ -117,8 +135,6 @@ class Bench:
 
     # -- models --------------------------------------------------------------------------
     def make_models(self) -> dict:
-        from sim.robot import PANDA_DYNAMICS
-
         q = self.quick
         common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
                   "fit_stride": 20 if q else 10}
@@ -128,8 +144,8 @@ class Bench:
             "BEM": BatchEnsemble(seed=self.seed, fit_epochs=4 if q else 10,
                                  fit_stride=20 if q else 10, n_networks=3 if q else 5,
                                  n_trees=3 if q else 5),
-            "LS": RecursiveLeastSquares(PANDA_DYNAMICS),
-            "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=PANDA_DYNAMICS),
+            "LS": RecursiveLeastSquares(self.dynamics),
+            "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=self.dynamics),
         }
 
     def trained_models(self, extra_models: dict | None = None) -> dict:

@@ -5,7 +5,7 @@ Set-up (everything seeded by ``--seed``):
 - The motion (:mod:`deploy.bench.random_motion`): rest-to-rest quintic segments between
   random waypoints within the joint limits less a margin, each as short as 90 % of the
   velocity and acceleration limits allow.
-- The plant (:class:`sim.plant.PandaPlant`, perfect arm, default sensor model) carries the
+- The plant (:class:`sim.plant.ArmPlant`, perfect arm, default sensor model) carries the
   test payload (``test-3w``) and is told it, so it follows the motion.
 - The models are trained as ``iem train`` does
   (:func:`deploy.training.train_initial_model`) and fed through
@@ -58,6 +58,7 @@ from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
 from iem.types import JointState
 
+from ..options import add_arm_model, arm_description_of
 from .harness import rollout_blocks
 from .random_motion import random_segments, reversed_path
 from .window_feed import WindowFeed, percentiles, rss_mb
@@ -75,29 +76,30 @@ PLAIN_PARAMS = {"reversal": None, "coverage": None, "budget_bags": None}
 """``--plain``: the paper's rule, none of the plug-in's ensemble settings."""
 
 
-def train_models(seed: int, log, params: dict | None = None) -> dict:
+def train_models(seed: int, log, params: dict | None = None, description=None) -> dict:
     from deploy.training import train_initial_model
 
     return {kind: train_initial_model(kind, seed=seed, log=log, noise="sensor",
-                                      **(params or {}))
+                                      description=description, **(params or {}))
             for kind in MODELS}
 
 
 def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
-                params: dict | None = None, sizes=ROUTE_SIZES) -> dict:
-    """The long run; returns the results (see the module docstring)."""
+                params: dict | None = None, sizes=ROUTE_SIZES, description=None) -> dict:
+    """The long run on the arm model ``description`` (None: the default); returns the
+    results (see the module docstring)."""
     from iem.extras import require
     from sim.family import default_test_payload, training_payloads
 
-    require("mujoco", "iem bench longrun (the simulated Panda)")
-    from sim.robot import PandaModel
+    require("mujoco", "iem bench longrun (the simulated arm)")
+    from sim.robot import ArmModel
     from sim.tandem import TandemSimulators
 
     started = time.perf_counter()
-    kin = PandaModel()
+    kin = ArmModel(description=description)
     payload = default_test_payload()
-    tandem = TandemSimulators(training_payloads(), model=PandaModel())
-    models = train_models(seed, log, params)
+    tandem = TandemSimulators(training_payloads(), model=ArmModel(description=description))
+    models = train_models(seed, log, params, description)
     feeds = {name: WindowFeed(name, m, kin, tandem) for name, m in models.items()}
     drive = _drive(feeds, payload, float(minutes) * 60.0, seed, kin, log)
     for m in models.values():
@@ -126,7 +128,8 @@ def run_longrun(minutes: float = 10.0, seed: int = 0, log=print,
         "route_cpu_us_p99_end": {name: windows[-1][name]["route_cpu_us"]["p99"]
                                  for name in models},
         "at_budget": at_budget,
-        "setup": {"minutes": minutes, "seed": seed, "payload": payload.name,
+        "setup": {"minutes": minutes, "seed": seed, "arm_model": kin.description.record(),
+                  "payload": payload.name,
                   "segments": drive.segments, "samples": drive.samples,
                   "reverse_s": reverse_s, "params": params or {},
                   "wall_s": time.perf_counter() - started},
@@ -154,10 +157,11 @@ class _Drive:
 def _drive(feeds: dict, payload, seconds: float, seed: int, kin, log) -> _Drive:
     """The plant along ``seconds`` of random motion, every frame fed to every model, the
     figures taken every :data:`WINDOW_S`."""
-    from sim.plant import PandaPlant
+    from sim.plant import ArmPlant
 
     phi = payload.to_phi()
-    plant = PandaPlant(payload=payload, seed=seed, controller_load=payload)
+    plant = ArmPlant(payload=payload, seed=seed, controller_load=payload,
+                     description=kin.description)
     windows: list[dict] = []
     first_minute = []
     t_sim, k, next_window, started_plant = 0.0, 0, WINDOW_S, False
@@ -196,11 +200,12 @@ def reverse_figures(models: dict, segments: list, payload, seed: int, kin, tande
     """The segments driven backwards by a fresh plant, each model estimating along them with
     learning off (IEM+phys forgets the payload first): ``({model: MAE per group}, seconds)``.
     A function of its own so that the rollout (tens of MB) is freed when it returns."""
-    from sim.plant import PandaPlant
+    from sim.plant import ArmPlant
 
     phi = payload.to_phi()
     reverse = reversed_path(segments)
-    back_plant = PandaPlant(payload=payload, seed=seed + 1000, controller_load=payload)
+    back_plant = ArmPlant(payload=payload, seed=seed + 1000, controller_load=payload,
+                          description=kin.description)
     rollout = back_plant.follow(reverse)
     reverse_mae = {}
     for name, m in models.items():
@@ -306,6 +311,7 @@ def configure(parser) -> None:
                              "distances are compared (default 2000,20000,100000; '' for none)")
     parser.add_argument("--routing-only", action="store_true",
                         help="only the scan-vs-exact routing figures, without the motion")
+    add_arm_model(parser)
 
 
 def parse_sizes(text: str) -> tuple[int, ...]:
@@ -327,16 +333,19 @@ def run(args) -> int:
     if args.budget < 2:
         raise InvalidInputError(f"--budget must be >= 2 bags, got {args.budget}")
     sizes = parse_sizes(args.sizes)
+    description = arm_description_of(args)
     if args.routing_only:
-        from sim.robot import PandaModel
+        from sim.robot import ArmModel
 
-        results = {"route_sizes": route_sizes(PandaModel(), sizes, args.seed)}
+        results = {"route_sizes": route_sizes(ArmModel(description=description), sizes,
+                                              args.seed)}
     else:
         params = (dict(PLAIN_PARAMS) if args.plain
                   else {**LONGRUN_PARAMS, "budget_bags": args.budget})
         if args.background:
             params["background"] = True
-        results = run_longrun(args.minutes, args.seed, params=params, sizes=sizes)
+        results = run_longrun(args.minutes, args.seed, params=params, sizes=sizes,
+                              description=description)
     if args.json:
         FsPath(args.json).write_text(json.dumps(results, indent=2) + "\n")
         print(f"wrote {args.json}")

@@ -99,6 +99,7 @@ from iem.sensor import SensorModel
 from iem.signals.smoothing import DEFAULT_TAU_S
 from iem.types import PARAMS
 
+from ..options import add_arm_model, arm_description_of
 from .harness import Bench
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged
 from .report import paper_forgetting
@@ -106,12 +107,13 @@ from .timing import PACED_RATE_HZ, cycle_timing, route_timing
 
 
 def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
-              extra_models: dict | None = None) -> dict:
-    """All scenarios; writes ``results.json``, ``report.md`` and figures to ``out_dir``."""
+              extra_models: dict | None = None, description=None) -> dict:
+    """All scenarios on the arm model ``description`` (:mod:`sim.description`; None: the
+    default); writes ``results.json``, ``report.md`` and figures to ``out_dir``."""
     started = time.perf_counter()
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    bench = Bench(quick=quick, seed=seed, log=log)
+    bench = Bench(quick=quick, seed=seed, log=log, description=description)
     models = bench.trained_models(extra_models)
     trained = {n: fingerprints(m) for n, m in models.items()}  # the excitation bags' learners
     scen: dict = {"excitation": {}, "new_path": {}, "new_path_continued": {}, "forgetting": {},
@@ -303,7 +305,8 @@ def _timing(bench: Bench, runs: dict, cycle: dict | None, paced: dict | None) ->
 
 def _setup(bench: Bench) -> dict:
     """The ``setup`` of the results (``wall_s`` is added at the end)."""
-    return {"quick": bench.quick, "seed": bench.seed, "test_payload": bench.payload.name,
+    return {"quick": bench.quick, "seed": bench.seed,
+            "arm_model": bench.description.record(), "test_payload": bench.payload.name,
             "test_phi": bench.phi.tolist(), "training_payloads": len(bench.tandem),
             "sensor": asdict(SensorModel()),
             "smoothing_tau_s": DEFAULT_TAU_S, "excitation_s": bench.excitation.duration,
@@ -351,11 +354,13 @@ def configure(parser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="smaller training, same schema (about a minute)")
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and learners")
+    add_arm_model(parser)
 
 
 def run(args) -> int:
     from iem.extras import require
 
+    description = arm_description_of(args)  # a bad arm model before anything runs
     require("matplotlib", "iem bench paper (its figures)")  # before, not after, the runs
-    run_paper(args.out, quick=args.quick, seed=args.seed)
+    run_paper(args.out, quick=args.quick, seed=args.seed, description=description)
     return 0

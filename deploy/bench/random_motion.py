@@ -48,7 +48,7 @@ def random_segments(seconds: float, seed: int, kin):
     while total < seconds:
         nxt = rng.uniform(lo, hi)
         T = segment_duration(q, nxt, kin.dq_max, kin.ddq_max)
-        seg = linear_path(q, nxt, T, name=f"segment-{k}")
+        seg = linear_path(q, nxt, T, name=f"segment-{k}", model=kin)
         total += seg.duration
         k += 1
         q = nxt

@@ -97,12 +97,12 @@ def payload_torque(t, q, dq, phi, cutoff_hz: float = 20.0) -> np.ndarray:
     Butterworth at ``cutoff_hz`` on the recorded time stamps."""
     from scipy.signal import butter, sosfiltfilt
 
-    from sim.robot import PandaModel
+    from sim.robot import ArmModel
 
     rate = 1.0 / float(np.median(np.diff(t)))
     sos = butter(4, cutoff_hz, fs=rate, output="sos")
     ddq = np.gradient(sosfiltfilt(sos, dq, axis=0), t, axis=0)
-    model = PandaModel()
+    model = ArmModel()
     Y = np.array([model.payload_regressor(q[k], dq[k], ddq[k]) for k in range(t.shape[0])])
     return Y @ np.asarray(phi, dtype=float)
 
@@ -227,9 +227,29 @@ def configure(parser) -> None:
     parser.add_argument("--split", type=float, default=SPLIT,
                         help="share of the recording that calibrates (default 0.5)")
     parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    from ..options import add_arm_model
+
+    add_arm_model(parser)
+
+
+def require_panda(description, what: str) -> None:
+    """Refuse an arm model other than the Panda for ``what``: the real recording is a
+    Panda's (Gaz et al. 2019).
+
+    Raises:
+        iem.errors.InvalidInputError: naming the arm model given and the valid one."""
+    from sim.description import DEFAULT_ARM_MODEL
+
+    if description is not None and description.name != DEFAULT_ARM_MODEL:
+        raise InvalidInputError(f"{what} runs on the real Panda's recording (Gaz et al. "
+                                f"2019), not on the arm model {description.name!r}; valid "
+                                f"is --arm-model {DEFAULT_ARM_MODEL} (the default)")
 
 
 def run(args) -> int:
+    from ..options import arm_description_of
+
+    require_panda(arm_description_of(args), "iem bench real")
     if not 0.2 <= args.split <= 0.8:
         raise InvalidInputError(f"--split {args.split} is out of range; valid is 0.2 to 0.8")
     print("real Panda recording (Gaz et al. 2019, no hand), calibrated on the first "

@@ -51,6 +51,7 @@ from iem.physics import PhysicsInformedEnsemble
 from iem.sensor import DEFAULT_SENSOR
 from iem.types import GROUPS, NOMINAL_RATE_HZ
 
+from ..options import add_arm_model, arm_description_of
 from .harness import CHANGE_TO, Bench
 from .realistic_report import report
 
@@ -103,18 +104,20 @@ def tools() -> dict:
 class RealisticBench(Bench):
     """The paper benchmark's set-up on the gapped plant, with a calibrated arm."""
 
-    def __init__(self, quick: bool = False, seed: int = 0, log=print) -> None:
+    def __init__(self, quick: bool = False, seed: int = 0, log=print,
+                 description=None) -> None:
         from sim.family import DEPLOY_FAMILY, family
         from sim.plant import RealityGap
-        from sim.robot import PandaModel
+        from sim.robot import ArmModel
         from sim.tandem import TandemSimulators
 
-        super().__init__(quick=quick, seed=seed, log=log)
+        super().__init__(quick=quick, seed=seed, log=log, description=description)
         self.gap = RealityGap(seed=GAP_SEED_BASE + seed)
         # what a cell deploys: the plug-in's default training family (the paper's 77 and 77
         # random tools), not the paper's alone
         self.family = DEPLOY_FAMILY
-        self.tandem = TandemSimulators(family(DEPLOY_FAMILY), model=PandaModel())
+        self.tandem = TandemSimulators(family(DEPLOY_FAMILY),
+                                       model=ArmModel(description=self.description))
         if quick:
             self.new_path = self.new_path.slice(0, 3.0)
             self.change_at = len(self.new_path) // 2
@@ -131,19 +134,22 @@ class RealisticBench(Bench):
     def calibrate(self):
         """The bare arm along the calibration motion, calibrated: ``(arm, held_out)``, with
         the residual RMS per joint on a held-out bare run of the new task path."""
+        from sim.arm import ArmParams
         from sim.calibration import residual_rms
         from sim.calibration_noise import calibrate_with_noise
         from sim.paths import calibration_path
 
         plant = self._plant_cls(payload=None, seed=CAL_NOISE_BASE + self.seed, gap=self.gap)
-        r = plant.follow(calibration_path())
+        r = plant.follow(calibration_path(model=self.kin))
         # as iem calibrate: the arm, and the noise it leaves in IEM+phys's equations
         arm = calibrate_with_noise([(r.t, r.q, r.dq, r.tau)],
-                                   source="bench realistic calibration motion")
+                                   source="bench realistic calibration motion",
+                                   description=self.description)
+        nominal = ArmParams.nominal(None, self.description)
         held = self._plant_cls(payload=None, seed=CAL_NOISE_BASE + self.seed + 1,
                                gap=self.gap).follow(self.excitation)
         check = {"path": self.excitation.name,
-                 "rms_nominal": residual_rms(None, held.t, held.q, held.dq, held.tau).tolist(),
+                 "rms_nominal": residual_rms(nominal, held.t, held.q, held.dq, held.tau).tolist(),
                  "rms_calibrated": residual_rms(arm, held.t, held.q, held.dq,
                                                 held.tau).tolist(),
                  "rms_true_arm": residual_rms(plant.arm, held.t, held.q, held.dq,
@@ -153,15 +159,14 @@ class RealisticBench(Bench):
     def make_models(self, arm_file=None) -> dict:
         from deploy.training import arm_torque_noise
         from sim.arm import arm_spec, load_arm
-        from sim.robot import PANDA_DYNAMICS
 
         q = self.quick
         common = {"seed": self.seed, "fit_epochs": 4 if q else 10,
                   "fit_stride": 20 if q else 10}
-        arm = load_arm(arm_file)
+        arm = load_arm(arm_file, self.description)
         return {
             "IEM": IncrementalEnsemble(**common),
-            "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=PANDA_DYNAMICS),
+            "IEM+phys": PhysicsInformedEnsemble(ensemble=common, dynamics=self.dynamics),
             "IEM+cal": IncrementalEnsemble(**common),
             # the calibrated arm, with the noise iem calibrate measured on it (iem train)
             "IEM+phys+cal": PhysicsInformedEnsemble(
@@ -187,9 +192,10 @@ def _score(run, phi, model, after: int = 0) -> dict:
     }
 
 
-def _batch(loaded, bare, arm, truth, after: int = 0) -> dict:
+def _batch(loaded, bare, arm, truth, after: int = 0, model=None) -> dict:
     """``batch+bare`` (``bare`` given) or ``batch+arm``: one offline identification of the
-    recording (from sample ``after`` on); the same keys as the online models' scores (the
+    recording (from sample ``after`` on; ``model``: the nominal arm's
+    :class:`sim.robot.ArmModel`); the same keys as the online models' scores (the
     estimate is one value, raw and smoothed alike), plus ``time_s`` and, when
     :func:`sim.identify.identify` refuses the recordings, ``refused`` with its reason and
     None figures. The motion is the 6 s task path: inertia is not excited, and the
@@ -203,7 +209,7 @@ def _batch(loaded, bare, arm, truth, after: int = 0) -> dict:
     t0 = time.perf_counter()
     try:
         result = identify(cut(loaded), bare=cut(bare), arm=None if bare is not None else arm,
-                          check_excitation=False)
+                          check_excitation=False, model=model)
     except IdentifyError as exc:
         return {"mae_groups": None, "mae_groups_raw": None, "coverage_2sigma": None,
                 "coverage_2sigma_groups": None, "false_alarms": None, "refused": str(exc),
@@ -220,17 +226,18 @@ def _batch(loaded, bare, arm, truth, after: int = 0) -> dict:
 
 
 def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
-                  arm_file=None) -> dict:
-    """All scenarios; writes ``results.json`` and ``report.md`` to ``out_dir``."""
-    from sim.robot import PandaModel
+                  arm_file=None, description=None) -> dict:
+    """All scenarios on the arm model ``description`` (None: the default); writes
+    ``results.json`` and ``report.md`` to ``out_dir``."""
+    from sim.robot import ArmModel
     from sim.tandem import TandemSimulators
 
     started = time.perf_counter()
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    bench = RealisticBench(quick=quick, seed=seed, log=log)
+    bench = RealisticBench(quick=quick, seed=seed, log=log, description=description)
     arm, held_out, arm_file = _arm(bench, out_dir, arm_file, log)
-    cal_tandem = TandemSimulators(bench.tandem.phi, model=PandaModel(arm=arm))
+    cal_tandem = TandemSimulators(bench.tandem.phi, model=ArmModel(arm=arm))
     tandems = {"IEM+cal": cal_tandem, "IEM+phys+cal": cal_tandem}
     models = bench.make_models(arm_file)
     bench.fit(models, tandems)
@@ -262,7 +269,7 @@ def _arm(bench: RealisticBench, out_dir: FsPath, arm_file, log):
     from sim.arm import load_arm, save_arm
 
     if arm_file is not None:
-        return load_arm(arm_file), None, arm_file
+        return load_arm(arm_file, bench.description), None, arm_file
     t0 = time.perf_counter()
     arm, held_out = bench.calibrate()
     arm_file = out_dir / "arm.msgpack"
@@ -301,7 +308,7 @@ def _scenario(bench: RealisticBench, name: str, payload, models: dict, tandems: 
             f"inertia {g['inertia']:.5f} cov {s['coverage_2sigma']} "
             f"alarms {s['false_alarms']}")
     for model_name, bare in (("batch+bare", bare_run), ("batch+arm", None)):
-        s = out[model_name] = _batch(rollout, bare, arm, truth, after)
+        s = out[model_name] = _batch(rollout, bare, arm, truth, after, model=bench.kin)
         g = s["mae_groups"]
         log(f"{name:14s} {model_name:13s} " + (
             f"refused: {s['refused']}" if g is None else
@@ -313,7 +320,8 @@ def _scenario(bench: RealisticBench, name: str, payload, models: dict, tandems: 
 def _setup(bench: RealisticBench, payloads: dict) -> dict:
     """The ``setup`` of the results (``wall_s`` is added at the end)."""
     gap = bench.gap
-    return {"quick": bench.quick, "seed": bench.seed, "gap": {
+    return {"quick": bench.quick, "seed": bench.seed,
+            "arm_model": bench.description.record(), "gap": {
         "seed": gap.seed, "mass_rel": gap.mass_rel,
         "inertia_rel": gap.inertia_rel, "com_abs": gap.com_abs,
         "friction_factor": list(gap.friction_factor or ()),
@@ -335,8 +343,11 @@ def configure(parser) -> None:
                         help="shorter training and a 3 s new path, same schema (for tests)")
     parser.add_argument("--arm", metavar="ARM",
                         help="use this arm file instead of calibrating the bare arm")
+    add_arm_model(parser)
 
 
 def run(args) -> int:
-    run_realistic(args.out, quick=args.quick, seed=args.seed, arm_file=args.arm)
+    description = arm_description_of(args)  # a bad arm model before anything runs
+    run_realistic(args.out, quick=args.quick, seed=args.seed, arm_file=args.arm,
+                  description=description)
     return 0

@@ -28,17 +28,18 @@ def _median_us(fn, calls: int, repeats: int) -> float:
 
 
 def measure(calls: int = 2000, repeats: int = 15, plant_seconds: float = 2.0,
-            plant_repeats: int = 5) -> dict:
+            plant_repeats: int = 5, description=None) -> dict:
+    """The figures on the arm model ``description`` (None: the default)."""
     from iem.extras import require
     from sim.family import default_test_payload, training_payloads
     from sim.paths import new_task_path
 
     require("mujoco", "iem bench sim (the plant's real-time factor)")
-    from sim.plant import PandaPlant
-    from sim.robot import PandaModel
+    from sim.plant import ArmPlant
+    from sim.robot import ArmModel
     from sim.tandem import TandemSimulators
 
-    model = PandaModel()
+    model = ArmModel(description=description)
     rng = np.random.default_rng(0)
     states = [model.random_state(rng) for _ in range(64)]
     it = iter(range(1 << 62))
@@ -48,13 +49,13 @@ def measure(calls: int = 2000, repeats: int = 15, plant_seconds: float = 2.0,
 
     rnea_us = _median_us(lambda: model.rnea(*state()), calls, repeats)
     regressor_us = _median_us(lambda: model.payload_regressor(*state()), calls, repeats)
-    tandem = TandemSimulators(training_payloads(), model=PandaModel())
+    tandem = TandemSimulators(training_payloads(), model=ArmModel(description=description))
     tandem_us = _median_us(lambda: tandem.samples(*state()), calls, repeats)
 
-    path = new_task_path()
+    path = new_task_path(model=model)
     n = min(len(path), int(plant_seconds * 1000))
     factors = []
-    plant = PandaPlant(payload=default_test_payload(), seed=0)
+    plant = ArmPlant(payload=default_test_payload(), seed=0, description=description)
     for _ in range(plant_repeats):
         plant.reset(path.q[0], path.dq[0])
         t0 = time.perf_counter()
@@ -71,12 +72,17 @@ def measure(calls: int = 2000, repeats: int = 15, plant_seconds: float = 2.0,
 
 
 def configure(parser) -> None:
+    from ..options import add_arm_model
+
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     parser.add_argument("--calls", type=int, default=2000, help="calls per timing batch")
+    add_arm_model(parser)
 
 
 def run(args) -> int:
-    figures = measure(calls=args.calls)
+    from ..options import arm_description_of
+
+    figures = measure(calls=args.calls, description=arm_description_of(args))
     print(f"RNEA                 {figures['rnea_us']:8.2f} µs/call")
     print(f"payload regressor    {figures['regressor_us']:8.2f} µs/call")
     print(f"tandem ({figures['tandem_payloads']} payloads) {figures['tandem_us_per_point']:8.2f} "

@@ -115,9 +115,18 @@ def figures_of(run: dict) -> dict:
 
 
 def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
-            log=print) -> dict:
-    """Every run; the figures, with ``runs`` (the records, for the figures) beside them."""
+            log=print, description=None, rated_mass_kg: float | None = None) -> dict:
+    """Every run, on the arm model ``description`` (None: the default), the gate rated for
+    ``rated_mass_kg`` (None: the arm model's rated payload); the figures, with ``runs`` (the
+    records, for the figures) beside them."""
+    from deploy.config import config_from_dict
+    from deploy.sim_controller import cell_sections
+
     from .writeback_scenarios import ideal_plant, realistic_plant, run_scenario
+
+    cell = cell_sections(description, rated_mass_kg)
+    # an arm model without a rated payload fails before training
+    config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench writeback")
 
     timing = TIMING["quick" if quick else "full"]
     records, figures, setup = [], [], []
@@ -125,8 +134,10 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     for seed in seeds:
         for kind in plants if sim else ():
             t0 = time.perf_counter()
-            plant = (ideal_plant(seed, log=log) if kind == "ideal"
-                     else realistic_plant(seed, out_dir, log=log))
+            plant = (ideal_plant(seed, log=log, description=description, cell=cell)
+                     if kind == "ideal" else
+                     realistic_plant(seed, out_dir, log=log, description=description,
+                                     cell=cell))
             setup.append({"plant": kind, "seed": seed, "calibration": plant.calibration,
                           "set_up_s": time.perf_counter() - t0})
             for name in sim:
@@ -233,13 +244,22 @@ def configure(parser) -> None:
                         "extra), the arm files and the real recording's CSVs")
     parser.add_argument("--real", metavar="DIR", help="folder of the real recording "
                         "(default: IEM_REAL_DIR, else ../shared/real beside the checkout)")
+    from ..options import add_arm_model
+
+    add_arm_model(parser)
 
 
 def run(args) -> int:
     from iem.extras import require
 
+    from ..options import arm_description_of
+    from .real import require_panda
+
     seeds = _seeds(args.seeds)[:1] if args.quick else _seeds(args.seeds)
     scenarios = _scenarios(args.scenarios)
+    description = arm_description_of(args)
+    if "real" in scenarios:
+        require_panda(description, "iem bench writeback's real scenario")
     plants = PLANTS if args.plant == "both" else (args.plant,)
     if args.out:
         require("matplotlib", "iem bench writeback --out (its figures)")
@@ -249,7 +269,8 @@ def run(args) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = FsPath(args.out) if args.out else FsPath(tmp)
-        results = measure(seeds, plants, scenarios, args.quick, folder, args.real, log=log)
+        results = measure(seeds, plants, scenarios, args.quick, folder, args.real, log=log,
+                          description=description, rated_mass_kg=args.rated_mass_kg)
         if args.out:
             from .writeback_figures import write_figures
 

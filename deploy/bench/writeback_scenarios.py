@@ -35,7 +35,8 @@ LOG_KEPT = 400
 
 @dataclass
 class Plant:
-    """The arm the controller simulates and the plug-in's model for it."""
+    """The arm the controller simulates and the plug-in's model for it; ``cell``: the cell's
+    arm model and gate rating (:func:`deploy.sim_controller.cell_sections`)."""
 
     name: str
     seed: int
@@ -43,6 +44,8 @@ class Plant:
     gap: object = None
     arm_file: str | None = None
     calibration: dict = field(default_factory=dict)
+    description: object = None
+    cell: dict = field(default_factory=lambda: {"arm": {}, "gate": {}})
 
 
 @dataclass
@@ -69,35 +72,42 @@ def tools() -> dict:
     return test_payloads()
 
 
-def ideal_plant(seed: int, log=print) -> Plant:
-    """The plant equal to its model; IEM+phys trained for the nominal arm with the sensor's
-    noise as its equations' error (as ``iem demo`` runs it)."""
+def ideal_plant(seed: int, log=print, description=None, cell: dict | None = None) -> Plant:
+    """The plant equal to its model (of the arm model ``description``; None: the default);
+    IEM+phys trained for the nominal arm with the sensor's noise as its equations' error (as
+    ``iem demo`` runs it)."""
     from deploy.training import train_initial_model
 
-    model = train_initial_model("IEM+phys", seed=seed, noise="sensor", log=log)
-    return Plant("ideal", seed, model)
+    model = train_initial_model("IEM+phys", seed=seed, noise="sensor", log=log,
+                                description=description)
+    return Plant("ideal", seed, model, description=description,
+                 cell=cell or {"arm": {}, "gate": {}})
 
 
-def realistic_plant(seed: int, out_dir, log=print) -> Plant:
+def realistic_plant(seed: int, out_dir, log=print, description=None,
+                    cell: dict | None = None) -> Plant:
     """``iem bench realistic``'s plant of ``seed`` (its reality gap), the bare arm calibrated
     as that bench does (written to ``out_dir``), IEM+phys trained for the calibrated arm (as
     ``iem train --arm``)."""
     from deploy.bench.realistic import RealisticBench, _arm
     from deploy.training import train_initial_model
 
-    bench = RealisticBench(seed=seed, log=lambda *a: None)
+    bench = RealisticBench(seed=seed, log=lambda *a: None, description=description)
     folder = FsPath(out_dir) / f"realistic-seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     arm, held_out, arm_file = _arm(bench, folder, None, log)
-    model = train_initial_model("IEM+phys", seed=seed, arm_file=str(arm_file), log=log)
+    model = train_initial_model("IEM+phys", seed=seed, arm_file=str(arm_file), log=log,
+                                description=description)
     return Plant("realistic", seed, model, gap=bench.gap, arm_file=str(arm_file),
                  calibration={"rms_before": arm.report["rms_before"],
-                              "rms_after": arm.report["rms_after"], "held_out": held_out})
+                              "rms_after": arm.report["rms_after"], "held_out": held_out},
+                 description=description, cell=cell or {"arm": {}, "gate": {}})
 
 
 def cell_config(plant: Plant, model_file):
     """The cell of a run: the virtual bus, IEM+phys at ``model_file`` (checkpointed at the
-    end only), the plant's arm file, the gate's defaults."""
+    end only), the plant's arm file and arm model, the gate's defaults (its rating the
+    plant's cell's)."""
     from deploy.config import config_from_dict
     from deploy.inprocess import virtual_channel
 
@@ -105,7 +115,8 @@ def cell_config(plant: Plant, model_file):
         "link": {"kind": "virtual", "channel": virtual_channel("writeback"), "profile": "fd"},
         "model": {"path": str(model_file), "kind": "IEM+phys", "seed": plant.seed,
                   "checkpoint_period_s": 3600.0, "arm": plant.arm_file or ""},
-        "arm": {"noise": "arm" if plant.arm_file else "sensor"},
+        "arm": {**plant.cell["arm"], "noise": "arm" if plant.arm_file else "sensor"},
+        "gate": plant.cell["gate"],
         "log": {"status_line": "off"}}, where="bench writeback")
 
 
@@ -141,7 +152,8 @@ def run_cell(plant: Plant, schedule, end_s: float, model_file, *, model=None,
         with simulated_cell(config, path=path, payload=schedule[0][1], once=once,
                             seed=plant.seed, model=model, payload_schedule=schedule,
                             drop_commands=drop_commands, gap=plant.gap,
-                            refuse_while_moving=refuse_while_moving) as (controller, service):
+                            refuse_while_moving=refuse_while_moving,
+                            description=plant.description) as (controller, service):
             if controller_load is not None:
                 controller.plant.set_controller_load(controller_load)
             gate = service.gate
@@ -210,8 +222,9 @@ def run_scenario(name: str, plant: Plant, timing: Timing, log=print) -> list[dic
             runs = _restart(plant, timing, model_file, fresh, tool, every[SWAP_TO])
         elif name == "refusals":
             from sim.paths import excitation_path
+            from sim.robot import arm_model
 
-            path = excitation_path()
+            path = excitation_path(model=arm_model(plant.description))
             runs = [run_cell(plant, [(0.0, tool)], path.duration + timing.rest_s,
                              model_file, model=fresh, refuse_while_moving=True, once=True,
                              path=path)]

@@ -9,13 +9,17 @@ import pinocchio as pin
 from scipy.linalg import qr
 
 from ..arm import FRICTION_COLUMNS, friction_jacobian
-from ..robot import PandaModel
+from ..robot import ArmModel
 from .prior import CalibrationError
 
 PARAM_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 """Pinocchio's dynamic-parameter order, per body."""
-QR_TOL = 1e-8
-"""Relative tolerance of the pivoted QR that finds the base parameters."""
+QR_TOL = 1e-4
+"""Relative tolerance of the pivoted QR that finds the base parameters. A combination seen
+10⁴ times less than the strongest is none: a URDF's angles rounded to 4 decimals (1.5708
+for π/2, as xacro output gives them) tilt a vertical joint axis by 7e-6 rad and make the
+mass moments of the body it moves show at about 4e-6, where no motion excites them; the
+true base parameters of the arms here are above 0.04."""
 MIN_RANGE = 0.3
 """Smallest range of motion per joint, rad."""
 MIN_SPEED = 0.3
@@ -24,6 +28,11 @@ MAX_CONDITION = 2000.0
 """Largest condition number of the prior-scaled excitation (base parameters, Coulomb and
 viscous friction, offsets) that is accepted (the shipped calibration motion: about 1000; the
 real recording's first 11 s 1270)."""
+NEGLIGIBLE_SHARE = 0.01
+"""A direction whose change by its prior's standard deviation moves the joint torques by less
+than this share of the torque noise (RMS over the motion) is left to its prior and does not
+count against :data:`MAX_CONDITION`: no motion within the arm's limits would show it (a light
+wrist's inertia, about 1e-4 N·m on the Kinova Gen3's last body)."""
 
 
 def regressors(model: pin.Model, q, dq, ddq) -> np.ndarray:
@@ -35,12 +44,13 @@ def regressors(model: pin.Model, q, dq, ddq) -> np.ndarray:
 
 
 def base_basis(model: pin.Model, samples: int = 300, seed: int = 0,
-               null: bool = False) -> np.ndarray:
+               null: bool = False, kinematics=None) -> np.ndarray:
     """``(70, r)`` orthonormal basis of the parameter combinations that act on the torques
     (the base parameters), from a pivoted QR of the regressor at random states with relative
     tolerance :data:`QR_TOL`; ``r`` is their number. ``null``: the ``(70, 70 - r)`` basis
-    of the combinations that act on no torque instead."""
-    kin = PandaModel()
+    of the combinations that act on no torque instead. The states are drawn within the
+    limits of ``kinematics`` (an :class:`sim.robot.ArmModel`; None: the default arm model's)."""
+    kin = ArmModel() if kinematics is None else kinematics
     rng = np.random.default_rng(seed)
     states = [kin.random_state(rng) for _ in range(samples)]
     W = regressors(model, *(np.array(x) for x in zip(*states, strict=True))).reshape(-1, 70)
@@ -52,10 +62,12 @@ def base_basis(model: pin.Model, samples: int = 300, seed: int = 0,
 
 
 def check_excitation(q, dq, columns: np.ndarray, names: list[str],
-                     to_named: np.ndarray) -> float:
-    """The condition number of the prior-scaled ``columns`` (``(rows, k)``); raises
-    :class:`CalibrationError` naming the joints that barely move and the directions the
-    motion does not see (``to_named`` maps a direction of the columns to the ``names``)."""
+                     to_named: np.ndarray, negligible_nm: float = 0.0) -> float:
+    """The condition number of the prior-scaled ``columns`` (``(rows, k)``, N·m per prior
+    standard deviation); raises :class:`CalibrationError` naming the joints that barely move
+    and the directions the motion does not see (``to_named`` maps a direction of the columns
+    to the ``names``), but for directions whose RMS torque is below ``negligible_nm``
+    (:data:`NEGLIGIBLE_SHARE`)."""
     problems = []
     span = np.ptp(q, axis=0)
     for j in range(7):
@@ -68,7 +80,8 @@ def check_excitation(q, dq, columns: np.ndarray, names: list[str],
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     weak = []
     if cond > MAX_CONDITION:
-        for i in np.flatnonzero(sv < sv[0] / MAX_CONDITION)[::-1][:4]:
+        seen = sv / np.sqrt(columns.shape[0]) >= negligible_nm  # RMS torque, N·m
+        for i in np.flatnonzero((sv < sv[0] / MAX_CONDITION) & seen)[::-1][:4]:
             v = to_named @ vt[i]
             v /= np.abs(v).max()
             order = np.argsort(-np.abs(v))[:3]
@@ -86,11 +99,14 @@ def check_excitation(q, dq, columns: np.ndarray, names: list[str],
     return cond
 
 
-def excitation_condition(W, q, dq, basis, sd_theta, phi0, sd_phi, sd_off) -> float:
+def excitation_condition(W, q, dq, basis, sd_theta, phi0, sd_phi, sd_off,
+                         sigma_tau: float = 0.0) -> float:
     """:func:`check_excitation` of the traffic's regressor ``W`` ``(N, 7, 70)``: the base
     directions (prior-scaled, ``basis`` of :func:`base_basis`), Gaz's and the viscous
     friction at the prior's centre ``phi0``, the offsets (the Stribeck part, seen only near
-    zero speed, is left to its prior where the motion does not show it)."""
+    zero speed, is left to its prior where the motion does not show it); a direction that
+    moves the torques by less than :data:`NEGLIGIBLE_SHARE` of ``sigma_tau`` is left to its
+    prior."""
     n = W.shape[0]
     Wf = W.reshape(-1, 70)
     checked = [0, 1, 2, 3, 4]
@@ -111,4 +127,4 @@ def excitation_condition(W, q, dq, basis, sd_theta, phi0, sd_phi, sd_off) -> flo
     to_named = np.zeros((70 + m, r + m))
     to_named[:70, :r] = scaled_basis
     to_named[70:, r:] = np.eye(m)
-    return check_excitation(q, dq, cols, names, to_named)
+    return check_excitation(q, dq, cols, names, to_named, NEGLIGIBLE_SHARE * sigma_tau)

@@ -6,9 +6,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..arm import ArmParams, friction_torque
-from ..robot import PandaModel, nominal_link_params
+from ..robot import ArmModel, nominal_link_params
 from .consistency import consistent, consistent_map
-from .excitation import base_basis, excitation_condition, regressors
+from .excitation import (
+    MAX_CONDITION,
+    NEGLIGIBLE_SHARE,
+    base_basis,
+    excitation_condition,
+    regressors,
+)
 from .fit import fit_map, joint_rms, never_worse
 from .prior import (
     DEFAULT_SETTINGS,
@@ -42,11 +48,12 @@ def calibrate(t, q, dq, tau, settings: CalibrationSettings = DEFAULT_SETTINGS,
 
 def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        source: str = "traffic", end_effector=None,
-                       refuse: bool = True) -> ArmParams:
+                       refuse: bool = True, description=None) -> ArmParams:
     """:func:`calibrate` on several recordings ``[(t, q, dq, tau), ...]``, each filtered on
     its own and split at its gaps (:func:`.signals.calibration_signals`).
     ``end_effector`` (a spec or :class:`sim.end_effector.EndEffector`; None: the Franka
-    Hand) is the prior's body 7 and the nominal model the result is compared with.
+    Hand) is the prior's body 7 and the nominal model the result is compared with, on the
+    arm model ``description`` (:mod:`sim.description`; None: the default).
     ``refuse=False`` fits too little excitation instead of refusing it (the prior holds the
     directions it lacks): the cross-validation's folds (:mod:`sim.calibration_noise`)."""
     s = settings
@@ -55,16 +62,18 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     prepared = calibration_signals(parts, s)
     q, dq, ddq, tau = (np.concatenate([getattr(p, k) for p in prepared])
                        for k in ("q", "dq", "ddq", "tau"))
-    nominal_model = PandaModel().model
-    ee = _end_effector(end_effector)  # the prior's centre: the declared end effector
-    theta0 = nominal_link_params(ee).ravel()
+    kinematics = ArmModel(description=description)
+    nominal_model = kinematics.model
+    ee = _end_effector(end_effector, kinematics.description)  # the prior's centre
+    theta0 = nominal_link_params(ee, kinematics.description).ravel()
     W = regressors(nominal_model, q, dq, ddq)  # (N, 7, 70)
-    basis = base_basis(nominal_model)
+    basis = base_basis(nominal_model, kinematics=kinematics)
     sd_theta = link_prior_std(theta0, s)
     phi0, sd_phi = friction_prior(s)
     sd_off = np.full(7, s.offset_std)
     try:
-        cond = excitation_condition(W, q, dq, basis, sd_theta, phi0, sd_phi, sd_off)
+        cond = excitation_condition(W, q, dq, basis, sd_theta, phi0, sd_phi, sd_off,
+                                    s.sigma_tau)
     except CalibrationError:
         if refuse:
             raise
@@ -79,6 +88,10 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     params, moved = consistent(theta if fixed is None else fixed, theta0.reshape(7, 10))
     params, phi, off, warnings, fallback = never_worse(W, dq, tau, theta0, params, phi, off)
     warnings += _payload_warning(params, theta0, sd_theta)
+    if MAX_CONDITION < cond < float("inf"):  # accepted: only negligible directions are weak
+        warnings.append(f"condition number {cond:.0f} above {MAX_CONDITION:g} only in "
+                        f"directions that move the torques by less than "
+                        f"{NEGLIGIBLE_SHARE:.0%} of the torque noise: left to the prior")
     report = {
         "source": source,
         "samples": int(W.shape[0]),
@@ -97,16 +110,18 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
         "warnings": warnings,
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},
     }
-    return ArmParams(params, phi, off, report, end_effector=ee.label)
+    return ArmParams(params, phi, off, report, end_effector=ee.label,
+                     description=kinematics.description)
 
 
-def _end_effector(end_effector):
-    """The :class:`sim.end_effector.EndEffector` of a spec (None: the Franka Hand)."""
+def _end_effector(end_effector, description):
+    """The :class:`sim.end_effector.EndEffector` of a spec (None: the arm model's
+    default)."""
     from ..end_effector import EndEffector
     from ..end_effector import end_effector as resolve_end_effector
 
     return end_effector if isinstance(end_effector, EndEffector) else resolve_end_effector(
-        end_effector)
+        end_effector or description.default_end_effector)
 
 
 def _payload_warning(params: np.ndarray, theta0: np.ndarray, sd_theta: np.ndarray) -> list:
@@ -124,6 +139,6 @@ def residual_rms(arm: ArmParams | None, t, q, dq, tau,
     """Per-joint RMS of ``tau - model`` (N·m) on traffic prepared as :func:`calibrate` does,
     for ``arm`` (None: the nominal model): how well an arm model explains held-out motion."""
     (p,) = calibration_signals([(t, q, dq, tau)], settings)
-    model = PandaModel(arm=arm)
+    model = ArmModel(arm=arm)
     pred = np.array([model.rnea(p.q[k], p.dq[k], p.ddq[k]) for k in range(p.q.shape[0])])
     return np.sqrt(np.mean((p.tau - pred) ** 2, axis=0))

@@ -30,7 +30,7 @@ Method (offline, so the filters may be non-causal):
    mrad differently) is accounted for by the model instead of being read as payload. With an
    arm file instead of a bare recording, ``r = tau_L - tau_arm(x_L)`` for any motion.
 4. **Robust weighted least squares.** ``r = Y(x_L) phi + c lead + e`` with ``Y`` the flange
-   body regressor of :class:`sim.robot.PandaModel`, and ``c`` the time derivative of the
+   body regressor of :class:`sim.robot.ArmModel`, and ``c`` the time derivative of the
    torques that enter ``r``: a torque sample may belong to a slightly later instant than the
    joint state it comes with (the project's plant reports the torque applied over the
    following 1 ms cycle, half a cycle ahead; a real sensor has its own delay), so that lead is

@@ -41,11 +41,11 @@ def arm_model(arm):
     if hasattr(arm, "rnea"):
         return arm
     from sim.arm import load_arm
-    from sim.robot import PandaModel
+    from sim.robot import ArmModel
 
     params = arm if not isinstance(arm, str | bytes) and hasattr(arm, "link_params") \
         else load_arm(arm)
-    return PandaModel(arm=params)  # rnea: the arm's links, friction and offsets
+    return ArmModel(arm=params)  # rnea: the arm's links, friction and offsets
 
 
 # -- the robust fit ------------------------------------------------------------------------

@@ -72,7 +72,7 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
             direction must be determined to; default :data:`EXCITATION_TOL`.
         check_excitation: refuse an unexciting motion (else report it in ``determined_by``).
         min_mass: smallest mass the loaded-minus-bare difference must carry, kg.
-        model: the nominal arm (a :class:`sim.robot.PandaModel`); default a new one.
+        model: the nominal arm (a :class:`sim.robot.ArmModel`); default a new one.
         recorded_rate_hz: the recordings' joint states a second, Hz (None: each one's
             detected from its time stamps, :func:`iem.signals.rate.detect_rate`).
 
@@ -82,9 +82,9 @@ def identify(loaded, bare=None, arm=None, *, cutoff_hz: float = CUTOFF_HZ,
     """
     prior_std, tol = _checked_arguments(bare, arm, prior_std, excitation_tol)
     if model is None:
-        from sim.robot import PandaModel
+        from sim.robot import ArmModel
 
-        model = PandaModel()
+        model = ArmModel()
     arm_rnea = None if arm is None else arm_model(arm)
 
     L = prepare(as_recording(loaded), cutoff_hz, rate_hz, edge_s, what="loaded recording",

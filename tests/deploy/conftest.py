@@ -16,14 +16,15 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _trained_file(kind: str, tmp_path_factory) -> Path:
-    """A model of ``kind`` trained on the excitation path (lightly, to keep tests quick),
-    saved once per session."""
+def _trained_file(kind: str, tmp_path_factory, arm_model: str | None = None) -> Path:
+    """A model of ``kind`` trained on the excitation path (lightly, to keep tests quick) for
+    the arm model ``arm_model`` (None: the default), saved once per session."""
     from deploy.training import train_initial_model
     from iem.persistence import save_model
 
     model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20,
-                                noise="sensor")  # the simulated arm is its model
+                                noise="sensor",  # the simulated arm is its model
+                                description=arm_model)
     path = tmp_path_factory.mktemp("model") / "trained.msgpack"
     save_model(model, path)
     return path
@@ -58,6 +59,17 @@ def model_file(trained_model_file, tmp_path) -> Path:
 @pytest.fixture
 def phys_model_file(trained_phys_model_file, tmp_path) -> Path:
     return _private_copy(trained_phys_model_file, tmp_path, "model-phys.msgpack")
+
+
+@pytest.fixture(scope="session")
+def trained_fr3_phys_model_file(tmp_path_factory) -> Path:
+    """IEM+phys for the FR3 (the franka link's arm)."""
+    return _trained_file("IEM+phys", tmp_path_factory, "fr3")
+
+
+@pytest.fixture
+def fr3_phys_model_file(trained_fr3_phys_model_file, tmp_path) -> Path:
+    return _private_copy(trained_fr3_phys_model_file, tmp_path, "model-fr3.msgpack")
 
 
 def model_kind(path) -> str:

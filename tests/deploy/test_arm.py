@@ -13,8 +13,8 @@ from iem.physics.regression import load_dynamics
 from sim.arm import ArmParams, arm_record, arm_spec, load_arm, save_arm
 from sim.family import default_test_payload
 from sim.paths import calibration_path, new_task_path
-from sim.plant import PandaPlant, RealityGap
-from sim.robot import PandaModel
+from sim.plant import ArmPlant, RealityGap
+from sim.robot import ArmModel
 from tests.can_logs import write_log
 
 GAP = RealityGap(seed=3)
@@ -23,9 +23,9 @@ GAP = RealityGap(seed=3)
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("arm")
-    write_log(PandaPlant(gap=GAP, seed=21).follow(calibration_path()), d / "bare.blf")
+    write_log(ArmPlant(gap=GAP, seed=21).follow(calibration_path()), d / "bare.blf")
     p = default_test_payload()
-    loaded = PandaPlant(gap=GAP, seed=22, payload=p, controller_load=p).follow(
+    loaded = ArmPlant(gap=GAP, seed=22, payload=p, controller_load=p).follow(
         new_task_path().slice(0, 2.0))
     write_log(loaded, d / "loaded.blf")
     assert main(["calibrate", str(d / "bare.blf"), "--out", str(d / "arm.msgpack")]) == 0
@@ -50,10 +50,10 @@ def test_model_records_its_arm_and_names_it_in_its_physics(files):
 def test_dynamics_spec_carries_the_arm_file(files):
     arm = load_arm(files / "arm.msgpack")
     f = load_dynamics(arm_spec(arm))
-    plain = load_dynamics("sim.robot:panda_dynamics")
-    q, dq, ddq = PandaModel().random_state(np.random.default_rng(0))
+    plain = load_dynamics("sim.arm:arm_dynamics")
+    q, dq, ddq = ArmModel().random_state(np.random.default_rng(0))
     tau, Y, _ = f(q, dq, ddq)
-    np.testing.assert_allclose(tau, PandaModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
+    np.testing.assert_allclose(tau, ArmModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
     np.testing.assert_allclose(Y, plain(q, dq, ddq)[1], atol=1e-12)  # kinematics only
     assert not np.allclose(tau, plain(q, dq, ddq)[0], atol=1e-3)
     with pytest.raises(InvalidInputError, match="arm:00000000, which was not given"):

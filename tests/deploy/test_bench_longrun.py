@@ -12,9 +12,9 @@ import pytest
 from deploy.bench.longrun import LONGRUN_PARAMS, parse_sizes, run_longrun
 from deploy.bench.random_motion import LIMIT_FRACTION, MARGIN, random_segments, reversed_path
 from iem.errors import InvalidInputError
-from sim.robot import PandaModel
+from sim.robot import ArmModel
 
-KIN = PandaModel()
+KIN = ArmModel()
 
 
 def test_random_segments_are_rest_to_rest_within_the_margins_and_90_percent_of_the_limits():

@@ -129,7 +129,8 @@ def test_missing_keys_take_the_defaults():
 
     cfg = config_from_dict({})
     hand = end_effector("franka_hand").mass  # [arm] end_effector's default, on the gate
-    assert cfg == replace(CellConfig(source="config"),
+    arm = replace(CellConfig().arm, model="panda", end_effector="franka_hand")  # the Panda's
+    assert cfg == replace(CellConfig(source="config"), arm=arm,
                           gate=replace(CellConfig().gate, end_effector_mass_kg=hand))
     cfg = config_from_dict({"link": {"channel": "vcan0"}})
     assert cfg.link == LinkConfig(channel="vcan0")

@@ -18,7 +18,7 @@ from iem.ensemble import IncrementalEnsemble
 from iem.errors import ModelFileError
 from iem.persistence import DEFAULT_MODEL, save_model
 from iem.physics import PhysicsInformedEnsemble
-from sim.robot import PANDA_DYNAMICS
+from sim.arm import NOMINAL_DYNAMICS
 
 
 def _config(path, **model) -> object:
@@ -43,10 +43,10 @@ def test_the_point_rate_is_declared_and_checked(tmp_path):
     another; the IEM declares none (None) and runs at any rate."""
     assert IncrementalEnsemble().rate_hz is None
     path = tmp_path / "phys.msgpack"
-    save_model(PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, rate_hz=50.0), path)
+    save_model(PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, rate_hz=50.0), path)
     with pytest.raises(ConfigError, match=r"made for 50 block points per second.*100"):
         load_or_train_model(_config(path))
-    save_model(PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, rate_hz=100.0), path)
+    save_model(PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, rate_hz=100.0), path)
     assert load_or_train_model(_config(path)).rate_hz == 100.0
     save_model(IncrementalEnsemble(seed=1), path)
     config = config_from_dict({"model": {"path": str(path), "kind": "IEM",

@@ -38,10 +38,10 @@ def test_calibrate_records_the_end_effector_and_the_noise(tmp_path, capsys):
     says 'none' and carries the noise measured on traffic the fit did not see."""
     from deploy.bench.real import write_csv
     from sim.paths import calibration_path
-    from sim.plant import PandaPlant, RealityGap
+    from sim.plant import ArmPlant, RealityGap
 
     gap = RealityGap(seed=5)
-    roll = PandaPlant(payload=None, seed=3, gap=gap).follow(calibration_path(16.0, seed=1))
+    roll = ArmPlant(payload=None, seed=3, gap=gap).follow(calibration_path(16.0, seed=1))
     rec = tmp_path / "bare.csv"
     write_csv(rec, roll.t, roll.q, roll.dq, roll.tau)
     out = tmp_path / "arm.msgpack"

@@ -59,10 +59,10 @@ run("calibrate --write-motion", ["calibrate", "--write-motion", f"{tmp}/motion.c
 import numpy as np
 from sim.family import default_test_payload
 from sim.paths import excitation_path
-from sim.robot import PandaModel
+from sim.robot import ArmModel
 from tests.firmware_bridge.test_recordings import write_csv
 
-path, model = excitation_path(6.0, seed=0, period=3.0), PandaModel()
+path, model = excitation_path(6.0, seed=0, period=3.0), ArmModel()
 payload = default_test_payload()
 t = np.arange(len(path)) * 1e-3
 rng = np.random.default_rng(0)

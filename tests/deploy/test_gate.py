@@ -130,9 +130,9 @@ def test_a_wide_band_is_written_when_the_write_still_halves_the_error():
 def test_the_torque_bound_along_the_motion_matches_a_direct_computation():
     """Independent truth: the bound from Pinocchio's payload regressor at each pose,
     computed here joint by joint."""
-    from sim.robot import PandaModel
+    from sim.robot import ArmModel
 
-    model = PandaModel()
+    model = ArmModel()
     rng = np.random.default_rng(0)
     motion = RecentMotion(lambda q, dq: model.payload_regressor(q, dq, np.zeros(7)))
     poses = [(model.random_state(rng)[0], rng.normal(0, 0.3, 7)) for _ in range(5)]
@@ -373,9 +373,9 @@ def test_the_wire_check_agrees_with_cantools_own_encoder():
 # -- the estimate's covariance, the prior, an old report ---------------------------------------
 def test_with_a_covariance_the_band_is_the_torques_own_two_sigma():
     """Independent truth: the torque's 2-sigma from sampling the estimate's covariance."""
-    from sim.robot import PandaModel
+    from sim.robot import ArmModel
 
-    model = PandaModel()
+    model = ArmModel()
     rng = np.random.default_rng(1)
     motion = RecentMotion(lambda q, dq: model.payload_regressor(q, dq, np.zeros(7)))
     q = model.random_state(rng)[0]

@@ -93,11 +93,11 @@ def test_the_estimators_report_what_they_can_say():
     from iem.baselines.least_squares import RecursiveLeastSquares
     from iem.ensemble import IncrementalEnsemble
     from iem.physics import PhysicsInformedEnsemble
-    from sim.robot import PANDA_DYNAMICS
+    from sim.arm import NOMINAL_DYNAMICS
 
     x = np.zeros(21)
-    for model, reported in ((PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS), {"std"}),
-                            (RecursiveLeastSquares(PANDA_DYNAMICS), {"std"}),
+    for model, reported in ((PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS), {"std"}),
+                            (RecursiveLeastSquares(NOMINAL_DYNAMICS), {"std"}),
                             (IncrementalEnsemble(), set()), (BatchEnsemble(), set())):
         est = model.predict_one(x, np.zeros(3))
         assert isinstance(est, PayloadEstimate)
@@ -182,7 +182,7 @@ def test_the_service_distrusts_a_model_it_restarts_from(phys_model_file, monkeyp
                                          "train_if_missing": False}})
     checked_model(config)
     assert calls == [1]
-    checked_model(config, model=PhysicsInformedEnsemble(dynamics="sim.robot:panda_dynamics"))
+    checked_model(config, model=PhysicsInformedEnsemble(dynamics="sim.arm:arm_dynamics"))
     assert calls == [1]  # a model handed over (just trained) is not a restart
 
 

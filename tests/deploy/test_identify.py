@@ -1,6 +1,6 @@
 """``iem identify``: a payload from two CAN logs of the simulated Panda.
 
-The traffic is the MuJoCo plant's (:class:`sim.plant.PandaPlant`: its own dynamics, the
+The traffic is the MuJoCo plant's (:class:`sim.plant.ArmPlant`: its own dynamics, the
 nominal-model computed-torque loop, sensor noise; with :class:`sim.plant.RealityGap` for a
 perturbed arm, its modelled part only: the links, friction and offsets an arm file
 describes exactly; a sensor's gain error and the other unmodelled effects scale or bend the
@@ -25,7 +25,7 @@ from sim.family import default_test_payload
 from sim.identify import identify
 from sim.paths import excitation_path
 from sim.payload import load_payload
-from sim.plant import PandaPlant, RealityGap
+from sim.plant import ArmPlant, RealityGap
 from tests.can_logs import write_log
 
 TARGETS = {"mass": 0.0005, "com": 0.0003, "inertia": 0.0003}
@@ -33,7 +33,7 @@ TARGETS = {"mass": 0.0005, "com": 0.0003, "inertia": 0.0003}
 
 def record(tmp_path, name, path, payload, seed, gap=None, profile="fd", suffix=".blf"):
     out = tmp_path / f"{name}{suffix}"
-    write_log(PandaPlant(payload=payload, seed=seed, gap=gap).follow(path), out, profile)
+    write_log(ArmPlant(payload=payload, seed=seed, gap=gap).follow(path), out, profile)
     return out
 
 
@@ -88,7 +88,7 @@ def test_the_cli_reads_what_the_function_is_given(short_logs):
     assert len(rec) == 6001 and rec.t[0] == 0.0
     path = excitation_path(6.0, seed=0, period=3.0)
     gap = RealityGap(seed=11).modelled_only()
-    roll = PandaPlant(payload=default_test_payload(), seed=1, gap=gap).follow(path)
+    roll = ArmPlant(payload=default_test_payload(), seed=1, gap=gap).follow(path)
     np.testing.assert_allclose(rec.tau, roll.tau, atol=0.005 + 1e-9)
     np.testing.assert_allclose(rec.q, roll.q, atol=0.5e-5 + 1e-12)
     a = identify(rec, read_log(bare))

@@ -13,9 +13,9 @@ from deploy.gate_checks import model_doubt
 from deploy.model_setup import INITIAL_STD, start_from_file
 from iem.physics import PhysicsInformedEnsemble
 from iem.types import PayloadEstimate
+from sim.arm import NOMINAL_DYNAMICS
 from sim.family import test_payloads
 from sim.payload import PayloadError, load_payload, load_payload_prior, save_payload
-from sim.robot import PANDA_DYNAMICS
 
 TRUTH = test_payloads()["test-3w"]
 
@@ -46,7 +46,7 @@ def test_the_key_is_a_path_relative_to_the_cell_toml(tmp_path):
 def test_the_model_starts_from_the_file(tmp_path):
     path = tmp_path / "tool.toml"
     save_payload(TRUTH, path)
-    model = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS)
+    model = PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS)
     start_from_file(model, str(path))
     est = model.predict_one(np.zeros(21), None)
     np.testing.assert_allclose(est.phi, TRUTH.to_phi(), atol=1e-9)

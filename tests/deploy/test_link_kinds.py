@@ -167,15 +167,16 @@ def test_socketcan(tmp_path, phys_model_file):
     assert_the_controller_applied_it(sim, summary)
 
 
-def test_franka_with_the_pylibfranka_fake(tmp_path, phys_model_file, monkeypatch):
-    """The fake robot sends a state every ms along the excitation path, as SimController's
-    default path, and holds what ``set_load`` gave it, as libfranka's robot does."""
+def test_franka_with_the_pylibfranka_fake(tmp_path, fr3_phys_model_file, monkeypatch):
+    """The fake robot, an FR3 (libfranka serves no other), sends a state every ms along the
+    FR3's excitation path and holds what ``set_load`` gave it, as libfranka's robot does; the
+    franka link's arm model is the FR3's."""
     robots = []
 
     def robot(address, config):
         made = franka_fake.Robot(address, config, free_running=True)
         start = made.path.q[0]  # where the fake put its plant
-        made.path = excitation_path()  # long enough for the run (the fake's own is 2 s)
+        made.path = excitation_path(model=made.kinematics)  # long enough (its own is 2 s)
         np.testing.assert_allclose(made.path.q[0], start, atol=1e-12)
         robots.append(made)
         return made
@@ -183,7 +184,8 @@ def test_franka_with_the_pylibfranka_fake(tmp_path, phys_model_file, monkeypatch
     module = franka_fake.module()
     module.Robot = robot
     monkeypatch.setitem(sys.modules, "pylibfranka", module)
-    summary = run_service(tmp_path, phys_model_file, {"kind": "franka", "channel": "172.16.0.2"})
+    summary = run_service(tmp_path, fr3_phys_model_file,
+                          {"kind": "franka", "channel": "172.16.0.2"})
     assert summary["cycles"] > 0
     fake = robots[0]
     assert fake.set_load_calls >= max(1, summary["writes"]["acked"])

@@ -3,7 +3,7 @@
 (``iem calibrate``, ``iem train --rate``, ``iem replay``, ``iem identify``) on a 200 Hz
 joint-state CSV of the simulated plant.
 
-The plant runs at 1 kHz (:class:`sim.plant.PandaPlant`); every fifth joint state is written,
+The plant runs at 1 kHz (:class:`sim.plant.ArmPlant`); every fifth joint state is written,
 as a 200 Hz logger would keep them. The plant is equal to its model (the ideal plant), so the
 replay's and the identification's payload can be checked against the payload mounted.
 """
@@ -23,7 +23,7 @@ from iem.errors import InvalidInputError
 from iem.signals.rate import block_frames_for, check_rate, detect_rate
 from sim.family import default_test_payload
 from sim.paths import calibration_path, excitation_path
-from sim.plant import PandaPlant
+from sim.plant import ArmPlant
 from tests.firmware_bridge.test_recordings import write_csv
 
 REPO = Path(__file__).resolve().parents[2]
@@ -47,11 +47,11 @@ def csvs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rate")
     motion = excitation_path(6.0, seed=0, period=3.0)
     return {
-        "calibration": decimated(PandaPlant(seed=101).follow(calibration_path()),
+        "calibration": decimated(ArmPlant(seed=101).follow(calibration_path()),
                                  folder / "calibration.csv"),
-        "loaded": decimated(PandaPlant(seed=1, payload=TRUTH).follow(motion),
+        "loaded": decimated(ArmPlant(seed=1, payload=TRUTH).follow(motion),
                             folder / "loaded.csv"),
-        "bare": decimated(PandaPlant(seed=2).follow(motion), folder / "bare.csv"),
+        "bare": decimated(ArmPlant(seed=2).follow(motion), folder / "bare.csv"),
         "folder": folder,
     }
 

@@ -1,6 +1,6 @@
 """``iem replay``, ``iem calibrate`` and ``iem identify`` on the recordings Franka users have.
 
-One plant rollout (:class:`sim.plant.PandaPlant` on the new task path, a payload mounted) is
+One plant rollout (:class:`sim.plant.ArmPlant` on the new task path, a payload mounted) is
 written as a CAN log by ``tests.can_logs.write_log``, framed as the controller sends
 it. The CAN wire quantises (``protocol.dbc``: q 1e-5 rad, dq 1e-4 rad/s, tau 0.01 N·m, t 1 µs),
 so the rosbag2 bags and the CSV are written from the values the CAN log decodes to: the three
@@ -22,9 +22,9 @@ from deploy.replay import CSV_HEADER, replay
 from firmware_bridge.recordings import CSV_COLUMNS, read_recording
 from sim.family import default_test_payload
 from sim.paths import new_task_path
-from sim.plant import PandaPlant
+from sim.plant import ArmPlant
 from tests.can_logs import write_log
-from tests.firmware_bridge.test_recordings import FR3, write_bag, write_csv
+from tests.firmware_bridge.test_recordings import FR3, PANDA, write_bag, write_csv
 
 from .conftest import cell_config, write_toml
 
@@ -45,9 +45,11 @@ def write_formats(folder, rollout, stem: str) -> dict:
     ns = stamps_ns(rec.t)
     return {
         "can": can_log,
-        "sqlite3": write_bag(folder / f"{stem}_sqlite3", ns, rec.q, rec.dq, rec.tau),
+        # the recorded arm's joint names: the default arm model's, the Panda's
+        "sqlite3": write_bag(folder / f"{stem}_sqlite3", ns, rec.q, rec.dq, rec.tau,
+                             names=PANDA),
         "mcap": write_bag(folder / f"{stem}_mcap", ns, rec.q, rec.dq, rec.tau, storage="mcap",
-                          order=[6, 5, 4, 3, 2, 1, 0]),
+                          order=[6, 5, 4, 3, 2, 1, 0], names=PANDA),
         "csv": write_csv(folder / f"{stem}.csv", rec.t, rec.q, rec.dq, rec.tau),
     }
 
@@ -56,7 +58,7 @@ def write_formats(folder, rollout, stem: str) -> dict:
 def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("formats")
     path = new_task_path().slice(0, SECONDS)
-    rollout = PandaPlant(payload=default_test_payload(), seed=1).follow(path)
+    rollout = ArmPlant(payload=default_test_payload(), seed=1).follow(path)
     return write_formats(folder, rollout, "rec")
 
 
@@ -152,8 +154,8 @@ def bad_inputs(folder, files) -> list[tuple[str, list[str], list[str]]]:
         path = write_csv(folder / f"{what.replace(' ', '_')}.csv", t, q, dq, tau, **kw)
         cases.append((what, [str(path)], expected))
 
-    def bag_case(what, expected, args=(), ns=ns, q=q, dq=dq, tau=tau, **kw):
-        path = write_bag(folder / what.replace(" ", "_"), ns, q, dq, tau, **kw)
+    def bag_case(what, expected, args=(), ns=ns, q=q, dq=dq, tau=tau, names=PANDA, **kw):
+        path = write_bag(folder / what.replace(" ", "_"), ns, q, dq, tau, names=names, **kw)
         cases.append((what, [str(path), *args], expected))
 
     csv_case("csv without columns", ["missing: dq4, tau3", "needs the columns t (s), q1..q7"],
@@ -184,12 +186,14 @@ def bad_inputs(folder, files) -> list[tuple[str, list[str], list[str]]]:
     pycan.write_text("timestamp,arbitration_id,extended,remote,error,dlc,data\n")
     cases.append(("python-can csv", [str(pycan)], ["python-can CSV CAN log", ".blf, .log"]))
 
-    bag_case("bag without a joint", ["message 0 names the joints fr3_joint1", "missing: "
-                                     "fr3_joint7", "fr3_joint1..7 or panda_joint1..7"],
-             q=q[:, :6], dq=dq[:, :6], tau=tau[:, :6], names=FR3[:6], order=range(6))
+    bag_case("bag without a joint", ["message 0 names the joints panda_joint1", "missing: "
+                                     "panda_joint7", "the arm model's joints are panda_joint1"],
+             q=q[:, :6], dq=dq[:, :6], tau=tau[:, :6], names=PANDA[:6], order=range(6))
+    bag_case("bag of another arm", ["message 0 names the joints fr3_joint1", "the arm model's "
+                                    "joints are panda_joint1", "--arm-model"], names=FR3)
     nan_effort = tau.copy()
     nan_effort[4, 2] = np.nan
-    bag_case("bag nan", ["/franka/joint_states message 4, effort of fr3_joint3: nan"],
+    bag_case("bag nan", ["/franka/joint_states message 4, effort of panda_joint3: nan"],
              tau=nan_effort)
     bag_case("bag repeated", ["message 9: t = ", "repeats /franka/joint_states message 8's"],
              ns=[*ns[:9], ns[8], *ns[10:]])
@@ -203,8 +207,11 @@ def bad_inputs(folder, files) -> list[tuple[str, list[str], list[str]]]:
     missing = folder / "none_such"
     cases.append(("no such path", [str(missing)], ["none_such: no such file or directory",
                                                    "a rosbag2 bag (its directory"]))
-    cases.append(("no bag", [str(folder)], ["a directory without metadata.yaml is not a "
-                                            "rosbag2 bag"]))
+    plain = folder / "plain"  # a folder that is no bag stands for the recordings in it
+    plain.mkdir()
+    (plain / "notes.txt").write_text("not a recording\n")
+    cases.append(("no recording", [str(plain)], ["plain: no recording in this folder",
+                                                 "a rosbag2 bag (its directory"]))
     return cases
 
 
@@ -241,9 +248,9 @@ def test_calibrate_and_identify_take_the_same_formats(tmp_path, monkeypatch, cap
 
     path = excitation_path(4.0, seed=0, period=2.0)
     gap = RealityGap(seed=11)
-    loaded = write_formats(tmp_path, PandaPlant(payload=default_test_payload(), seed=1,
+    loaded = write_formats(tmp_path, ArmPlant(payload=default_test_payload(), seed=1,
                                                 gap=gap).follow(path), "loaded")
-    bare = write_formats(tmp_path, PandaPlant(seed=2, gap=gap).follow(path), "bare")
+    bare = write_formats(tmp_path, ArmPlant(seed=2, gap=gap).follow(path), "bare")
     want = identify(read_log(loaded["can"]), bare=read_log(bare["can"]))
     out, summary = tmp_path / "tool.toml", tmp_path / "tool.json"
     assert main(["identify", "--loaded", str(loaded["csv"]), "--bare", str(bare["mcap"]),

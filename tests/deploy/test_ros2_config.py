@@ -13,12 +13,16 @@ def test_defaults_and_the_options_the_opener_gets():
     assert cfg.link.channel == "/franka/joint_states"  # the default topic
     assert link_rate(cfg) == 1000.0
     opts = cfg.link_options()
-    assert opts == {"domain_id": None, "joints": "auto", "estimate_topic": "/iem/payload",
+    # "auto": the arm model's joint names and flange (the Panda's by default)
+    panda = tuple(f"panda_joint{i}" for i in range(1, 8))
+    assert opts == {"domain_id": None, "joints": list(panda), "estimate_topic": "/iem/payload",
                     "estimate_std_topic": "", "estimate_rate_hz": 10.0,
                     "set_load_service": "/service_server/set_load",
-                    "set_load_timeout_s": 2.0, "flange_frame": "", "interface": "",
+                    "set_load_timeout_s": 2.0, "flange_frame": "panda_link8", "interface": "",
                     "robot_state_topic": "/franka_robot_state_broadcaster/robot_state",
                     "diagnostics_topic": "/diagnostics", "peers": []}
+    fr3 = config_from_dict({"link": {"kind": "ros2"}, "ros2": {"joints": "fr3"}})
+    assert fr3.arm.model == "fr3" and fr3.link_options()["flange_frame"] == "fr3_link8"
     assert config_from_dict({"link": {"kind": "socketcan", "channel": "can0"},
                              "ros2": {"domain_id": 3}}).link_options() == {}
     cfg = config_from_dict({"link": {"kind": "ros2", "channel": "/left/franka/joint_states"},

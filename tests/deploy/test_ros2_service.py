@@ -43,7 +43,8 @@ def test_service_estimates_from_1khz_joint_states_and_publishes(model_file):
     service.on_cycle.append(lambda r: rows.setdefault(round(r.state.t * 1e3), r.smoothed.copy()))
     proc = subprocess.Popen([sys.executable, "-m", "firmware_bridge.ros2_peers", "publish",
                              "--count", str(N), "--rate", "1000", "--domain", str(DOMAIN),
-                             "--interface", "lo", "--peer", "127.0.0.1"], cwd=REPO,
+                             "--interface", "lo", "--peer", "127.0.0.1",
+                             "--arm", "panda"], cwd=REPO,  # the configured arm model's names
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         summary = service.run(duration=120.0,
@@ -72,7 +73,7 @@ def test_service_estimates_from_1khz_joint_states_and_publishes(model_file):
         i = m.inertia
         np.testing.assert_allclose([i.m, i.com.x, i.com.y, i.com.z, i.ixx, i.ixy, i.ixz,
                                     i.iyy, i.iyz, i.izz], want, rtol=1e-9, atol=1e-12)
-        assert m.header.frame_id == "fr3_link8"
+        assert m.header.frame_id == "panda_link8"  # the arm model's flange
 
 
 @pytest.mark.parametrize("refusals", [0, 2])

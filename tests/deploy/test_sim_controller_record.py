@@ -16,7 +16,7 @@ from sim.family import default_test_payload, test_payloads
 from sim.paths import excitation_path
 from sim.payload import Payload, save_payload
 from sim.plant import SensorModel
-from sim.robot import PandaModel
+from sim.robot import ArmModel
 
 from .test_sim_controller import Port
 
@@ -55,7 +55,7 @@ def test_the_schedule_swaps_the_payload_at_its_cycle():
     ctl = SimController(port, path=excitation_path(1.0), realtime=False,
                         sensor=SensorModel.noiseless(), payload_schedule=[(0.05, second),
                                                                           (0.0, first)])
-    model = PandaModel()
+    model = ArmModel()
     err = {id(first): [], id(second): []}
     for k in range(100):
         ctl.step()

@@ -16,7 +16,8 @@ import types
 
 from sim.family import default_test_payload
 from sim.paths import excitation_path
-from sim.plant import PandaPlant
+from sim.plant import ArmPlant
+from sim.robot import ArmModel
 
 
 class FrankaException(Exception):
@@ -78,8 +79,9 @@ class Robot:
                  realtime_config=RealtimeConfig.kEnforce, udp_timeout: float = 1.0,
                  free_running: bool = False) -> None:
         self.address, self.config = robot_ip_address, realtime_config
-        self.path = excitation_path(2.0)
-        self.plant = PandaPlant(payload=default_test_payload())
+        self.kinematics = ArmModel(description="fr3")  # libfranka >= 0.10 serves the FR3
+        self.path = excitation_path(2.0, model=self.kinematics)
+        self.plant = ArmPlant(payload=default_test_payload(), description="fr3")
         self.plant.reset(self.path.q[0])
         self.k = 0
         self.load = (0.0, [0.0] * 3, [0.0] * 9)

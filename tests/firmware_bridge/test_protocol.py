@@ -14,7 +14,7 @@ from iem.types import NOMINAL_RATE_HZ, JointState
 from sim.family import default_test_payload, training_payloads
 from sim.payload import Payload
 from sim.plant import SensorModel
-from sim.robot import panda
+from sim.robot import arm_model
 
 from .conftest import cantools_cycle, cantools_frame, data_ids, joint_signals
 
@@ -42,7 +42,7 @@ def test_unknown_profile_names_the_valid_ones():
 
 
 def test_resolution_is_below_the_sensor_noise_and_ranges_cover_the_panda():
-    sensor, arm = SensorModel(), panda()
+    sensor, arm = SensorModel(), arm_model()
     for name in PROFILES:
         f = profile(name).joint_state.fields
         for j in range(1, 8):

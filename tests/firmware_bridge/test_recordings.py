@@ -223,11 +223,11 @@ def test_detection_and_its_override(tmp_path):
 def test_a_can_log_opens_as_the_replay_source(tmp_path):
     """open_recording gives the CAN path the replay source it always had."""
     from sim.paths import new_task_path
-    from sim.plant import PandaPlant
+    from sim.plant import ArmPlant
     from tests.can_logs import write_log
 
     log = tmp_path / "bus.blf"
-    write_log(PandaPlant(seed=0).follow(new_task_path().slice(0, 0.05)), log)
+    write_log(ArmPlant(seed=0).follow(new_task_path().slice(0, 0.05)), log)
     with open_recording(log) as source:
         assert isinstance(source, ReplaySource)
         n = len(list(source))

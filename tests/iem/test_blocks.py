@@ -23,11 +23,11 @@ def recorded(tmp_path_factory):
     rule, one a restart) and one frame repeated (not newer)."""
     from sim.family import default_test_payload
     from sim.paths import excitation_path
-    from sim.plant import PandaPlant
+    from sim.plant import ArmPlant
     from tests.deploy.test_identify import write_log
 
     path = tmp_path_factory.mktemp("blocks") / "rec.blf"
-    rollout = PandaPlant(payload=default_test_payload(), seed=3).follow(
+    rollout = ArmPlant(payload=default_test_payload(), seed=3).follow(
         excitation_path(2.0, seed=1, period=2.0))
     write_log(rollout, path)
     link = open_recording(path)
@@ -125,13 +125,14 @@ def test_bad_block_sizes_and_frames_are_refused():
 def test_the_online_loop_fed_frames_equals_the_loop_fed_its_blocks(recorded):
     """A replay hands the estimator blocks formed in bulk; the same frames pushed one by one
     through the online loop's own former give the same estimates, to the bit."""
-    from sim.robot import PANDA_DYNAMICS, PandaModel
+    from sim.arm import NOMINAL_DYNAMICS
+    from sim.robot import ArmModel
 
     T, X, _ = recorded
-    kin = PandaModel()
+    kin = ArmModel()
 
     def fresh():
-        model = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS)
+        model = PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS)
         return OnlineIdentifier(model, kin.flange_position, None, learn=False)
 
     by_frame = fresh()

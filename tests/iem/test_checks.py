@@ -21,7 +21,7 @@ from iem.errors import IemError, InvalidInputError
 from iem.persistence import MODELS
 from iem.physics import PhysicsInformedEnsemble
 from iem.types import PayloadEstimate
-from sim.robot import PANDA_DYNAMICS
+from sim.arm import NOMINAL_DYNAMICS
 
 # One line per estimator kind of iem.persistence.MODELS; each lambda returns a fresh, seeded
 # estimator.
@@ -29,10 +29,10 @@ ESTIMATORS = {
     "IEM": lambda: IncrementalEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
     "old_IEM": lambda: InPlaceEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
     "BEM": lambda: BatchEnsemble(seed=0, n_networks=2, n_trees=2, fit_epochs=2, max_depth=4),
-    "LS": lambda: RecursiveLeastSquares(PANDA_DYNAMICS),
+    "LS": lambda: RecursiveLeastSquares(NOMINAL_DYNAMICS),
     "IEM+phys": lambda: PhysicsInformedEnsemble(
         ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2},
-        dynamics=PANDA_DYNAMICS),
+        dynamics=NOMINAL_DYNAMICS),
 }
 
 N_POINTS = 300

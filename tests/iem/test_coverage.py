@@ -18,7 +18,7 @@ from sim.coverage import OtherVelocities, reversal_spec, reversed_velocities
 from sim.family import default_test_payload, training_payloads
 from sim.paths import excitation_path
 from sim.plant import RealityGap
-from sim.robot import PandaModel
+from sim.robot import ArmModel
 from sim.tandem import TandemSimulators
 
 
@@ -28,7 +28,7 @@ def training_phi() -> np.ndarray:
 
 
 def test_samples_are_the_family_torques_at_a_state_within_the_limits():
-    model = PandaModel()
+    model = ArmModel()
     cover = OtherVelocities(fraction=0.9, model=model)
     phi = training_phi()[:5]
     q = np.array([0.1, -0.4, 0.2, -2.0, 0.1, 1.8, 0.6])
@@ -70,7 +70,7 @@ def test_reversed_samples_are_the_tandem_at_the_reversed_state(gap):
     """Against the tandem simulators (Pinocchio's RNEA, the arm's friction and offsets) at
     (q, -dq, ddq): on the nominal arm and on a calibrated-style arm with friction."""
     arm = None if gap is None else RealityGap(seed=gap).realise()
-    model = PandaModel(arm=arm)
+    model = ArmModel(arm=arm)
     phi = training_phi()[:6]
     tandem = TandemSimulators(phi, model=model)
     reverse = reversed_velocities() if arm is None else build(reversal_spec(arm), "reversal")
@@ -114,7 +114,7 @@ def test_a_bag_trained_with_the_reversal_reads_the_motion_driven_backwards():
     every velocity reversed (the torques of the frictionless arm are the same): the plain
     twin is far off, the reversal reads them as it reads the path forwards."""
     path = excitation_path().slice(0, 6.0)
-    kin = PandaModel()
+    kin = ArmModel()
     tandem = TandemSimulators(training_phi(), model=kin)
     flange = kin.flange_positions(path.q)
     test = TandemSimulators(default_test_payload().to_phi()[None, :], model=kin)

@@ -306,12 +306,12 @@ def test_the_velocity_score_is_a_mahalanobis_distance_to_the_training_velocities
         IncrementalEnsemble(velocity_threshold=0.0)
     # IEM+phys does not use the flag (its physics governs through the per-input score)
     from iem.physics import PhysicsInformedEnsemble
-    from sim.robot import PANDA_DYNAMICS
+    from sim.arm import NOMINAL_DYNAMICS
 
     assert PhysicsInformedEnsemble(
-        dynamics=PANDA_DYNAMICS).ensemble_model.velocity_threshold is None
+        dynamics=NOMINAL_DYNAMICS).ensemble_model.velocity_threshold is None
     assert PhysicsInformedEnsemble(ensemble={"velocity_threshold": 3.0},
-                                   dynamics=PANDA_DYNAMICS).ensemble_model.params()[
+                                   dynamics=NOMINAL_DYNAMICS).ensemble_model.params()[
         "velocity_threshold"] == 3.0
 
 

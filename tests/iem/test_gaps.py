@@ -186,8 +186,8 @@ def excitation_run():
     from deploy.training import tandem_for, train_initial_model
     from sim.family import test_payloads
     from sim.paths import excitation_path
-    from sim.plant import PandaPlant
-    from sim.robot import PandaModel
+    from sim.plant import ArmPlant
+    from sim.robot import ArmModel
 
     model = train_initial_model("IEM+phys", seed=0, log=lambda *a: None, noise="sensor",
                                 fit_epochs=3, fit_stride=20)
@@ -197,8 +197,8 @@ def excitation_run():
     from sim.paths import Path
 
     part = Path(path.name, path.t[:n], path.q[:n], path.dq[:n], path.ddq[:n])
-    rollout = PandaPlant(payload=payload, seed=7, controller_load=payload).follow(part)
-    return model, rollout, payload.to_phi(), PandaModel(), tandem_for("paper")
+    rollout = ArmPlant(payload=payload, seed=7, controller_load=payload).follow(part)
+    return model, rollout, payload.to_phi(), ArmModel(), tandem_for("paper")
 
 
 def _mae(excitation_run, order):

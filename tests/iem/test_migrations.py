@@ -32,7 +32,7 @@ from iem.migrations import (
     with_current_paths,
 )
 from iem.persistence import MODELS, dumps, load_model, loads, new_model
-from sim.robot import PANDA_DYNAMICS
+from sim.arm import NOMINAL_DYNAMICS
 
 DATA = Path(__file__).parent / "data"
 FIXTURES = sorted(DATA.glob("v*_*.iem"))
@@ -81,7 +81,7 @@ def test_the_fixtures_are_version_1_files():
 def test_an_old_file_loads_to_the_model_it_held_and_is_saved_at_the_newest_version(path):
     model = load_model(path)
     head, state = _head(path)
-    newest = migrate(head["kind"], state, 1)
+    newest = with_current_paths(migrate(head["kind"], state, 1))  # the moved factory names
     assert _same_state(model.to_state(), newest)
     saved = dumps(model)
     expected = EXPECTED[path.stem.partition("_")[2]]
@@ -91,7 +91,7 @@ def test_an_old_file_loads_to_the_model_it_held_and_is_saved_at_the_newest_versi
     assert msgpack.unpackb(saved, raw=False)["version"] == VERSION
     again = loads(saved)
     assert _same_state(again.to_state(), newest)
-    assert again.dynamics == PANDA_DYNAMICS  # the spec it was given, not the caller's
+    assert again.dynamics == NOMINAL_DYNAMICS  # the spec it was given, not the caller's
 
 
 def test_the_1khz_physics_file_takes_100hz_points_after_loading():
@@ -99,7 +99,8 @@ def test_the_1khz_physics_file_takes_100hz_points_after_loading():
     assert (model.rate_hz, model.update_every, model.point_frames) == (100.0, 1, 10)
     moved = ("rate_hz", "update_every", "point_frames")
     params = {k: v for k, v in model.params().items() if k not in moved}
-    assert params == {k: v for k, v in PHYS_V1["params"].items() if k not in moved}
+    assert params == {k: v for k, v in with_current_paths(PHYS_V1["params"]).items()
+                      if k not in moved}
 
 
 def test_the_oldest_version_1_state_loads_as_its_branches_read_it():
@@ -283,28 +284,28 @@ def test_current_path_follows_rows_keeps_the_argument_and_refuses_a_cycle(monkey
         "old.a": "mid.a", "mid.a": "new.a", "old.b:f": "new.b:g", "x": "y", "y": "x"})
     assert current_path("old.a:f@/arm.msgpack") == "new.a:f@/arm.msgpack"
     assert current_path("old.b:f") == "new.b:g" and current_path("old.b:h") == "old.b:h"
-    assert current_path("sim.robot:panda_dynamics") == "sim.robot:panda_dynamics"
+    assert current_path("sim.arm:arm_dynamics") == "sim.arm:arm_dynamics"
     with pytest.raises(InvalidInputError, match="cycle"):
         current_path("x:f")
 
 
 def test_a_file_naming_a_moved_module_loads_and_is_saved_with_its_new_path(monkeypatch):
     state = copy.deepcopy(PHYS_V1)
-    state["params"]["dynamics"] = "sim.robot_before:panda_dynamics"
+    state["params"]["dynamics"] = "sim.arm_before:arm_dynamics"
     state["params"]["ensemble"]["reversal"] = "sim.coverage_before:reversed_velocities"
     state["ensemble"]["params"]["reversal"] = "sim.coverage_before:reversed_velocities"
     state["ensemble"]["params"]["coverage"] = "sim.coverage_before:other_velocities"
     with pytest.raises(ModelFileError, match=r"sim\.coverage_before"):
         loads(_file("IEM+phys", state, 1))
-    monkeypatch.setattr(migrations, "ALIASES", {"sim.robot_before": "sim.robot",
+    monkeypatch.setattr(migrations, "ALIASES", {"sim.arm_before": "sim.arm",
                                                 "sim.coverage_before": "sim.coverage"})
     model = loads(_file("IEM+phys", state, 1))
-    assert model.dynamics == PANDA_DYNAMICS
+    assert model.dynamics == NOMINAL_DYNAMICS
     assert model.params()["ensemble"]["reversal"] == "sim.coverage:reversed_velocities"
     assert model.ensemble_model.params()["coverage"] == "sim.coverage:other_velocities"
     assert b"_before" not in dumps(model)
     assert with_current_paths(state) is not state  # the argument is left as it was
-    assert state["params"]["dynamics"] == "sim.robot_before:panda_dynamics"
+    assert state["params"]["dynamics"] == "sim.arm_before:arm_dynamics"
 
 
 def test_a_registered_class_at_a_moved_path_loads(monkeypatch):
@@ -312,7 +313,8 @@ def test_a_registered_class_at_a_moved_path_loads(monkeypatch):
     registry = {"LS": "iem.ls_before:RecursiveLeastSquares"}
     with pytest.raises(ModelFileError, match="cannot be imported"):
         loads(data, registry=registry)
-    monkeypatch.setattr(migrations, "ALIASES", {"iem.ls_before": "iem.baselines.least_squares"})
+    monkeypatch.setattr(migrations, "ALIASES",
+                        {**migrations.ALIASES, "iem.ls_before": "iem.baselines.least_squares"})
     assert isinstance(loads(data, registry=registry), RecursiveLeastSquares)
 
 
@@ -352,7 +354,7 @@ def test_the_fixtures_load_through_a_registry_naming_the_old_paths(path):
 
 @pytest.mark.parametrize("kind", sorted(OLD_MODELS))
 def test_a_file_of_each_kind_loads_through_its_old_class_path(kind):
-    params = {"dynamics": PANDA_DYNAMICS} if kind in ("LS", "IEM+phys") else {}
+    params = {"dynamics": NOMINAL_DYNAMICS} if kind in ("LS", "IEM+phys") else {}
     data = dumps(new_model(kind, **params))
     model = loads(data, registry=OLD_MODELS)
     module, _, name = MODELS[kind].partition(":")

@@ -21,11 +21,10 @@ from deploy.cli import main
 from iem import factories
 from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import VERSION, dumps, load_model, loads, new_model
-from sim.arm import ArmParams, arm_record, arm_spec, load_arm, save_arm
+from sim.arm import NOMINAL_DYNAMICS, ArmParams, arm_record, arm_spec, load_arm, save_arm
 from sim.end_effector import NAMED
 from sim.family import PAYLOAD_DIR
 from sim.plant import RealityGap
-from sim.robot import PANDA_DYNAMICS
 
 REVERSAL = "sim.coverage:reversed_velocities"
 
@@ -71,13 +70,13 @@ def evil(tmp_path, monkeypatch):
 
 
 def _physics_file() -> bytes:
-    return dumps(new_model("IEM+phys", dynamics=PANDA_DYNAMICS, ensemble={"reversal": REVERSAL}))
+    return dumps(new_model("IEM+phys", dynamics=NOMINAL_DYNAMICS, ensemble={"reversal": REVERSAL}))
 
 
 def test_the_rewrite_alone_leaves_a_loadable_file():
     """The forgery's CRC rule is the file's: an edit that changes nothing still loads."""
     data = _physics_file()
-    assert loads(rewritten(data, lambda state: None)).dynamics == PANDA_DYNAMICS
+    assert loads(rewritten(data, lambda state: None)).dynamics == NOMINAL_DYNAMICS
 
 
 @pytest.mark.parametrize(("kind", "keys"), [
@@ -91,8 +90,8 @@ def test_the_rewrite_alone_leaves_a_loadable_file():
 def test_a_spec_outside_the_table_is_refused_naming_it_and_nothing_runs(kind, keys, evil,
                                                                        tmp_path):
     specs, witnesses = evil
-    params = {"IEM+phys": {"dynamics": PANDA_DYNAMICS, "ensemble": {"reversal": REVERSAL}},
-              "IEM": {"reversal": REVERSAL}, "LS": {"dynamics": PANDA_DYNAMICS}}[kind]
+    params = {"IEM+phys": {"dynamics": NOMINAL_DYNAMICS, "ensemble": {"reversal": REVERSAL}},
+              "IEM": {"reversal": REVERSAL}, "LS": {"dynamics": NOMINAL_DYNAMICS}}[kind]
     data = dumps(new_model(kind, **params))
     for spec in specs:
         path = tmp_path / "forged.msgpack"
@@ -101,7 +100,7 @@ def test_a_spec_outside_the_table_is_refused_naming_it_and_nothing_runs(kind, ke
             load_model(path)
         message = str(err.value)
         assert str(path) in message and repr(spec) in message
-        assert "valid are" in message and "sim.robot:panda_dynamics" in message
+        assert "valid are" in message and "sim.arm:arm_dynamics" in message
         for witness in witnesses:
             assert not witness.exists()
 
@@ -186,13 +185,13 @@ def test_a_moved_model_runs_with_its_arm_given_from_elsewhere(trained, tmp_path)
     assert model.dynamics == f"sim.arm:arm_dynamics@arm:{arm.crc32:08x}"
     assert model.params()["ensemble"]["reversal"] == f"{REVERSAL}@arm:{arm.crc32:08x}"
     # the physics is the given arm's: its torques, friction and offsets included
-    from sim.robot import PandaModel
+    from sim.robot import ArmModel
 
-    q, dq, ddq = PandaModel().random_state(np.random.default_rng(0))
+    q, dq, ddq = ArmModel().random_state(np.random.default_rng(0))
     from iem.physics.regression import load_dynamics
 
     tau = load_dynamics(model.dynamics)(q, dq, ddq)[0]
-    np.testing.assert_allclose(tau, PandaModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
+    np.testing.assert_allclose(tau, ArmModel(arm=arm).rnea(q, dq, ddq), atol=1e-12)
 
     other_file = tmp_path / "arms" / "other.msgpack"
     save_arm(RealityGap(seed=4).realise(), other_file)
@@ -202,7 +201,9 @@ def test_a_moved_model_runs_with_its_arm_given_from_elsewhere(trained, tmp_path)
                                              rf"arm file other\.msgpack \(CRC32 "
                                              rf"{other.crc32:#010x}"):
         load_model(moved, resources={"arm": other})
-    with pytest.raises(ModelFileError, match=r"arm\.msgpack .* but is run with the nominal arm"):
+    with pytest.raises(ModelFileError,
+                       match=r"arm\.msgpack .* but is run with the default arm model's "
+                             r"nominal arm"):
         load_model(moved)
 
 
@@ -219,10 +220,11 @@ def test_a_model_for_a_tool_on_the_nominal_arm_references_that_arm(tmp_path):
     shutil.move(tool, tmp_path / "elsewhere" / "tool.toml")
     again, _ = load_arm_file(None, str(tmp_path / "elsewhere" / "tool.toml"))  # same content
     assert loads(dumps(model), resources={"arm": again}).dynamics == model.dynamics
-    with pytest.raises(ModelFileError, match=r"trained for the nominal arm with the end "
-                                             r"effector 'tool:[0-9a-f]{8}' \(no arm file\) but "
-                                             r"is run with the nominal arm with the end "
-                                             r"effector 'franka_hand'"):
+    with pytest.raises(ModelFileError, match=r"trained for the default arm model's nominal arm "
+                                             r"with the end effector 'tool:[0-9a-f]{8}' \(no "
+                                             r"arm file\) but is run with the default arm "
+                                             r"model's nominal arm with the end effector "
+                                             r"'franka_hand'"):
         loads(dumps(model))
 
 
@@ -251,7 +253,7 @@ def test_a_file_of_the_previous_version_with_an_absolute_arm_path_loads(trained,
     assert model.ensemble_model.reversal == f"{REVERSAL}@arm:{arm.crc32:08x}"
     assert b"/var/lib" not in dumps(model)
     assert msgpack.unpackb(dumps(model), raw=False)["version"] == VERSION
-    with pytest.raises(ModelFileError, match="but is run with the nominal arm"):
+    with pytest.raises(ModelFileError, match="but is run with the default arm model's nominal arm"):
         loads(old)
 
 
@@ -272,7 +274,7 @@ def test_a_previous_version_file_with_a_tool_path_loads_as_the_nominal_arm_carry
 
 
 def test_a_previous_version_file_naming_an_arm_by_path_without_its_record_is_refused():
-    data = dumps(new_model("LS", dynamics=PANDA_DYNAMICS))
+    data = dumps(new_model("LS", dynamics=NOMINAL_DYNAMICS))
     old = _version_3(data, lambda s: "sim.arm:arm_dynamics@/etc/iem/arm.msgpack")
     with pytest.raises(ModelFileError, match=r"names a file by its path and the model file "
                                              r"records no arm"):
@@ -283,13 +285,13 @@ def test_a_previous_version_file_naming_an_arm_by_path_without_its_record_is_ref
 
 def test_code_may_add_a_factory_a_file_cannot(monkeypatch):
     monkeypatch.setattr(factories, "FACTORIES", dict(factories.FACTORIES))
-    data = dumps(new_model("LS", dynamics=PANDA_DYNAMICS))
-    forged = rewritten(data, setter("params", "dynamics", value="sim.robot:panda_model"))
-    with pytest.raises(ModelFileError, match=r"'sim\.robot:panda_model' is not a factory"):
+    data = dumps(new_model("LS", dynamics=NOMINAL_DYNAMICS))
+    forged = rewritten(data, setter("params", "dynamics", value="sim.robot:stand_in"))
+    with pytest.raises(ModelFileError, match=r"'sim\.robot:stand_in' is not a factory"):
         loads(forged)
-    factories.register_factory("sim.robot:panda_model", "sim.robot:panda_dynamics")
-    assert loads(forged).dynamics == "sim.robot:panda_model"
-    for bad in ("sim.robot.panda_dynamics", "a:b@c", None):
+    factories.register_factory("sim.robot:stand_in", "sim.arm:arm_dynamics")
+    assert loads(forged).dynamics == "sim.robot:stand_in"
+    for bad in ("sim.robot.stand_in", "a:b@c", None):
         with pytest.raises(InvalidInputError, match="must be 'module:function'"):
             factories.register_factory(bad)
 

@@ -673,17 +673,17 @@ def test_new_model_selects_a_kind_by_name():
     from iem.physics import PhysicsInformedEnsemble
 
     assert DEFAULT_MODEL == "IEM+phys" and DEFAULT_MODEL in MODELS
-    from sim.robot import PANDA_DYNAMICS
+    from sim.arm import NOMINAL_DYNAMICS
 
-    assert isinstance(new_model(dynamics=PANDA_DYNAMICS), PhysicsInformedEnsemble)
-    ls = new_model("LS", dynamics=PANDA_DYNAMICS, cutoff_hz=10.0)
+    assert isinstance(new_model(dynamics=NOMINAL_DYNAMICS), PhysicsInformedEnsemble)
+    ls = new_model("LS", dynamics=NOMINAL_DYNAMICS, cutoff_hz=10.0)
     assert isinstance(ls, RecursiveLeastSquares) and ls.cutoff_hz == 10.0
     with pytest.raises(InvalidInputError, match="needs dynamics"):
         new_model("LS", cutoff_hz=10.0)
     with pytest.raises(InvalidInputError, match=r"unknown model kind 'nope'.*IEM\+phys"):
         new_model("nope")
     with pytest.raises(InvalidInputError, match="does not take"):
-        new_model("LS", dynamics=PANDA_DYNAMICS, no_such_option=1)
+        new_model("LS", dynamics=NOMINAL_DYNAMICS, no_such_option=1)
 
 
 # -- the estimators are given their robot's dynamics; a model file stores them ----------------
@@ -712,14 +712,14 @@ def _regression(dynamics):
     ids=["IEM+phys", "LS", "regression", "new_model IEM+phys", "new_model LS"])
 def test_an_estimator_without_dynamics_refuses_saying_what_it_needs(build):
     from iem.errors import InvalidInputError
-    from sim.robot import PANDA_DYNAMICS
+    from sim.arm import NOMINAL_DYNAMICS
 
-    for missing in (None, "sim.robot.panda_dynamics", 3, PANDA_DYNAMICS + "@ARG",
+    for missing in (None, "sim.robot.panda_dynamics", 3, NOMINAL_DYNAMICS + "@ARG",
                     "sim.arm:arm_dynamics@/abs/arm.msgpack", "os:system@true"):
         with pytest.raises(InvalidInputError, match=r"needs dynamics, the robot's model: .*"
-                                                    r"valid are .*sim\.robot:panda_dynamics"):
+                                                    r"valid are .*sim\.arm:arm_dynamics"):
             build(missing)
-    assert build(PANDA_DYNAMICS).dynamics == PANDA_DYNAMICS
+    assert build(NOMINAL_DYNAMICS).dynamics == NOMINAL_DYNAMICS
     named = "sim.arm:nominal_dynamics@none"
     assert build(named).dynamics == named
 

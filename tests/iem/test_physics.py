@@ -22,8 +22,9 @@ from iem.physics.regression import PayloadRegression, impulse_response, noise_ga
 from iem.signals.filters import LowPass2
 from iem.signals.gaps import RESTART
 from iem.types import JointState, PayloadEstimate
+from sim.arm import NOMINAL_DYNAMICS
 from sim.family import test_payloads
-from sim.robot import PANDA_DYNAMICS, PandaModel
+from sim.robot import ArmModel
 
 from .test_checks import DATA
 
@@ -66,7 +67,7 @@ def test_information_form_equals_batch_weighted_least_squares():
     twin = PayloadRegression(FAKE, cutoff_hz=4.0, every=1, settle=-1, decimate=10)
     c = twin.correlation_weight
     prior_cov = np.diag(np.square(DEFAULT_PRIOR_STD) + np.square(PRIOR_FLOOR))
-    kalman = RecursiveLeastSquares(PANDA_DYNAMICS, prior_std=np.sqrt(np.diag(prior_cov)))
+    kalman = RecursiveLeastSquares(NOMINAL_DYNAMICS, prior_std=np.sqrt(np.diag(prior_cov)))
     rows, rhs = [np.linalg.cholesky(np.linalg.inv(prior_cov)).T], [np.zeros(10)]
     checked = 0
     for k, x in enumerate(X):
@@ -115,9 +116,9 @@ def test_estimate_is_the_projected_posterior_with_its_std():
 def test_payload_mass_matrix_is_pinocchios():
     """``M_p``, from the regressor (generic) and from ``J^T I J`` (the Panda's fast path),
     equals CRBA with the payload minus CRBA without."""
-    model = PandaModel()
-    fast = PayloadRegression(PANDA_DYNAMICS)
-    generic = PayloadRegression(PANDA_DYNAMICS)
+    model = ArmModel()
+    fast = PayloadRegression(NOMINAL_DYNAMICS)
+    generic = PayloadRegression(NOMINAL_DYNAMICS)
     f = fast.model()
     generic._f = lambda q, dq, ddq: f(q, dq, ddq)  # no payload_mass_matrix method
     rng = np.random.default_rng(3)
@@ -146,7 +147,7 @@ def test_noiseless_equations_hold_on_the_task_path(new_rollout_noiseless):
     """Same lag on both sides: without noise the 4 Hz equations fit the true payload to a
     small fraction of the noise they are weighted for."""
     ro = new_rollout_noiseless
-    reg = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0, every=10, settle=-1,
+    reg = PayloadRegression(NOMINAL_DYNAMICS, cutoff_hz=4.0, every=10, settle=-1,
                             payload_inertia=True)
     worst = 0.0
     for x in ro.features:
@@ -161,11 +162,11 @@ def test_the_curvature_is_the_second_difference_of_the_robot_torque(new_rollout_
     """Every equation's ``curvature`` is ``tau_robot`` of the last three equations, second
     difference, each ``tau_robot`` recomputed with Pinocchio at the equation's filtered
     state; None for the first two and again after a restart."""
-    from sim.robot import panda_dynamics
+    from sim.arm import arm_dynamics
 
-    dyn = panda_dynamics()
-    reg = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0, every=1, settle=-1, payload_inertia=True,
-                            decimate=10)
+    dyn = arm_dynamics()
+    reg = PayloadRegression(NOMINAL_DYNAMICS, cutoff_hz=4.0, every=1, settle=-1,
+                            payload_inertia=True, decimate=10)
     taus, seen = [], 0
     for k, x in enumerate(new_rollout_noiseless.features[:3000]):
         if k == 2000:
@@ -218,10 +219,10 @@ def test_the_detector_gets_the_equation_with_and_without_its_model_error_the_nis
 @pytest.fixture(scope="module")
 def new_rollout_noiseless():
     from sim.paths import new_task_path
-    from sim.plant import PandaPlant, SensorModel
+    from sim.plant import ArmPlant, SensorModel
 
     payload = test_payloads()["test-3w"]
-    plant = PandaPlant(payload=payload, sensor=SensorModel.noiseless(), controller_load=payload)
+    plant = ArmPlant(payload=payload, sensor=SensorModel.noiseless(), controller_load=payload)
     return plant.follow(new_task_path())
 
 
@@ -402,9 +403,9 @@ def test_an_estimate_is_routed_by_the_samples_values_not_its_array():
 
 def test_bad_parameters_are_errors():
     with pytest.raises(InvalidInputError, match="prior_scale"):
-        PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, prior_scale=0.0)
+        PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, prior_scale=0.0)
     with pytest.raises(InvalidInputError, match="21 values"):
-        PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS).predict_one(np.zeros(7), None)
+        PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS).predict_one(np.zeros(7), None)
 
 
 # -- the change detector -----------------------------------------------------------------
@@ -422,12 +423,12 @@ def test_cusum_accumulates_excess_and_forgets_quiet():
 def switch_rollouts():
     """The new task path with test-3w, plain and with test-4w mounted at 3 s."""
     from sim.paths import new_task_path
-    from sim.plant import PandaPlant
+    from sim.plant import ArmPlant
 
     path = new_task_path()
     p3, p4 = test_payloads()["test-3w"], test_payloads()["test-4w"]
-    plain = PandaPlant(payload=p3, seed=5, controller_load=p3).follow(path)
-    switched = PandaPlant(payload=p3, seed=5, controller_load=p3).follow(path,
+    plain = ArmPlant(payload=p3, seed=5, controller_load=p3).follow(path)
+    switched = ArmPlant(payload=p3, seed=5, controller_load=p3).follow(path,
                                                                          mount={3000: p4})
     return plain, switched
 
@@ -443,7 +444,7 @@ def _points(rollout) -> np.ndarray:
 def _changes(rollout) -> list[int]:
     """Block points at which the physics alone (no bags, the rated-payload prior) reports
     a change."""
-    model = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS)
+    model = PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS)
     out = []
     for k, x in enumerate(_points(rollout)):
         model.observe_one(x, None)
@@ -556,8 +557,8 @@ def test_resume_keeps_the_payload_and_restarts_only_the_filter():
 
 
 def test_lowpass_state_round_trips_through_the_regression_state():
-    reg = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0)
-    other = PayloadRegression(PANDA_DYNAMICS, cutoff_hz=4.0)
+    reg = PayloadRegression(NOMINAL_DYNAMICS, cutoff_hz=4.0)
+    other = PayloadRegression(NOMINAL_DYNAMICS, cutoff_hz=4.0)
     rng = np.random.default_rng(0)
     for x in rng.normal(size=(10, 21)):
         reg._lp(x)
@@ -574,7 +575,7 @@ def test_every_output_is_physically_consistent():
 
     from .test_consistency import _payload_ok
 
-    model = _trained(dynamics=PANDA_DYNAMICS)
+    model = _trained(dynamics=NOMINAL_DYNAMICS)
     rng = np.random.default_rng(8)
     junk = DATA.X[rng.integers(0, DATA.n, 3000)] + rng.normal(0.0, 1.0, (3000, 21))
     flanges = DATA.F[rng.integers(0, DATA.n, 3000)]
@@ -691,7 +692,7 @@ def test_a_live_model_spreads_its_heavy_work_one_job_per_sample(monkeypatch):
     flanges = DATA.F[rng.integers(0, DATA.n, 1500)]
     heavy = {}
     for budget in (0, 1):
-        model = _trained(dynamics=PANDA_DYNAMICS, rate_hz=1000.0, update_every=10,
+        model = _trained(dynamics=NOMINAL_DYNAMICS, rate_hz=1000.0, update_every=10,
                          point_frames=1)
         model.project_budget = budget
         per_sample, made, estimates = _spread_run(model, junk, flanges, monkeypatch)
@@ -722,7 +723,7 @@ def test_a_live_model_estimates_what_the_at_once_model_does(switch_rollouts):
     _, switched = switch_rollouts
     runs, changes = {}, {}
     for budget in (0, 4):
-        model = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, project_budget=budget)
+        model = PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, project_budget=budget)
         phis, changes[budget] = [], []
         for k, x in enumerate(_points(switched)):
             model.observe_one(x, None)
@@ -736,7 +737,7 @@ def test_a_live_model_estimates_what_the_at_once_model_does(switch_rollouts):
     settled = np.r_[50:300, changes[4][0] + 50:len(runs[4])]
     gap = np.abs(runs[4][settled, 0] - runs[0][settled, 0])
     assert 0.0 < gap.max() < 4e-3, gap.max()
-    budgeted = PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, project_budget=3)
+    budgeted = PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, project_budget=3)
     assert budgeted.params()["project_budget"] == 3
     with pytest.raises(InvalidInputError, match="project_budget"):
-        PhysicsInformedEnsemble(dynamics=PANDA_DYNAMICS, project_budget=-1)
+        PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, project_budget=-1)

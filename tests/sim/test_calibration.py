@@ -23,8 +23,8 @@ from sim.calibration import CalibrationSettings as Settings
 from sim.calibration.excitation import regressors
 from sim.family import default_test_payload
 from sim.paths import Q0, calibration_path, excitation_path, linear_path, rest_path
-from sim.plant import PandaPlant, RealityGap
-from sim.robot import PandaModel, nominal_link_params
+from sim.plant import ArmPlant, RealityGap
+from sim.robot import ArmModel, nominal_link_params
 from tests.can_logs import write_log
 from tests.real_data import real_recording
 
@@ -41,7 +41,7 @@ def prepare(t, q, dq, tau):
 
 @pytest.fixture(scope="module")
 def bare():
-    plant = PandaPlant(gap=GAP, seed=101)  # noise seed of its own
+    plant = ArmPlant(gap=GAP, seed=101)  # noise seed of its own
     return plant, plant.follow(calibration_path())
 
 
@@ -66,7 +66,7 @@ def test_recovers_gaz_friction_of_a_gaz_arm():
     """On an arm with Gaz's friction alone the full model finds Gaz's parameters (measured:
     phi1 within 2 %, phi2 within 3 %) and no viscous or Stribeck friction to speak of."""
     gaz = RealityGap(seed=3, viscous=0.0, stribeck=0.0).modelled_only()  # Gaz's friction alone
-    plant = PandaPlant(gap=gaz, seed=101)
+    plant = ArmPlant(gap=gaz, seed=101)
     r = plant.follow(calibration_path(20.0))
     arm, truth = calibrate(r.t, r.q, r.dq, r.tau), plant.arm
     np.testing.assert_allclose(arm.friction[:, 0], truth.friction[:, 0], rtol=0.04)
@@ -80,12 +80,12 @@ def test_recovers_the_excited_base_parameters(bare, arm):
     truth = bare[0].arm
     nominal = nominal_link_params().ravel()
     sd = link_prior_std(nominal, Settings())
-    basis = np.linalg.qr(base_basis(PandaModel().model) / sd[:, None])[0]
+    basis = np.linalg.qr(base_basis(ArmModel().model) / sd[:, None])[0]
     # the excited base directions: where the recorded motion tells 100 times more than the
     # prior (prior-scaled units, eigenvectors of the data's information)
     _, r = bare
     _t, q, dq, ddq, _tau = prepare(r.t, r.q, r.dq, r.tau)
-    A = regressors(PandaModel().model, q, dq, ddq).reshape(-1, 70) @ (sd[:, None] * basis)
+    A = regressors(ArmModel().model, q, dq, ddq).reshape(-1, 70) @ (sd[:, None] * basis)
     lam, vec = np.linalg.eigh(A.T @ A / Settings().sigma_tau ** 2)
     excited = vec[:, lam > 100.0]
     assert excited.shape[1] >= 20  # of 43 (the others stay near their prior)
@@ -98,7 +98,7 @@ def test_recovers_the_excited_base_parameters(bare, arm):
     assert np.linalg.norm(err) < 0.6 * np.linalg.norm(gap)
     # and the arm model predicts the true arm's torques on a motion it never saw
     path = excitation_path(20.0, seed=4)
-    true_model, cal_model, nom_model = (PandaModel(arm=a) for a in (truth, arm, None))
+    true_model, cal_model, nom_model = (ArmModel(arm=a) for a in (truth, arm, None))
     ks = range(0, len(path), 20)
     diff = np.array([cal_model.rnea(path.q[k], path.dq[k], path.ddq[k])
                      - true_model.rnea(path.q[k], path.dq[k], path.ddq[k]) for k in ks])
@@ -127,7 +127,7 @@ def test_refuses_traffic_that_does_not_excite():
     q1[:3] += 0.9
     path = rest_path(Q0, 1.0).then(linear_path(Q0, q1, 4.0)).then(
         linear_path(q1, Q0, 4.0)).then(rest_path(Q0, 1.0))
-    r = PandaPlant(gap=GAP, seed=5).follow(path)
+    r = ArmPlant(gap=GAP, seed=5).follow(path)
     with pytest.raises(CalibrationError) as err:
         calibrate(r.t, r.q, r.dq, r.tau)
     text = str(err.value)
@@ -139,7 +139,7 @@ def test_refuses_traffic_that_does_not_excite():
 
 
 def test_warns_when_a_payload_is_mounted():
-    r = PandaPlant(gap=GAP, seed=7, payload=default_test_payload()).follow(calibration_path())
+    r = ArmPlant(gap=GAP, seed=7, payload=default_test_payload()).follow(calibration_path())
     arm = calibrate(r.t, r.q, r.dq, r.tau)
     assert any("payload" in w for w in arm.report["warnings"])
 
@@ -211,7 +211,7 @@ def test_never_worse_than_nominal_on_a_viscous_arm():
     on this seed; the full friction model, fitted by Levenberg-Marquardt inside bounds,
     brings every joint to the noise's floor (measured 0.007-0.020 N·m)."""
     gap = RealityGap(seed=7, stribeck=0.0, viscous=1.0).modelled_only()
-    r = PandaPlant(gap=gap, seed=107).follow(calibration_path(20.0))
+    r = ArmPlant(gap=gap, seed=107).follow(calibration_path(20.0))
     arm = calibrate(r.t, r.q, r.dq, r.tau)
     before, after = np.array(arm.report["rms_before"]), np.array(arm.report["rms_after"])
     assert before[4] > 0.8  # the joint the old fit made worse
@@ -226,7 +226,7 @@ def test_the_guard_undoes_a_fit_that_is_worse_than_nominal(bare, arm):
     keeps the nominal bodies: no joint ends worse, and the warnings name the joints."""
     _, r = bare
     _t, q, dq, ddq, tau = prepare(r.t, r.q, r.dq, r.tau)
-    W = regressors(PandaModel().model, q, dq, ddq)
+    W = regressors(ArmModel().model, q, dq, ddq)
     theta0 = nominal_link_params()
     nominal = np.sqrt(np.mean((tau - W @ theta0.ravel()) ** 2, axis=0))
 
@@ -296,7 +296,7 @@ def test_never_worse_than_nominal_on_the_real_recording():
     _t, qh, dqh, ddqh, tauh = prepare(t[cut:], q[cut:], dq[cut:], tau[cut:])
     held = {}
     for name, a in (("nominal", Arm.nominal("none")), ("calibrated", arm)):
-        model = PandaModel(arm=a)
+        model = ArmModel(arm=a)
         res = tauh - np.array([model.rnea(qh[k], dqh[k], ddqh[k]) for k in range(len(qh))])
         held[name] = np.sqrt(np.mean(res ** 2, axis=0))
     assert np.all(held["calibrated"] < held["nominal"]), held

@@ -6,9 +6,9 @@ import pytest
 from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import check_arm
 from sim.arm import ArmParams, arm_record, load_arm, save_arm
-from sim.end_effector import check_same, end_effector, link7_params
+from sim.end_effector import check_same, end_effector
 from sim.payload import Payload, save_payload
-from sim.robot import PandaModel, nominal_link_params
+from sim.robot import ArmModel, link7_params, nominal_link_params
 
 
 def test_franka_hand_is_the_nominal_model_to_the_bit():
@@ -23,7 +23,7 @@ def test_none_is_link7_alone_and_the_hand_is_its_0_76_kg():
     assert np.array_equal(bare[:6], nominal_link_params()[:6])
     hand = end_effector("franka_hand")
     assert hand.mass == pytest.approx(0.73 + 2 * 0.015, abs=1e-9)  # hand and two fingers
-    assert np.allclose(link7_params() + hand.params, nominal_link_params()[6])
+    assert np.allclose(link7_params() + hand.params(), nominal_link_params()[6])
 
 
 def test_a_tool_file_is_a_payload_fused_into_body_7(tmp_path):
@@ -34,8 +34,8 @@ def test_a_tool_file_is_a_payload_fused_into_body_7(tmp_path):
     save_payload(tool, path)
     ee = end_effector(str(path))
     assert ee.label.startswith("gripper:") and ee.mass == pytest.approx(0.9)
-    with_tool = PandaModel(arm=ArmParams.nominal(ee))
-    bare = PandaModel(arm=ArmParams.nominal("none"))
+    with_tool = ArmModel(arm=ArmParams.nominal(ee))
+    bare = ArmModel(arm=ArmParams.nominal("none"))
     rng = np.random.default_rng(3)
     for _ in range(5):
         q, dq, ddq = bare.random_state(rng)

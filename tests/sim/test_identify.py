@@ -1,7 +1,7 @@
 """``sim.identify``: the offline identification core, on joint-state arrays.
 
 Independent truth: the torques are Pinocchio's RNEA of the arm with the payload mounted as a
-body on link 7 (``PandaModel.rnea_with_payload``'s way: the payload's inertia added to the
+body on link 7 (``ArmModel.rnea_with_payload``'s way: the payload's inertia added to the
 link's, no regressor involved) and of the arm without it, on the same motion, plus seeded
 sensor noise. The perturbed arm is a copy of the Pinocchio model whose links differ from the
 nominal one (mass ±5 %, CoM ±5 mm, inertia ±10 %), with Gaz et al.'s link-side friction and
@@ -27,7 +27,7 @@ from sim.identify import (
 )
 from sim.paths import Q0, excitation_path, new_task_path, rest_path
 from sim.payload import Payload
-from sim.robot import PandaModel
+from sim.robot import ArmModel
 
 # Gaz et al. 2019, link-side friction of the Panda (see the GUIDE)
 GAZ_PHI1 = np.array([0.546, 0.872, 0.641, 1.279, 0.839, 0.303, 0.565])
@@ -49,7 +49,7 @@ class Arm:
 
     def __init__(self, gap_seed: int | None = None, friction: bool = False,
                  offsets: bool = False) -> None:
-        base = PandaModel()
+        base = ArmModel()
         self.model = base.model.copy()
         self.last = base.last_joint
         self.base = base

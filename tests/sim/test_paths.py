@@ -24,7 +24,7 @@ from sim.paths import (
     rest_path,
     save_path_csv,
 )
-from sim.robot import panda
+from sim.robot import arm_model
 
 H = 1.0 / RATE_HZ
 DELTA = math.radians(30.0)  # the paper's joint-space threshold, rad
@@ -45,7 +45,7 @@ class BagRouter:
         return len(self.counts)
 
     def route(self, Q: np.ndarray) -> BagRouter:
-        X = panda().flange_positions(Q)
+        X = arm_model().flange_positions(Q)
         for q, x in zip(Q, X, strict=True):
             best, best_d = -1, math.inf
             for s, (qm, xm) in enumerate(zip(self.q_means, self.x_means, strict=True)):
@@ -151,7 +151,7 @@ def test_new_task_is_analytically_consistent(new_task):
 @pytest.mark.parametrize("which", ["excitation", "new_task"])
 def test_paths_within_limits_with_margin(which, request):
     p = request.getfixturevalue(which)
-    m = panda()
+    m = arm_model()
     assert p.check_limits() is p
     assert np.all(np.abs(p.dq).max(axis=0) <= 0.8 * m.dq_max)
     assert np.all(np.abs(p.ddq).max(axis=0) <= 0.8 * m.ddq_max)
@@ -181,7 +181,7 @@ def test_excitation_is_seeded():
 @pytest.mark.parametrize("duration", [1.0, 7.3, 10.0])
 def test_excitation_other_durations_stay_in_limits_and_at_rest(duration):
     p = excitation_path(duration, seed=1)
-    m = panda()
+    m = arm_model()
     assert p.duration == pytest.approx(duration)
     assert np.all(np.abs(p.dq) <= 0.8 * m.dq_max)
     assert np.all(np.abs(p.ddq) <= 0.8 * m.ddq_max)
@@ -236,7 +236,7 @@ def test_new_task_leaves_the_excitation_bags(routed):
 
 def test_no_new_task_point_falls_inside_an_excitation_bag(excitation, new_task):
     router = BagRouter().route(excitation.q)
-    flange = panda().flange_positions(new_task.q)
+    flange = arm_model().flange_positions(new_task.q)
     for q, x in zip(new_task.q, flange, strict=True):
         for qm, xm in zip(router.q_means, router.x_means, strict=True):
             assert not (math.dist(q, qm) < DELTA and math.dist(x, xm) < RHO)
@@ -284,9 +284,9 @@ def test_first_violation_in_time_is_reported(short):
 
 def test_limits_from_a_given_model(short):
     class Tight:
-        q_min, q_max = panda().q_min, panda().q_max
+        q_min, q_max = arm_model().q_min, arm_model().q_max
         dq_max = np.full(7, 1e-3)
-        ddq_max = panda().ddq_max
+        ddq_max = arm_model().ddq_max
 
     p = _with(short, "dq", 10, 2, 0.01)
     p.check_limits()

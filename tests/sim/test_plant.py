@@ -8,8 +8,8 @@ from iem.errors import PayloadError
 from sim.family import default_test_payload, test_payloads
 from sim.paths import new_task_path
 from sim.payload import Payload
-from sim.plant import PandaPlant, RealityGap, SensorModel, build_mujoco_model
-from sim.robot import PandaModel
+from sim.plant import ArmPlant, RealityGap, SensorModel, build_mujoco_model
+from sim.robot import ArmModel
 
 
 @pytest.fixture(scope="module")
@@ -19,12 +19,12 @@ def path():
 
 @pytest.fixture(scope="module")
 def model():
-    return PandaModel()
+    return ArmModel()
 
 
 def test_tau_matches_rnea_with_payload_along_new_task_path(path, model):
     payload = default_test_payload()
-    plant = PandaPlant(payload=payload, sensor=SensorModel.noiseless())
+    plant = ArmPlant(payload=payload, sensor=SensorModel.noiseless())
     plant.reset(path.q[0], path.dq[0])
     phi = payload.to_phi()
     worst = 0.0
@@ -39,7 +39,7 @@ def test_tau_matches_rnea_with_payload_along_new_task_path(path, model):
 def test_mujoco_inverse_dynamics_matches_pinocchio_with_runtime_payload_change(model):
     mj = build_mujoco_model()
     data = mujoco.MjData(mj)
-    plant = PandaPlant(payload=None, sensor=SensorModel.noiseless())
+    plant = ArmPlant(payload=None, sensor=SensorModel.noiseless())
     rng = np.random.default_rng(1)
     for payload in [*test_payloads().values(), None]:
         plant.set_payload(payload)
@@ -55,7 +55,7 @@ def test_mujoco_inverse_dynamics_matches_pinocchio_with_runtime_payload_change(m
 
 
 def test_no_contacts_and_no_limits():
-    plant = PandaPlant()
+    plant = ArmPlant()
     flags = plant.model.opt.disableflags
     assert flags & mujoco.mjtDisableBit.mjDSBL_CONTACT
     assert flags & mujoco.mjtDisableBit.mjDSBL_LIMIT
@@ -68,21 +68,21 @@ def test_no_contacts_and_no_limits():
 
 def test_payload_change_between_steps_takes_effect(path):
     heavy = test_payloads()["test-4w"]
-    plant = PandaPlant(payload=None, sensor=SensorModel.noiseless())
+    plant = ArmPlant(payload=None, sensor=SensorModel.noiseless())
     plant.reset(path.q[0])
     before = plant.step(path.q[0], np.zeros(7), np.zeros(7)).tau_J
     plant.set_payload(heavy)
     plant.set_controller_load(heavy)
     after = plant.step(path.q[0], np.zeros(7), np.zeros(7)).tau_J
     # at rest the extra torque is gravity on the payload: Y(q, 0, 0) @ phi
-    y = PandaModel().payload_regressor(plant.last_q, plant.last_dq, plant.last_ddq)
+    y = ArmModel().payload_regressor(plant.last_q, plant.last_dq, plant.last_ddq)
     assert np.abs(after - before).max() > 1.0
     np.testing.assert_allclose(after - before, y @ heavy.to_phi(), atol=1e-3)
 
 
 def test_sensor_noise_is_seeded_and_has_the_documented_spread(path):
     def run(seed):
-        plant = PandaPlant(payload=default_test_payload(), seed=seed)
+        plant = ArmPlant(payload=default_test_payload(), seed=seed)
         plant.reset(path.q[0])
         rows = []
         for k in range(2000):
@@ -103,7 +103,7 @@ def test_sensor_noise_is_seeded_and_has_the_documented_spread(path):
 
 def test_reality_gap_changes_the_plant_not_the_nominal_model(path, model):
     gap = RealityGap(seed=1)
-    plant = PandaPlant(sensor=SensorModel.noiseless(), gap=gap)
+    plant = ArmPlant(sensor=SensorModel.noiseless(), gap=gap)
     plant.reset(path.q[0])
     s = plant.step(path.q[0], np.zeros(7), np.zeros(7))
     # at rest on target the command is the nominal model's gravity torque (read through
@@ -125,7 +125,7 @@ def test_controller_load_improves_tracking(path):
     payload = test_payloads()["test-4w"]
     errors = {}
     for label, load in (("none", None), ("true", payload)):
-        plant = PandaPlant(payload=payload, sensor=SensorModel.noiseless(), controller_load=load)
+        plant = ArmPlant(payload=payload, sensor=SensorModel.noiseless(), controller_load=load)
         out = plant.follow(path)
         errors[label] = np.abs(out.q_ref - out.q_true)[500:].max()  # rad, worst joint
     # with the true load only the 1 ms Euler discretisation is left (about 1e-5 rad)
@@ -134,7 +134,7 @@ def test_controller_load_improves_tracking(path):
 
 
 def test_follow_records_consistent_rollout(path):
-    plant = PandaPlant(payload=default_test_payload(), seed=0)
+    plant = ArmPlant(payload=default_test_payload(), seed=0)
     out = plant.follow(path.slice(0.0, 0.5))  # both ends included
     assert len(out) == 501 and out.features.shape == (501, 21)
     np.testing.assert_allclose(np.diff(out.t), 1e-3)
@@ -146,7 +146,7 @@ def test_follow_mounts_payloads_at_given_samples(path, model):
     unchanged."""
     p3, p4 = default_test_payload(), test_payloads()["test-4w"]
     short = path.slice(0.0, 0.2)
-    plant = PandaPlant(payload=p3, sensor=SensorModel.noiseless(), controller_load=p3)
+    plant = ArmPlant(payload=p3, sensor=SensorModel.noiseless(), controller_load=p3)
     out = plant.follow(short, mount={100: p4})
     assert plant.payload is p4 and plant.controller_load is p3
     for k, phi in ((99, p3.to_phi()), (100, p4.to_phi()), (200, p4.to_phi())):
@@ -155,6 +155,6 @@ def test_follow_mounts_payloads_at_given_samples(path, model):
 
 
 def test_inconsistent_payload_is_rejected():
-    plant = PandaPlant()
+    plant = ArmPlant()
     with pytest.raises(PayloadError, match="positive definite"):
         plant.set_payload(Payload("bad", 1.0, (0, 0, 0), (-1, 0, 0, 1, 0, 1)))

@@ -6,7 +6,7 @@ import pinocchio as pin
 import pytest
 
 from sim.plant import build_mujoco_model
-from sim.robot import PAPER_TO_PIN, PandaModel, phi_to_pin
+from sim.robot import PAPER_TO_PIN, ArmModel, phi_to_pin
 
 
 def phi_from_pin(params: np.ndarray) -> np.ndarray:
@@ -17,7 +17,7 @@ def phi_from_pin(params: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def model():
-    return PandaModel()
+    return ArmModel()
 
 
 def random_phi(rng):
@@ -32,12 +32,11 @@ def random_phi(rng):
     return np.array([m, *(m * c), io[0, 0], io[0, 1], io[0, 2], io[1, 1], io[1, 2], io[2, 2]])
 
 
-def test_seven_dof_with_flange_and_tcp(model):
+def test_seven_dof_with_flange(model):
     assert model.model.nq == 7 and model.model.nv == 7
     flange = model.model.frames[model.flange_id]
     assert flange.name == "panda_link8"
     np.testing.assert_allclose(flange.placement.translation, [0, 0, 0.107])
-    assert model.model.frames[model.tcp_id].name == "panda_hand_tcp"
 
 
 def test_regressor_equals_rnea_difference_at_100_states(model):

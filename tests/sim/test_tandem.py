@@ -5,7 +5,7 @@ import pytest
 
 from iem.errors import InvalidInputError
 from sim.family import training_payloads
-from sim.robot import PandaModel
+from sim.robot import ArmModel
 from sim.tandem import TandemSimulators
 
 
@@ -15,7 +15,7 @@ def tandem():
 
 
 def test_samples_equal_per_payload_rnea(tandem):
-    model = PandaModel()
+    model = ArmModel()
     rng = np.random.default_rng(11)
     payloads = training_payloads()
     for _ in range(5):
