@@ -20,6 +20,8 @@ from iem.persistence import DEFAULT_MODEL
 from iem.signals.filters import DEFAULT_CUTOFF_HZ
 from iem.signals.smoothing import DEFAULT_TAU_S
 
+# the [arm] section's checks, which read the arm model (a sim module): deploy/arm_config.py
+from .arm_config import arm_model_of, with_description, with_end_effector, with_rated_payload
 from .gate_config import RANGES as GATE_RANGES
 from .gate_config import GateConfig
 
@@ -341,7 +343,7 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
     if link.kind == "replay" and not FsPath(link.channel).suffix:
         raise ConfigError(f"{where}: [link] channel = {link.channel!r}: a replay channel is "
                           "a log file (.blf, .log, .asc or .trc)")
-    built["arm"] = _arm_model(built["arm"], link, built["ros2"], where)
+    built["arm"] = arm_model_of(built["arm"], link, built["ros2"], where)
     ee = built["arm"].end_effector
     if ee not in ("", "franka_hand", "none") and not ee.endswith(".toml"):
         raise ConfigError(f"{where}: [arm] end_effector = {ee!r} is not valid; valid are "
@@ -349,67 +351,10 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                           "the tool on the flange")
     cfg = CellConfig(**built, source=where)
     if "rated_mass_kg" not in doc.get("gate", {}):
-        cfg = _with_rated_payload(cfg)
+        cfg = with_rated_payload(cfg)
     if not FsPath(cfg.arm.model).suffix or FsPath(cfg.arm.model).is_absolute():
-        cfg = _with_description(cfg)  # a relative description file: once load_config found it
+        cfg = with_description(cfg)  # a relative description file: once load_config found it
     return cfg
-
-
-def _arm_model(arm: ArmConfig, link: LinkConfig, ros2: Ros2Config, where: str) -> ArmConfig:
-    """``[arm]`` with its model named: "" resolved by the link (:class:`ArmConfig`); the
-    ``franka`` link refuses another arm model than the FR3."""
-    model = arm.model
-    if not model:
-        model = "fr3" if link.kind == "franka" or (link.kind == "ros2"
-                                                  and ros2.joints == "fr3") else "panda"
-    if link.kind == "franka" and model != "fr3":
-        raise ConfigError(f"{where}: [arm] model = {model!r} with [link] kind = 'franka': "
-                          "libfranka (>= 0.10, pylibfranka) serves the FR3 only; set model = "
-                          "'fr3', or serve a Panda through another link")
-    return replace(arm, model=model)
-
-
-def _with_description(cfg: CellConfig) -> CellConfig:
-    """``cfg`` with its arm model read and checked (:mod:`sim.description`), the end
-    effector's default taken from it, and the end effector's mass counted on the gate."""
-    try:
-        desc = cfg.arm.description()
-    except (InvalidInputError, OSError) as exc:
-        raise ConfigError(f"{cfg.source}: [arm] model = {cfg.arm.model!r}: {exc}") from exc
-    if not cfg.arm.end_effector:
-        cfg = replace(cfg, arm=replace(cfg.arm, end_effector=desc.default_end_effector))
-    ee = cfg.arm.end_effector
-    if ee in ("franka_hand", "none") or FsPath(ee).is_absolute():
-        cfg = _with_end_effector(cfg)  # a relative tool file: once load_config found it
-    return cfg
-
-
-def _with_rated_payload(cfg: CellConfig) -> CellConfig:
-    """``cfg`` whose gate's ``rated_mass_kg`` is the arm model's rated payload (a named arm
-    model's datasheet); an arm model from a file has none: the key must be set."""
-    from sim.description import BUILTINS
-
-    builtin = BUILTINS.get(cfg.arm.model)
-    if builtin is None:
-        raise ConfigError(f"{cfg.source}: [arm] model = {cfg.arm.model!r} gives no rated "
-                          "payload; set [gate] rated_mass_kg to the arm maker's rated payload, "
-                          "kg")
-    return replace(cfg, gate=replace(cfg.gate, rated_mass_kg=builtin.rated_payload_kg))
-
-
-def _with_end_effector(cfg: CellConfig) -> CellConfig:
-    """``cfg`` whose gate counts the declared end effector's mass against the rating."""
-    from sim.end_effector import end_effector
-
-    try:
-        mass = end_effector(cfg.arm.end_effector).mass
-    except (InvalidInputError, OSError) as exc:
-        raise ConfigError(f"{cfg.source}: [arm] end_effector = {cfg.arm.end_effector!r}: "
-                          f"{exc}") from exc
-    if mass + 0.01 > cfg.gate.rated_mass_kg:
-        raise ConfigError(f"{cfg.source}: [arm] end_effector weighs {mass:.3f} kg, which leaves "
-                          f"no payload within [gate] rated_mass_kg = {cfg.gate.rated_mass_kg:g}")
-    return replace(cfg, gate=replace(cfg.gate, end_effector_mass_kg=mass))
 
 
 def load_config(path) -> CellConfig:
@@ -441,12 +386,12 @@ def load_config(path) -> CellConfig:
     model = cfg.arm.model
     if FsPath(model).suffix and not FsPath(model).is_absolute():
         cfg = replace(cfg, arm=replace(cfg.arm, model=str(path.parent / model)))
-        cfg = _with_description(cfg)  # the description file, found from the file's folder
+        cfg = with_description(cfg)  # the description file, found from the file's folder
     ee = cfg.arm.end_effector
     if ee not in ("franka_hand", "none") and not FsPath(ee).is_absolute():
         cfg = replace(cfg, arm=replace(cfg.arm, end_effector=str(path.parent / ee)))
     if ee not in ("franka_hand", "none"):
-        cfg = _with_end_effector(cfg)  # the tool file, found from the file's folder
+        cfg = with_end_effector(cfg)  # the tool file, found from the file's folder
     initial = cfg.estimate.initial_payload
     if initial and not FsPath(initial).is_absolute():
         cfg = replace(cfg, estimate=replace(cfg.estimate,

@@ -26,7 +26,7 @@ nominal model that the controller, the tandem simulators and the estimators use,
 from one seed. Part of it an arm model describes (:meth:`RealityGap.realise` gives it as
 :class:`sim.arm.ArmParams`, what a perfect calibration would find): link masses, CoMs and
 inertias, joint friction (Coulomb, viscous and Stribeck, per direction:
-:func:`sim.arm.friction_torque`) and torque-sensor offsets. MuJoCo integrates the perturbed
+:func:`sim.friction.friction_torque`) and torque-sensor offsets. MuJoCo integrates the perturbed
 links under the applied torque minus the friction; the measured ``tau_J`` is the applied
 torque plus the offset, so that ``tau_J = RNEA_arm(q, dq, ddq) + tau_f(dq) + offset``
 (``ArmModel(arm=...).rnea``). The rest no arm model here describes
@@ -47,7 +47,8 @@ import pinocchio as pin
 from iem.sensor import SensorModel
 from iem.types import JointState
 
-from .arm import ArmParams, friction_torque
+from .arm import ArmParams
+from .friction import friction_torque
 from .mujoco_model import DT, PAYLOAD_BODY, build_mujoco_model, payload_principal
 from .payload import Payload
 from .reality_gap import RealityGap, Unmodelled
@@ -78,7 +79,7 @@ class Gains:
 
 
 def _has_friction(friction: np.ndarray) -> bool:
-    """Whether a friction array (:func:`sim.arm.friction_torque`) gives any torque."""
+    """Whether a friction array (:func:`sim.friction.friction_torque`) gives any torque."""
     amplitudes = (0, 3, 4, 5, 6) if friction.shape[1] > 3 else (0,)
     return bool(np.any(friction[:, amplitudes]))
 

@@ -11,8 +11,9 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from .arm import GAZ_PHI, ArmParams, full_friction
+from .arm import ArmParams
 from .description import described
+from .friction import GAZ_PHI, full_friction
 from .mujoco_model import build_mujoco_model
 
 
@@ -25,7 +26,7 @@ class Unmodelled:
         tau_f(dq) (1 + load |tau| / tau_max) (1 - warmup (1 - exp(-t / WARMUP_S)))
         + sum_i ripple_i sin(wavenumber_i q + ripple_phase_i)
 
-    (``tau_f`` the arm's friction, :func:`sim.arm.friction_torque`; two ripples, a slow and
+    (``tau_f`` the arm's friction, :func:`sim.friction.friction_torque`; two ripples, a slow and
     a fast one), and the torque sensor reads
     ``(1 + gain) tau + drift sin(2 pi t / drift_period + drift_phase)`` plus the arm's
     constant offset.
@@ -95,8 +96,9 @@ class RealityGap:
     - per link body (``panda_link1..7``, each in its own frame): the mass scaled by
       ``1 + mass_rel u``, the principal moments about the CoM by ``1 + inertia_rel u`` (each,
       principal axes kept), the CoM moved by ``com_abs u`` per axis, ``u ~ U(-1, 1)``;
-    - per joint, friction (:func:`sim.arm.friction_torque`): Gaz's (:data:`sim.arm.GAZ_PHI`)
-      with each of ``phi1, phi2, phi3`` multiplied by a factor drawn in ``friction_factor``;
+    - per joint, friction (:func:`sim.friction.friction_torque`): Gaz's
+      (:data:`sim.friction.GAZ_PHI`) with each of ``phi1, phi2, phi3`` multiplied by a factor
+      drawn in ``friction_factor``;
       viscous friction ``U(0, viscous)`` N·m·s/rad, and a Stribeck excess
       ``U(0, stribeck) phi1`` at a Stribeck velocity ``U(*stribeck_vs)``, each drawn for
       either direction of motion;

@@ -6,7 +6,7 @@ Model of the measured link-side torque of the bare arm (no payload)::
 
 ``W`` is Pinocchio's joint-torque regressor (``computeJointTorqueRegressor``, 7 x 70: ten
 dynamic parameters per joint body), ``theta`` the bodies' parameters, ``tau_f`` the arm's
-friction (:func:`sim.arm.friction_torque`: Gaz's Coulomb sigmoid, viscous and Stribeck
+friction (:func:`sim.friction.friction_torque`: Gaz's Coulomb sigmoid, viscous and Stribeck
 friction, per direction of motion; nine parameters per joint) and ``offset`` one constant
 per torque sensor.
 
@@ -38,7 +38,7 @@ Steps (:func:`calibrate`):
    0.1 +- 0.1 rad/s; offsets 0 +- 0.5 N·m) regularises the least squares, so the
    directions the motion does not excite stay nominal and the excited ones follow the data.
    Friction is non-linear in ``phi2, phi3`` and the Stribeck velocities: each iteration
-   linearises it at the current parameters (:func:`sim.arm.friction_jacobian`) and solves
+   linearises it at the current parameters (:func:`sim.friction.friction_jacobian`) and solves
    the damped linear MAP problem for all unknowns at once (70 + 63 + 7); a step is taken
    only if it lowers the posterior's cost, the damping grows until one does (Nielsen's
    rule), and the friction stays inside :data:`FRICTION_BOUNDS` (:func:`.fit.fit_map`). (The

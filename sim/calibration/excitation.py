@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import qr
 
-from ..arm import FRICTION_COLUMNS, friction_jacobian
+from ..friction import FRICTION_COLUMNS, friction_jacobian
 from ..robot import ArmModel
 from .prior import CalibrationError
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arm import friction_jacobian, friction_torque
+from ..friction import friction_jacobian, friction_torque
 from .prior import FRICTION_BOUNDS, CalibrationSettings
 
 

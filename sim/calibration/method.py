@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arm import ArmParams, friction_torque
+from ..arm import ArmParams
+from ..friction import friction_torque
 from ..robot import ArmModel, nominal_link_params
 from .consistency import consistent, consistent_map
 from .excitation import (

@@ -11,7 +11,7 @@ import pinocchio as pin
 
 from iem.errors import InvalidInputError
 
-from ..arm import FRICTION_COLUMNS, GAZ_PHI, full_friction
+from ..friction import FRICTION_COLUMNS, GAZ_PHI, full_friction
 
 
 class CalibrationError(InvalidInputError):
@@ -85,9 +85,9 @@ def link_prior_std(params: np.ndarray, s: CalibrationSettings) -> np.ndarray:
 
 def friction_prior(s: CalibrationSettings) -> tuple[np.ndarray, np.ndarray]:
     """The friction prior ``(centre (7, 9), standard deviation (7, 9))``
-    (:data:`sim.arm.FRICTION_COLUMNS`): Gaz's sigmoid at Gaz's values (``friction_rel`` of
+    (:data:`sim.friction.FRICTION_COLUMNS`): Gaz's sigmoid at Gaz's values (``friction_rel`` of
     each as deviation), no viscous friction (``viscous_std``), no Stribeck excess
-    (``stribeck_std``) at :data:`sim.arm.STRIBECK_VS` (``stribeck_vs_std``)."""
+    (``stribeck_std``) at :data:`sim.friction.STRIBECK_VS` (``stribeck_vs_std``)."""
     centre = full_friction(GAZ_PHI)
     sd = np.empty((7, len(FRICTION_COLUMNS)))
     sd[:, :3] = s.friction_rel * np.abs(GAZ_PHI)

@@ -9,7 +9,7 @@ import pytest
 
 from deploy.cli import main
 from iem.errors import ModelFileError
-from sim.arm import ArmParams, friction_torque, load_arm, save_arm
+from sim.arm import ArmParams, load_arm, save_arm
 from sim.calibration import (
     CalibrationError,
     base_basis,
@@ -22,6 +22,7 @@ from sim.calibration import (
 from sim.calibration import CalibrationSettings as Settings
 from sim.calibration.excitation import regressors
 from sim.family import default_test_payload
+from sim.friction import friction_torque
 from sim.paths import Q0, calibration_path, excitation_path, linear_path, rest_path
 from sim.plant import ArmPlant, RealityGap
 from sim.robot import ArmModel, nominal_link_params

@@ -7,20 +7,18 @@ import pytest
 
 from iem.sensor import DEFAULT_SENSOR
 from iem.sensor import SensorModel as CoreSensorModel
-from sim.arm import (
+from sim.arm import ArmParams, load_arm, save_arm
+from sim.description import builtin_file
+from sim.family import default_test_payload
+from sim.friction import (
     FRICTION_COLUMNS,
     GAZ_PHI,
-    ArmParams,
     friction_jacobian,
     friction_torque,
     full_friction,
     gaz_friction,
     gaz_friction_jacobian,
-    load_arm,
-    save_arm,
 )
-from sim.description import builtin_file
-from sim.family import default_test_payload
 from sim.paths import excitation_path
 from sim.plant import ArmPlant, RealityGap, SensorModel, build_mujoco_model
 from sim.robot import ArmModel, arm_model, nominal_link_params
