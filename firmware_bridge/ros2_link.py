@@ -193,7 +193,8 @@ class Ros2Link:
             self._flange_frame = found[1][0].rsplit("_joint", 1)[0] + "_link8"
         if index is None:
             log.warning("%s: a JointState without the joints %s (it names %s): dropped, "
-                        "counted as malformed; set [ros2] joints", self.name,
+                        "counted as malformed; set [arm] model to the arm that publishes it, "
+                        "or [ros2] joints", self.name,
                         ", ".join(self._names or ("fr3_joint1..7", "panda_joint1..7")),
                         ", ".join(names) or "none", extra={"event": "ros2_joint_names"})
         self._index[names] = index
