@@ -74,7 +74,7 @@ class JointStateCodec:
         in part order, ``t`` the unwrapped time in s."""
         v = np.array(values, dtype=float)[self._perm] * self._scale
         v.flags.writeable = False  # the state keeps views of it without copying
-        return JointState(t=t, q=v[0:7], dq=v[7:14], tau_J=v[14:21], cycle=cycle)
+        return JointState.of_kept(float(t), v[0:7], v[7:14], v[14:21], int(cycle))
 
     def raw_values(self, state: JointState) -> tuple[dict[str, int], int]:
         """Raw integers of a state (saturated to the signal ranges) and how many saturated."""

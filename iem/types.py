@@ -63,6 +63,9 @@ def vec7(name: str, value, error: type[InvalidInputError] = InvalidInputError,
     return arr
 
 
+_set = object.__setattr__  # how a frozen dataclass sets its fields
+
+
 @dataclass(frozen=True)
 class JointState:
     """One controller cycle as a Franka reports it.
@@ -85,6 +88,20 @@ class JointState:
         object.__setattr__(self, "q", vec7("q", self.q))
         object.__setattr__(self, "dq", vec7("dq", self.dq))
         object.__setattr__(self, "tau_J", vec7("tau_J", self.tau_J))
+
+    @classmethod
+    def of_kept(cls, t: float, q: np.ndarray, dq: np.ndarray, tau_J: np.ndarray,
+                cycle: int = 0) -> JointState:
+        """A state of arrays that already are what a state keeps (read-only float64, 7
+        each; ``t`` a float, ``cycle`` an int), taken as they are: for a decoder or a former
+        that made them so, once a frame or a block, where the checks would only repeat."""
+        self = object.__new__(cls)
+        _set(self, "t", t)
+        _set(self, "q", q)
+        _set(self, "dq", dq)
+        _set(self, "tau_J", tau_J)
+        _set(self, "cycle", cycle)
+        return self
 
     def features(self) -> np.ndarray:
         """The learner input ``X = [q, dq, tau]`` (21 values), as in the paper (Eq. 10-12)."""
@@ -150,8 +167,7 @@ class PayloadEstimate:
         phi = np.asarray(self.phi, dtype=float)
         if phi.shape != (10,):
             raise InvalidInputError(f"PayloadEstimate.phi has shape {phi.shape}; valid is (10,)")
-        finite = np.isfinite(phi)
-        if not finite.all() and not np.isnan(phi).all():
+        if not np.isfinite(phi).all() and not np.isnan(phi).all():
             raise InvalidInputError("PayloadEstimate.phi has NaN or infinite entries; valid is "
                                     "10 finite numbers, or all NaN for no estimate yet")
         if self.std is not None:
@@ -159,12 +175,12 @@ class PayloadEstimate:
             if std.shape != (10,):
                 raise InvalidInputError(f"PayloadEstimate.std has shape {std.shape}; valid is "
                                         "(10,) or None")
-            if not (std >= 0).all():  # NaN fails too
+            if not std.min() >= 0:  # NaN fails too (the minimum of a NaN is NaN)
                 raise InvalidInputError(f"PayloadEstimate.std has a negative or NaN entry "
                                         f"({std.min():.4g}); valid is >= 0 or inf")
         if self.cov is not None:
             cov = np.asarray(self.cov, dtype=float)
-            if cov.shape != (10, 10) or not np.isfinite(cov).all() or (np.diag(cov) < 0).any():
+            if cov.shape != (10, 10) or not np.isfinite(cov).all() or cov.diagonal().min() < 0:
                 raise InvalidInputError(f"PayloadEstimate.cov has shape {cov.shape} or a "
                                         "non-finite or negative-variance entry; valid is a "
                                         "finite 10x10 covariance or None")

@@ -24,6 +24,11 @@ PAPER_TO_PIN = np.array([0, 1, 2, 3, 4, 5, 7, 6, 8, 9])
 """``phi_pin = phi_paper[PAPER_TO_PIN]``, ``phi_paper = phi_pin[PAPER_TO_PIN]`` (involution)."""
 
 
+_LOWER, _UPPER = (np.array([i * 7 + j for i in range(7) for j in range(i)]),
+                  np.array([j * 7 + i for i in range(7) for j in range(i)]))
+"""Flat indices of a 7x7 matrix's strict lower triangle and of its mirror in the upper."""
+
+
 def phi_to_pin(phi: np.ndarray) -> np.ndarray:
     """Paper order -> Pinocchio dynamic-parameter order (works on ``(..., 10)`` arrays)."""
     return np.asarray(phi)[..., PAPER_TO_PIN]
@@ -202,8 +207,11 @@ class ArmModel:
     def rnea_regressor_mass(self, q, dq, ddq):
         """:meth:`rnea_and_regressor` plus the arm's mass matrix ``M(q)`` (7x7, CRBA)."""
         tau, y = self.rnea_and_regressor(q, dq, ddq)
-        mass = pin.crba(self.model, self.data, np.asarray(q, dtype=float))
-        mass = np.triu(mass) + np.triu(mass, 1).T
+        # CRBA fills the upper triangle; the lower is its mirror (``+ 0.0`` copies it and
+        # reads a -0.0 as 0.0, as a sum of the two triangles would)
+        mass = pin.crba(self.model, self.data, np.asarray(q, dtype=float)) + 0.0
+        flat = mass.reshape(-1)
+        flat[_LOWER] = flat[_UPPER]
         return tau, y, mass
 
     def payload_mass_matrix(self, q, phi) -> np.ndarray:
@@ -227,14 +235,14 @@ def spatial_inertia(phi) -> np.ndarray:
     """The 6x6 spatial inertia at the flange origin, ``[[m E, -S(h)], [S(h), I_o]]`` in
     Pinocchio's ``[linear; angular]`` order, from ``phi`` (paper order). Linear in ``phi``, so
     it exists for any values (``pin.Inertia`` needs ``m > 0`` to place the CoM)."""
-    m, hx, hy, hz, ixx, ixy, ixz, iyy, iyz, izz = (float(v) for v in np.asarray(phi))
-    skew = np.array([[0.0, -hz, hy], [hz, 0.0, -hx], [-hy, hx, 0.0]])
-    out = np.zeros((6, 6))
-    out[:3, :3] = m * np.eye(3)
-    out[:3, 3:] = -skew
-    out[3:, :3] = skew
-    out[3:, 3:] = [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]
-    return out
+    m, hx, hy, hz, ixx, ixy, ixz, iyy, iyz, izz = np.asarray(phi, dtype=float).tolist()
+    z = m * 0.0  # m E's off-diagonal (-0.0 for a negative m); -S(h)'s diagonal is -0.0
+    return np.array([[m, z, z, -0.0, hz, -hy],
+                     [z, m, z, -hz, -0.0, hx],
+                     [z, z, m, hy, -hx, -0.0],
+                     [0.0, -hz, hy, ixx, ixy, ixz],
+                     [hz, 0.0, -hx, ixy, iyy, iyz],
+                     [-hy, hx, 0.0, ixz, iyz, izz]])
 
 
 @cache

@@ -44,6 +44,8 @@ from .gaps import DEFAULT_MAX_BRIDGE_S, RESTART, SKIP, GapRule
 
 N_COLUMNS = 21
 """Values a frame carries to a block: ``q``, ``dq`` and ``tau_J`` (7 each)."""
+_FIRST = np.zeros(1, dtype=np.intp)
+"""The one block of :meth:`BlockFormer._close`'s reduction starts at row 0."""
 
 
 @dataclass(frozen=True)
@@ -71,8 +73,11 @@ class Blocks:
     def state(self, i: int) -> JointState:
         """Block ``i`` as a :class:`iem.types.JointState` of its means."""
         x = self.X[i]
-        return JointState(t=float(self.t[i]), q=x[:7], dq=x[7:14], tau_J=x[14:],
-                          cycle=int(self.cycle[i]))
+        if x.flags.writeable or x.dtype != np.float64:  # the state keeps read-only copies
+            return JointState(t=float(self.t[i]), q=x[:7], dq=x[7:14], tau_J=x[14:],
+                              cycle=int(self.cycle[i]))
+        return JointState.of_kept(float(self.t[i]), x[:7], x[7:14], x[14:],
+                                  int(self.cycle[i]))
 
 
 def _means(T: np.ndarray, X: np.ndarray, starts: np.ndarray, counts: np.ndarray
@@ -146,7 +151,8 @@ class BlockFormer:
 
     def _close(self) -> JointState:
         n = self._n
-        t, x = _means(self._T[:n], self._X[:n], np.zeros(1, dtype=np.intp), np.array([n]))
+        t, x = _means(self._T[:n], self._X[:n], _FIRST, np.array([n]))
+        x.flags.writeable = False  # its own array: the state keeps views of it
         self._n = 0
         self.blocks += 1
         self.short += n < self.frames
@@ -172,19 +178,28 @@ class BlockFormer:
         if steps == SKIP:
             return []
         out: list[JointState] = []
-        row = np.empty(N_COLUMNS)
-        row[:7] = q
-        row[7:14] = dq
-        row[14:] = tau
         if steps == RESTART:
             if self._n:
                 out.append(self._close())  # the frames before the gap
         elif steps > 1:  # lost frames: bridged into the block
-            for tj, xj in _bridged(*self._prev, t, row, steps):
+            row = np.empty(N_COLUMNS)
+            row[:7] = q
+            row[7:14] = dq
+            row[14:] = tau
+            t0, x0 = self._prev  # a row of the buffer, which the bridge may fill again
+            for tj, xj in _bridged(t0, x0.copy(), t, row, steps):
                 self._add(tj, xj, out)
         self._cycle = cycle
-        self._prev = (t, row)
-        self._add(t, row, out)
+        n = self._n  # the frame goes straight into the block's buffer
+        row = self._X[n]
+        row[:7] = q
+        row[7:14] = dq
+        row[14:] = tau
+        self._T[n] = t
+        self._prev = (t, row)  # valid until the buffer's row n is filled again
+        self._n = n + 1
+        if self._n == self.frames:
+            out.append(self._close())
         return out
 
     def push_many(self, T, X, cycles=None) -> Blocks:
@@ -199,7 +214,7 @@ class BlockFormer:
         cycles = (np.zeros(len(T), dtype=np.int64) if cycles is None
                   else np.asarray(cycles, dtype=np.int64).reshape(-1))
         plan = _Plan(self)
-        rule, prev = self.gaps, self._prev
+        rule, prev = self.gaps, self._prev  # (the plan fills the buffer only in finish)
         for i, t in enumerate(T.tolist()):
             steps = rule(t)
             if steps == SKIP:

@@ -153,3 +153,26 @@ def test_the_online_loop_fed_frames_equals_the_loop_fed_its_blocks(recorded):
     assert np.array_equal([o[0].phi for o in outs], [b[0].phi for b in batch])
     assert np.array_equal([o[1] for o in outs], [b[1] for b in batch])
     assert np.isfinite(batch[-1][0].phi).all()
+
+
+def test_a_bridge_longer_than_a_block_to_the_bit(recorded):
+    """Blocks of 3 frames with gaps of 7 and 12 lost frames (both bridged: the bridge fills
+    the block's buffer more than once) and a chunk that ends just before a gap: frame by
+    frame, in chunks and the plain rule agree."""
+    T, X, _ = recorded
+    keep = np.ones(len(T), dtype=bool)
+    keep[200:207] = False
+    keep[600:612] = False
+    T, X = T[keep], X[keep]
+    one = BlockFormer(3, 1000.0)
+    points = [p for i in range(len(T)) for p in one.push(T[i], X[i, :7], X[i, 7:14], X[i, 14:])]
+    many = BlockFormer(3, 1000.0)
+    parts = [many.push_many(T[a:b], X[a:b]) for a, b in ((0, 200), (200, 593), (593, len(T)))]
+    assert np.array_equal([p.features() for p in points], np.concatenate([p.X for p in parts]))
+    assert np.array_equal([p.t for p in points], np.concatenate([p.t for p in parts]))
+    expected = _expected(T, X, size=3)
+    assert len(points) == len(expected)
+    for p, rows in zip(points, expected, strict=True):
+        np.testing.assert_allclose(p.features(), np.mean([r[1] for r in rows], axis=0),
+                                   rtol=0, atol=1e-12)
+    assert one.bridged == many.bridged == 4 + 7 + 12  # the recording's own 1 and 3 too

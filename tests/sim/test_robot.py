@@ -116,3 +116,18 @@ def test_spatial_inertia_is_pinocchios_and_linear():
     a[0] = 0.0  # no mass: pin.Inertia could not place the CoM, the linear form can
     np.testing.assert_allclose(spatial_inertia(2 * a - b),
                                2 * spatial_inertia(a) - spatial_inertia(b), atol=1e-12)
+
+
+def test_mass_matrix_is_the_whole_symmetric_crba(model):
+    """The mass matrix beside the regressor is CRBA's upper triangle mirrored: symmetric, the
+    upper triangle Pinocchio's, and ``M ddq`` the torques RNEA adds for an acceleration."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q, dq, ddq = model.random_state(rng)
+        _, _, mass = model.rnea_regressor_mass(q, dq, ddq)
+        assert mass.shape == (7, 7) and np.array_equal(mass, mass.T)
+        upper = pin.crba(model.model, model.data, q)
+        assert np.array_equal(np.triu(mass), np.triu(upper))
+        zero = np.zeros(7)
+        inertial = model.rnea(q, zero, ddq) - model.rnea(q, zero, zero)
+        np.testing.assert_allclose(mass @ ddq, inertial, rtol=1e-9, atol=1e-9)
