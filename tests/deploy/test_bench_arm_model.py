@@ -26,6 +26,7 @@ def fr3_quick(tmp_path_factory):
     return json.loads((out / "results.json").read_text())
 
 
+@pytest.mark.slow  # the Kinova's bench paper --quick runs the same path in the default suite
 def test_bench_paper_quick_runs_on_the_fr3_and_records_it(fr3_quick):
     r = fr3_quick
     assert r["setup"]["arm_model"] == arm_description("fr3").record()
