@@ -3,10 +3,11 @@
 ``python -m deploy.ros2_controller [--domain N --interface lo --peer 127.0.0.1 ...]``: the
 simulated controller (:class:`deploy.sim_controller.SimController`, the MuJoCo plant at
 1 kHz) behind a :class:`firmware_bridge.ros2_peers.Ros2ControllerPort`, as franka_ros2 shows
-the robot: its joint states on ``/franka/joint_states``, its loads set through a SetLoad
-service. It prints ``ready`` once the port is up, runs ``--duration`` s of controller time,
-and writes its statistics (commands applied or refused, the load in force) to
-``--stats-json`` and, as JSON, to stderr.
+the robot: its joint states on ``/franka/joint_states`` under the arm model's joint names
+(``--arm-model``, the plant's too), its loads set through a SetLoad service. It prints
+``ready`` once the port is up, runs ``--duration`` s of controller time, and writes its
+statistics (commands applied or refused, the load in force) to ``--stats-json`` and, as
+JSON, to stderr.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import argparse
 import json
 import sys
 
-from firmware_bridge.ros2_link import JOINT_SETS
+from .options import add_arm_model
 
 
 def run_controller(args) -> int:
@@ -25,13 +26,16 @@ def run_controller(args) -> int:
     from firmware_bridge.ros2_peers import Ros2ControllerPort
     from sim.paths import load_path_csv
 
+    from .options import arm_description_of
     from .sim_controller import SimController
 
+    description = arm_description_of(args)
     dp = participant(args.domain, cyclone_config(args.interface, tuple(args.peer)))
-    port = Ros2ControllerPort(dp, args.topic, args.service, layout=args.layout, arm=args.arm,
-                              refuse_first=args.refuse_first)
+    port = Ros2ControllerPort(dp, args.topic, args.service, layout=args.layout,
+                              arm=description.joint_names, refuse_first=args.refuse_first)
     path = load_path_csv(args.path) if args.path else None
-    controller = SimController(port, path=path, once=args.once, seed=args.seed)
+    controller = SimController(port, path=path, once=args.once, seed=args.seed,
+                               description=description)
     print("ready", flush=True)
     try:
         controller.run(duration=args.duration)
@@ -57,9 +61,7 @@ def main(argv=None) -> int:
     ctl.add_argument("--domain", type=int, default=0)
     ctl.add_argument("--interface", default="")
     ctl.add_argument("--peer", action="append", default=[])
-    ctl.add_argument("--arm", choices=sorted(JOINT_SETS), default="panda",
-                     help="the joint names it publishes (default panda: the plant is the "
-                     "default arm model's)")
+    add_arm_model(ctl)  # the plant's arm model and the joint names it publishes
     ctl.add_argument("--path", metavar="FILE", help="path CSV (default: the excitation path)")
     ctl.add_argument("--once", action="store_true", help="play the path once, then hold")
     ctl.add_argument("--duration", type=float, default=10.0, help="s of controller time")

@@ -229,7 +229,8 @@ class Ros2ControllerPort:
 
     def __init__(self, participant, topic: str = "/franka/joint_states",
                  service: str = "/service_server/set_load", *, layout: str = "cyclonedds",
-                 arm: str = "fr3", ack_timeout: float = 1.0, refuse_first: int = 0) -> None:
+                 arm: str | tuple[str, ...] = "fr3", ack_timeout: float = 1.0,
+                 refuse_first: int = 0) -> None:
         from cyclonedds.pub import DataWriter
         from cyclonedds.topic import Topic
 
@@ -239,7 +240,7 @@ class Ros2ControllerPort:
         self._writer = DataWriter(participant,
                                   Topic(participant, topic_name(topic), JointStateMsg),
                                   qos=ros2_dds.qos(reliable=True, depth=1000))
-        self._names = list(JOINT_SETS[arm])
+        self._names = list(JOINT_SETS[arm] if isinstance(arm, str) else arm)  # or 7 names
         self._commands: queue.Queue = queue.Queue()
         self._waiting: dict[int, tuple[threading.Event, list]] = {}
         self._seq = 0
