@@ -42,8 +42,6 @@ from iem.errors import InvalidInputError
 
 from .urdf_chain import arm_error, joint_limit, parse, read_urdf
 
-BUILTIN = ("panda", "fr3")
-"""Arm models known by name; anything else is a description file's path."""
 DEFAULT_ARM_MODEL = "panda"
 """The arm model of a configuration that names none."""
 
@@ -99,6 +97,8 @@ BUILTINS = {
                                 (2.7437, 1.7837, 2.9007, -0.1518, 2.8065, 4.5169, 3.0159)),
                       home=_PANDA_HOME, task=_PANDA_TASK, prefix="fr3_"),
 }
+BUILTIN = tuple(BUILTINS)
+"""Arm models known by name; anything else is a description file's path."""
 
 
 @dataclass(frozen=True, eq=False)
