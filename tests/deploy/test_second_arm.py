@@ -249,6 +249,7 @@ def test_the_service_writes_a_load_the_simulated_kinova_acknowledges(kin, models
     np.testing.assert_allclose(load.com, TRUTH.com, atol=0.006)
 
 
+@pytest.mark.slow  # bench paper --quick's CLI runs on the Panda in test_bench_paper.py
 def test_bench_paper_quick_runs_on_the_kinova(kin, tmp_path):
     pytest.importorskip("matplotlib")
     assert main(["bench", "paper", "--quick", *arm_args(kin), "--out", str(tmp_path)]) == 0
