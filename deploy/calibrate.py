@@ -36,7 +36,6 @@ from .options import (
     add_rate,
     add_recording_options,
     arm_description_of,
-    joint_names_of,
 )
 
 
@@ -86,11 +85,12 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
     from firmware_bridge.recordings import open_recording
     from sim.calibration import CalibrationSettings
     from sim.calibration_noise import calibrate_with_noise
+    from sim.description import described
 
     parts, names = [], []
     for log_file in logs:
         replay = open_recording(log_file, format, topic=topic, profile=profile,
-                                **joint_names_of(description))
+                                joints=described(description).joint_names)
         try:
             data = read_states(replay)
         finally:

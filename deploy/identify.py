@@ -39,7 +39,6 @@ from .options import (
     add_rate,
     add_recording_options,
     arm_description_of,
-    joint_names_of,
 )
 
 
@@ -139,7 +138,7 @@ def run(args) -> int:
     from .training import load_arm_file
 
     description = arm_description_of(args)
-    joints = joint_names_of(description)["joints"]
+    joints = description.joint_names
     start = time.perf_counter()
     loaded = read_log(args.loaded, args.profile, args.format, args.topic, joints)
     bare = (read_log(args.bare, args.profile, args.format, args.topic, joints)

@@ -21,14 +21,6 @@ def add_arm_model(parser) -> None:
                         "the arm model's; an --arm-model file has none and needs it)")
 
 
-def joint_names_of(description) -> dict:
-    """The options of :func:`firmware_bridge.recordings.open_recording` that make a rosbag2
-    bag be read by the joint names of the arm model ``description`` (None: the default)."""
-    from sim.description import described
-
-    return {"joints": tuple(described(description).joint_names)}
-
-
 def arm_description_of(args):
     """The arm model ``args`` name (``--arm-model``, ``--arm-flange``), read and checked.
 

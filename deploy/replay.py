@@ -186,13 +186,13 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
     from firmware_bridge.links import open_link
     from firmware_bridge.recordings import recording_link
     from iem.persistence import save_model
+    from sim.description import described
     from sim.family import DEPLOY_FAMILY
 
-    from .options import joint_names_of
     from .training import check_model_rate, train_initial_model
 
     fmt, kind, options = recording_link(log_file, format, topic,
-                                        joint_names_of(description)["joints"])
+                                        described(description).joint_names)
     if fmt != "can":
         options["rate_hz"] = rate_hz
     link = open_link(kind, str(log_file), profile=profile, **options)

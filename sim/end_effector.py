@@ -66,7 +66,7 @@ class EndEffector:
         desc = described(description)
         if self.inertia is None:
             return np.zeros(10)
-        if desc.own_end_effector is not None and self.spec == desc.own_end_effector:
+        if desc.carries_own(self.spec):
             return _own_hand(desc)  # the file's own, exactly as the file gives it
         return flange_placement(desc).act(self.inertia).toDynamicParameters()
 

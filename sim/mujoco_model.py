@@ -43,10 +43,8 @@ def build_mujoco_model(description=None, end_effector=None) -> mujoco.MjModel:
     ``description.link_bodies``; the end effector is the file's own (the Panda's hand, its
     fingers welded) or a body ``end_effector`` on the flange."""
     from .end_effector import end_effector as resolve
-    from .robot import _carries_own_hand
-
     desc: ArmDescription = described(description)
-    own = _carries_own_hand(desc, end_effector)
+    own = desc.carries_own(end_effector)
     spec = mujoco.MjSpec.from_string(desc.full_text if own else desc.text)
     spec.compiler.fusestatic = False  # keep the payload its own body, changeable at run time
     for eq in list(spec.equalities):  # e.g. a gripper's mimic constraint

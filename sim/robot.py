@@ -81,16 +81,9 @@ def nominal_link_params(end_effector=None, description=None) -> np.ndarray:
     out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
     ee = end_effector if isinstance(end_effector, EndEffector) else \
         resolve(end_effector or desc.default_end_effector)
-    if not _carries_own_hand(desc, ee.spec):
+    if not desc.carries_own(ee.spec):
         out[6] = ee.body7(desc)
     return out
-
-
-def _carries_own_hand(description: ArmDescription, spec: str | None) -> bool:
-    """Whether the end effector ``spec`` (None: the default) is the one the description's own
-    file fuses into body 7 (the Panda's Franka Hand)."""
-    spec = spec or description.default_end_effector
-    return description.own_end_effector is not None and spec == description.own_end_effector
 
 
 def flange_placement(description=None) -> pin.SE3:
@@ -127,7 +120,7 @@ class ArmModel:
             for j in range(1, 8):
                 self.model.inertias[j] = pin.Inertia.FromDynamicParameters(
                     np.asarray(arm.link_params[j - 1], dtype=float))
-        elif not _carries_own_hand(self.description, None):  # the end effector on body 7
+        elif not self.description.carries_own(None):  # the end effector on body 7
             self.model.inertias[7] = pin.Inertia.FromDynamicParameters(
                 nominal_link_params(None, self.description)[6])
         self._extra = None if arm is None else arm.joint_torque
