@@ -150,6 +150,9 @@ class Service:
         self.cpu_parts = {"cycle": 0.0, "reader": 0.0, "learning": 0.0, "checkpoint": 0.0}
         """CPU s of the last run by thread: the estimating loop's, the link reader's, the
         learning worker's and the checkpoints' (``cpu_s`` is their sum)."""
+        self.step_cpu_s = 0.0
+        """CPU s of the last run's estimator steps (``OnlineIdentifier.step_block``), a
+        part of the loop's."""
         self.wall_s = 0.0
         self.cpu_latency = None
         """The held CPU wake-up latency limit (``[host] cpu_dma_latency_us``), or None."""
@@ -184,7 +187,6 @@ class Service:
             self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
                                   silence_timeout=lc.silence_timeout_s,
                                   **self.config.link_options())  # [ros2] for kind ros2
-        est = self.config.estimate
         self.rate_hz = self._rate_hz or link_rate(self.config)
         self.block_frames = block_frames_of(self.config, self.rate_hz)
         self.point_rate_hz = self.rate_hz / self.block_frames
@@ -192,18 +194,23 @@ class Service:
         self.kinematics = ArmModel(arm=arm, description=self.config.arm.description())
         self._zeros = np.zeros(7)
         self.tandem = tandem_for(self.config.model.family, arm)
-        self.online = OnlineIdentifier(
-            self.model, self.kinematics.flange_position, self.tandem.samples,
-            learn=est.learn,
+        self.online = self.identifier(self.model)
+        # out_of_wire_range before send; a CAN kind's link must declare its profile
+        self.gate.wire_check = wire_check_of(self.link, self.config.link.kind)
+        self.gate.motion.regressor = self._regressor  # the torque bound of a write
+        return self
+
+    def identifier(self, model) -> OnlineIdentifier:
+        """The online loop this service runs ``model`` in (its filters, smoothing and block
+        former, as configured; after :meth:`open`)."""
+        est = self.config.estimate
+        return OnlineIdentifier(
+            model, self.kinematics.flange_position, self.tandem.samples, learn=est.learn,
             state_filter=StateFilter(usable_cutoff(est.filter_cutoff_hz, self.point_rate_hz),
                                      self.point_rate_hz),
             smoother=ExponentialSmoother(tau_s=est.smoothing_tau_s,
                                          dt=1.0 / self.point_rate_hz),
             former=self._former())
-        # out_of_wire_range before send; a CAN kind's link must declare its profile
-        self.gate.wire_check = wire_check_of(self.link, self.config.link.kind)
-        self.gate.motion.regressor = self._regressor  # the torque bound of a write
-        return self
 
     def _regressor(self, q, dq):
         """The payload regressor at a pose of the recent motion (``ddq = 0``): the gate's
@@ -239,6 +246,7 @@ class Service:
         self._next_diagnostics = 0.0
         started = time.monotonic()
         before = (time.thread_time(), model.learning_cpu_s, self.checkpointer.cpu_s)
+        self.step_cpu_s = 0.0
         self.checkpointer.start(started)
         self.notifier.ready(f"identifying the payload; {model.n_bags} bags")
         log.info("running: link %s, model %s (%d bags), writes %s, %g block points per s",
@@ -327,7 +335,9 @@ class Service:
                 self.skipped += 1  # hopelessly behind: drop the point
                 return None
             self._pace(lag, max_lag)
+        cpu0 = time.thread_time()
         raw, smoothed = self.online.step_block(state)
+        self.step_cpu_s += time.thread_time() - cpu0
         if self._publish is not None:  # the ros2 link: the estimate on its topics, at its
             self._publish(raw, smoothed)  # own rate
         done = time.time()

@@ -74,6 +74,7 @@ def summary_of(service) -> dict:
         "wall_s": service.wall_s,
         "cpu_s": service.cpu_s,
         "cpu_parts": dict(service.cpu_parts),
+        "step_cpu_s": service.step_cpu_s,
         "cpu_dma_latency_us": (None if service.cpu_latency is None
                                else service.cpu_latency.latency_us),
     }

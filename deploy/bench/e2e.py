@@ -12,11 +12,18 @@ its estimate, p50/p99) and the age of the block's frames (their mean arrival) wh
 estimate is out, the CPU share of the plug-in (the CPU time of its threads over the wall
 time: 1.0 is one whole core; ``cpu_share_parts`` splits it into the estimating loop, the
 link reader, the learning worker and the checkpoints; the simulated controller's thread is
-not counted), peak resident memory of the process (controller and plug-in together), and the
-controller's missed deadlines. Targets: no lost cycles, block-to-estimate p99 ≤ 2 ms, at
-most 0.10 of one core (0.12 with ``--link slcan-pty``). ``--json FILE`` writes
-``{"cycles", "lost", "latency_us": {"p50", "p99"}, "age_us": {"p50", "p99"}, "cpu_share",
-"cpu_share_parts", "peak_rss_mb", "cpu_dma_latency_us", ...}`` (``cycles``: block points).
+not counted), peak resident memory of the process (controller and plug-in together), the
+controller's missed deadlines, and the estimator's step (its part of the loop's CPU) a point
+live beside the same steps again back to back: once the run is over and the controller
+stopped, a copy of the model as it was before the run steps through the run's own block
+points in this thread without a pause. The back-to-back figure is the code's own cost; what
+the live one adds is the price of each point starting after the thread slept (the caches it
+finds cold, :mod:`deploy.host`) and of what runs beside it. Targets: no lost cycles,
+block-to-estimate p99 ≤ 2 ms, at most 0.10 of one core (0.12 with ``--link slcan-pty``).
+``--json FILE`` writes ``{"cycles", "lost", "latency_us": {"p50", "p99"}, "age_us": {"p50",
+"p99"}, "cpu_share", "cpu_share_parts", "peak_rss_mb", "cpu_dma_latency_us", "step_cpu_us": {"live",
+"back_to_back", "points"}, ...}`` (``cycles``: block points; ``step_cpu_us``: µs of CPU a
+point).
 ``--cpu-dma-latency-us US`` holds a CPU wake-up latency limit during the run, as ``[host]
 cpu_dma_latency_us`` does for the service (:mod:`deploy.host`; the JSON's
 ``cpu_dma_latency_us`` is the limit held, null for none): the idle cores then poll, and
@@ -32,6 +39,7 @@ process (the emulated adapter sends no time stamps).
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import resource
@@ -45,21 +53,22 @@ REPO = FsPath(__file__).resolve().parents[2]
 
 def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=print,
             link: str = "virtual", cpu_dma_latency_us: int = -1, description=None,
-            rated_mass_kg: float | None = None) -> dict:
+            rated_mass_kg: float | None = None, model=None) -> dict:
     """The figures on the arm model ``description`` (None: the default), the gate rated for
-    ``rated_mass_kg`` (None: the arm model's rated payload)."""
+    ``rated_mass_kg`` (None: the arm model's rated payload), from ``model`` (a trained
+    model of that arm; None: trained first, as the service does)."""
     from deploy.config import config_from_dict
     from deploy.sim_controller import cell_sections
     from deploy.training import best_model_kind
 
-    kind = kind or best_model_kind()
+    kind = model.name if model is not None else kind or best_model_kind()
     host = {"cpu_dma_latency_us": cpu_dma_latency_us}
     cell = cell_sections(description, rated_mass_kg)
     # a bad limit or an arm model without a rated payload fails before training
     config_from_dict({"host": host, "arm": cell["arm"], "gate": cell["gate"]},
                      where="bench e2e")
     if link == "slcan-pty":
-        return _measure_slcan_pty(seconds, kind, seed, log, host, description, cell)
+        return _measure_slcan_pty(seconds, kind, seed, log, host, description, cell, model)
     from deploy.inprocess import simulated_cell, virtual_channel
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -73,26 +82,30 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
             "log": {"status_line": "off"}, "host": host,
         }, where="bench e2e")
         # the controller plays the excitation path back and forth
-        with simulated_cell(config, seed=seed, description=description) as (controller,
-                                                                             service):
+        with simulated_cell(config, seed=seed, description=description,
+                            model=model) as (controller, service):
             log(f"bench e2e: {kind} with {service.model.n_bags} bags; {seconds:g} s at 1 kHz "
                 "on the virtual bus")
+            states, before = _recorded(service)
             controller.start()
             summary = service.run(duration=seconds)
-    return _figures(summary, controller.stats(), link="virtual")
+    # the controller stopped: the same points again, nothing beside them
+    return _figures(summary, controller.stats(), link="virtual",
+                    again=_back_to_back(service, before, states))
 
 
 def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
-                       description=None, cell: dict | None = None) -> dict:
+                       description=None, cell: dict | None = None, model=None) -> dict:
     """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
     from deploy.config import config_from_dict
     from deploy.service import Service
     from deploy.status import StatusLine
     from deploy.training import train_initial_model
 
-    model = train_initial_model(kind, seed=seed, log=lambda *a: None,
-                                noise="sensor",  # the simulated arm is its model
-                                description=description)
+    if model is None:
+        model = train_initial_model(kind, seed=seed, log=lambda *a: None,
+                                    noise="sensor",  # the simulated arm is its model
+                                    description=description)
     cell = cell or {"arm": {}, "gate": {}}
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
            "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30)]
@@ -118,6 +131,7 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
                 service.open()
                 log(f"bench e2e: {kind} with {model.n_bags} bags; {seconds:g} s at 1 kHz, "
                     f"the controller in process {proc.pid} behind slcan on {pty}")
+                states, before = _recorded(service)
                 summary = service.run(duration=seconds)
             finally:
                 service.close()
@@ -125,6 +139,7 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
         if proc.poll() is None:
             proc.terminate()
         _, err = proc.communicate(timeout=20)
+    again = _back_to_back(service, before, states)  # the controller's process has ended
     stats = {}
     for line in err.splitlines():  # "sim-controller: cycles N, overruns N, ..."
         if line.startswith("sim-controller: cycles"):
@@ -132,10 +147,33 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
                 key, _, value = part.partition(" ")
                 stats[key] = int(value) if value.isdigit() else value
     return _figures(summary, {"cycles": stats.get("cycles"), "overruns": stats.get("overruns")},
-                    link="slcan-pty")
+                    link="slcan-pty", again=again)
 
 
-def _figures(summary: dict, stats: dict, link: str) -> dict:
+def _recorded(service) -> tuple[list, object]:
+    """The block points ``service`` will estimate (filled as it runs) and a copy of its
+    model as it is before the run."""
+    states: list = []
+    service.on_cycle.append(lambda record: states.append(record.state))
+    return states, copy.deepcopy(service.model)
+
+
+def _back_to_back(service, model, states: list) -> dict:
+    """``model`` (the service's before its run) stepped through the run's own block points
+    again, back to back in this thread, set up as the service runs it: the estimator's own
+    CPU a point, beside what the same steps took live (:func:`deploy.bench.timing.
+    step_timing`)."""
+    from .timing import step_timing
+
+    model.go_live(True, background=service.config.estimate.background_learning)
+    try:
+        return step_timing(service.identifier(model), states)
+    finally:
+        model.stop()
+
+
+def _figures(summary: dict, stats: dict, link: str, again: dict) -> dict:
+    cycles = summary["cycles"]
     return {
         "cycles": summary["cycles"],
         "lost": summary["frames"]["lost"],
@@ -157,6 +195,8 @@ def _figures(summary: dict, stats: dict, link: str) -> dict:
         "model": summary["model"],
         "link": link,
         "cpu_dma_latency_us": summary["cpu_dma_latency_us"],
+        "step_cpu_us": {"live": summary["step_cpu_s"] / cycles * 1e6 if cycles else None,
+                        "back_to_back": again["cpu_mean"], "points": again["points"]},
     }
 
 
@@ -195,6 +235,11 @@ def run(args) -> int:
     parts = ", ".join(f"{k} {v:.3f}" for k, v in f["cpu_share_parts"].items())
     print(f"CPU share of the plug-in {f['cpu_share']:.2f} of one core, all its threads "
           f"({parts}; target <= {share_target:g}); peak RSS {f['peak_rss_mb']:.0f} MB")
+    step = f["step_cpu_us"]
+    print(f"the estimator's step (its share of the loop): {step['live']:.0f} µs of CPU a point "
+          f"live, {step['back_to_back']:.0f} µs on the same {step['points']} points again back "
+          f"to back ({step['live'] / step['back_to_back']:.2f} times): what the live step adds "
+          "is each point starting after a sleep, with cold caches, and what runs beside it")
     print(f"writes {f['writes']}; bags {f['bags']} ({f['model']})")
     if f["cpu_dma_latency_us"] is not None:
         print(f"held a CPU wake-up latency limit of {f['cpu_dma_latency_us']} µs: idle cores "

@@ -5,6 +5,7 @@ plug-in runs it on a live link (back to back, and paced as a 1 kHz cell's blocks
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from iem.types import NOMINAL_POINT_RATE_HZ
 
 from .harness import Bench, rollout_blocks
 
-__all__ = ["PACED_RATE_HZ", "ROUTE_SIZES", "cycle_timing", "route_timing"]
+__all__ = ["PACED_RATE_HZ", "ROUTE_SIZES", "cycle_timing", "route_timing", "step_timing"]
 
 ROUTE_SIZES = (1, 10, 100, 1000, 10000)
 PACED_RATE_HZ = NOMINAL_POINT_RATE_HZ
@@ -39,27 +40,36 @@ def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> 
     online = OnlineIdentifier(model, bench.kin.flange_position, bench.tandem.samples,
                               learn=True)
     blocks = rollout_blocks(rollout)
-    times = np.empty(len(blocks))
-    cpu = np.empty(len(blocks))
-    period = None if rate_hz is None else 1.0 / float(rate_hz)
     try:
-        due = time.perf_counter()
-        for k in range(len(blocks)):
-            state = blocks.state(k)
-            if period is not None:  # the next block comes one period after the last
-                due += period
-                wait = due - time.perf_counter()
-                if wait > 0.0:
-                    time.sleep(wait)
-            c0, t0 = time.thread_time(), time.perf_counter()
-            online.step_block(state)
-            times[k] = time.perf_counter() - t0
-            cpu[k] = time.thread_time() - c0
+        return step_timing(online, (blocks.state(k) for k in range(len(blocks))),
+                           rate_hz)
     finally:
         model.stop()
-    return {"median": float(np.median(times) * 1e6),
-            "p99": float(np.percentile(times, 99) * 1e6),
-            "cpu_mean": float(cpu.mean() * 1e6)}
+
+
+def step_timing(online: OnlineIdentifier, states: Iterable, rate_hz: float | None = None
+                ) -> dict:
+    """µs per ``online.step_block`` over ``states`` (block points), back to back (``rate_hz``
+    None) or one per period of ``rate_hz`` with the thread idle between them: ``{"median",
+    "p99"}`` of the wall time, ``"cpu_mean"`` of this thread's CPU and ``"points"``."""
+    times, cpu = [], []
+    period = None if rate_hz is None else 1.0 / float(rate_hz)
+    due = time.perf_counter()
+    for state in states:
+        if period is not None:  # the next block comes one period after the last
+            due += period
+            wait = due - time.perf_counter()
+            if wait > 0.0:
+                time.sleep(wait)
+        c0, t0 = time.thread_time(), time.perf_counter()
+        online.step_block(state)
+        times.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+    if not times:
+        raise ValueError("step_timing needs at least one block point")
+    times_us = np.asarray(times) * 1e6
+    return {"median": float(np.median(times_us)), "p99": float(np.percentile(times_us, 99)),
+            "cpu_mean": float(np.mean(cpu) * 1e6), "points": len(times)}
 
 
 def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> dict:

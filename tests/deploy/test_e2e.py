@@ -133,6 +133,7 @@ def test_identifies_and_writes_back_over_slcan_on_a_pty(model_file, tmp_path):
     parts = summary["cpu_parts"]  # the plug-in's CPU, by thread
     assert parts["cycle"] > 0 and parts["reader"] > 0
     assert summary["cpu_s"] == pytest.approx(sum(parts.values()))
+    assert 0.0 < summary["step_cpu_s"] <= parts["cycle"]  # the estimator's part of the loop
     final = rows[-1]
     assert abs(final[0] - TRUTH.mass) < IEM_MASS_TOL_KG, final[0]
     assert summary["writes"]["sent"] >= 1 and summary["writes"]["acked"] >= 1

@@ -1,0 +1,54 @@
+"""``iem bench e2e``'s figures beyond the live run: the estimator's step on the run's own
+block points again, back to back (:func:`deploy.bench.timing.step_timing`)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from deploy.bench.e2e import measure
+from deploy.bench.timing import step_timing
+from iem.persistence import load_model
+
+
+class Stepper:
+    """What step_timing needs of an online loop: ``step_block``; keeps what it was given."""
+
+    def __init__(self) -> None:
+        self.seen: list = []
+
+    def step_block(self, state):
+        self.seen.append(state)
+        return state, None
+
+
+def test_step_timing_steps_every_point_once_in_order():
+    stepper = Stepper()
+    figures = step_timing(stepper, iter(range(7)))
+    assert stepper.seen == list(range(7))
+    assert figures["points"] == 7
+    assert figures["cpu_mean"] >= 0.0 and figures["p99"] >= figures["median"] >= 0.0
+
+
+def test_step_timing_paced_leaves_a_period_between_points():
+    stepper = Stepper()
+    started = time.perf_counter()
+    step_timing(stepper, range(5), rate_hz=200.0)
+    assert time.perf_counter() - started >= 5 * 0.005 * 0.99  # sleeps never end early
+    assert stepper.seen == list(range(5))
+
+
+def test_step_timing_refuses_no_points():
+    with pytest.raises(ValueError, match="at least one block point"):
+        step_timing(Stepper(), [])
+
+
+def test_bench_e2e_steps_the_same_points_again_back_to_back(phys_model_file):
+    figures = measure(1.0, model=load_model(phys_model_file), log=lambda *a: None)
+    step = figures["step_cpu_us"]
+    assert figures["cycles"] > 0 and step["points"] == figures["cycles"]
+    assert step["live"] > 0.0 and step["back_to_back"] > 0.0
+    # the live step is a part of the loop thread's CPU
+    loop_us = figures["cpu_share_parts"]["cycle"] * figures["seconds"] / figures["cycles"] * 1e6
+    assert step["live"] <= loop_us
