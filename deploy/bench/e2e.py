@@ -165,6 +165,8 @@ def _back_to_back(service, model, states: list) -> dict:
     step_timing`)."""
     from .timing import step_timing
 
+    if not states:  # nothing was estimated: nothing to step again
+        return {"cpu_mean": None, "points": 0}
     model.go_live(True, background=service.config.estimate.background_learning)
     try:
         return step_timing(service.identifier(model), states)
@@ -175,7 +177,7 @@ def _back_to_back(service, model, states: list) -> dict:
 def _figures(summary: dict, stats: dict, link: str, again: dict) -> dict:
     cycles = summary["cycles"]
     return {
-        "cycles": summary["cycles"],
+        "cycles": cycles,
         "lost": summary["frames"]["lost"],
         "skipped": summary["frames"]["skipped"],
         "unlearnt": summary["unlearnt"],
@@ -236,10 +238,12 @@ def run(args) -> int:
     print(f"CPU share of the plug-in {f['cpu_share']:.2f} of one core, all its threads "
           f"({parts}; target <= {share_target:g}); peak RSS {f['peak_rss_mb']:.0f} MB")
     step = f["step_cpu_us"]
-    print(f"the estimator's step (its share of the loop): {step['live']:.0f} µs of CPU a point "
-          f"live, {step['back_to_back']:.0f} µs on the same {step['points']} points again back "
-          f"to back ({step['live'] / step['back_to_back']:.2f} times): what the live step adds "
-          "is each point starting after a sleep, with cold caches, and what runs beside it")
+    if step["points"]:
+        print(f"the estimator's step (its part of the loop): {step['live']:.0f} µs of CPU a "
+              f"point live, {step['back_to_back']:.0f} µs on the same {step['points']} points "
+              f"again back to back ({step['live'] / step['back_to_back']:.2f} times): what the "
+              "live step adds is each point starting after a sleep, with cold caches, and what "
+              "runs beside it")
     print(f"writes {f['writes']}; bags {f['bags']} ({f['model']})")
     if f["cpu_dma_latency_us"] is not None:
         print(f"held a CPU wake-up latency limit of {f['cpu_dma_latency_us']} µs: idle cores "

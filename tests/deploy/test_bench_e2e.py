@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from deploy.bench.e2e import measure
+from deploy.bench.e2e import _back_to_back, measure
 from deploy.bench.timing import step_timing
 from iem.persistence import load_model
 
@@ -52,3 +52,7 @@ def test_bench_e2e_steps_the_same_points_again_back_to_back(phys_model_file):
     # the live step is a part of the loop thread's CPU
     loop_us = figures["cpu_share_parts"]["cycle"] * figures["seconds"] / figures["cycles"] * 1e6
     assert step["live"] <= loop_us
+
+
+def test_a_run_that_estimated_nothing_has_no_back_to_back_figure():
+    assert _back_to_back(None, None, []) == {"cpu_mean": None, "points": 0}
