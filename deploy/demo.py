@@ -130,7 +130,7 @@ def _demo_config(model_file, kind: str, seed: int, arm_file, status: bool,
     model kind needs it, rated for ``rated_mass_kg`` (None: the arm model's rated payload).
 
     Raises:
-        deploy.config.ConfigError: an arm model from a file without ``rated_mass_kg``."""
+        iem.errors.InvalidInputError: an arm model from a file without ``rated_mass_kg``."""
     from .config import config_from_dict
     from .inprocess import virtual_channel
     from .sim_controller import cell_sections

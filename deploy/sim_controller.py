@@ -90,6 +90,7 @@ class SimController:
         require("mujoco", "the simulated controller")
         from sim.description import described
         from sim.plant import DT, ArmPlant
+        from sim.robot import arm_model
 
         if isinstance(drop_commands, bool) or not isinstance(drop_commands, int) \
                 or drop_commands < 0:
@@ -98,7 +99,8 @@ class SimController:
         self.schedule = PayloadSchedule(payload_schedule, DT)
         self.port = port
         self.description = described(description)
-        self.path = excitation_path(model=self.plant_model()) if path is None else path
+        self.path = (excitation_path(model=arm_model(self.description)) if path is None
+                     else path)
         self.payload = default_test_payload() if payload is None else payload
         at_start, first = self.schedule.at_start()
         if at_start:
@@ -125,12 +127,6 @@ class SimController:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
-
-    def plant_model(self):
-        """The arm model's kinematics and limits (:class:`sim.robot.ArmModel`)."""
-        from sim.robot import arm_model
-
-        return arm_model(self.description)
 
     # -- one cycle -------------------------------------------------------------------------
     def moving(self, k: int) -> bool:
@@ -278,7 +274,6 @@ def cell_sections(description=None, rated_mass_kg: float | None = None) -> dict:
         iem.errors.InvalidInputError: an arm model from a file, which gives no rated
             payload, without ``rated_mass_kg`` (``--rated-mass-kg``)."""
     from iem.errors import InvalidInputError
-    from sim.description import BUILTIN
 
     if description is not None and description.rated_payload_kg is None \
             and rated_mass_kg is None:
@@ -287,8 +282,7 @@ def cell_sections(description=None, rated_mass_kg: float | None = None) -> dict:
                                 "maker's rated payload with --rated-mass-kg KG")
     out: dict = {"arm": {}, "gate": {}}
     if description is not None:
-        out["arm"] = {"model": description.name if description.name in BUILTIN
-                      else description.source, "flange": description.flange}
+        out["arm"] = {"model": description.source_spec, "flange": description.flange}
     if rated_mass_kg is not None:
         out["gate"]["rated_mass_kg"] = float(rated_mass_kg)
     return out

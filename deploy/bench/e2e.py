@@ -64,7 +64,8 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     kind = model.name if model is not None else kind or best_model_kind()
     host = {"cpu_dma_latency_us": cpu_dma_latency_us}
     cell = cell_sections(description, rated_mass_kg)
-    # a bad limit or an arm model without a rated payload fails before training
+    # a bad limit or an end effector beyond the rated payload fails before training
+    # (cell_sections refused an arm model without one)
     config_from_dict({"host": host, "arm": cell["arm"], "gate": cell["gate"]},
                      where="bench e2e")
     if link == "slcan-pty":

@@ -1,10 +1,10 @@
 """``iem bench faults``: the plug-in on the stream a real link delivers, against a clean run.
 
-The simulated controller (MuJoCo Panda with the test payload, the excitation path back and
-forth at 1 kHz in real time) runs in its own process as an slcan adapter on a pty, as a cell
-has it; the plug-in service runs in this process and opens it with python-can's slcan
-interface (fd profile). Two runs of the same noise seed and path, each with a fresh copy of
-one trained model:
+The simulated controller (the arm model's MuJoCo plant, the Panda by default, with the test
+payload, the excitation path back and forth at 1 kHz in real time) runs in its own process
+as an slcan adapter on a pty, as a cell has it; the plug-in service runs in this process and
+opens it with python-can's slcan interface (fd profile). Two runs of the same noise seed and
+path, each with a fresh copy of one trained model:
 
 - **clean**: no faults;
 - **faulty**: 5 % of the frames the controller sends dropped, 1 % corrupted (one bit), 2 %
@@ -299,7 +299,8 @@ def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str
     payload_file = str(REPO / "sim" / "payloads" / "test-3w.toml")
     truth = test_payloads()["test-3w"]
     cell = cell_sections(description, rated_mass_kg)
-    # an arm model without a rated payload fails before training
+    # an end effector beyond the rated payload fails before training (cell_sections
+    # refused an arm model without one)
     config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench faults")
     model = train_initial_model(kind, seed=0, log=lambda *a: None,
                                 noise="sensor",  # the simulated arm is its model

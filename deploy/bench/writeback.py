@@ -125,7 +125,8 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     from .writeback_scenarios import ideal_plant, realistic_plant, run_scenario
 
     cell = cell_sections(description, rated_mass_kg)
-    # an arm model without a rated payload fails before training
+    # an end effector beyond the rated payload fails before training (cell_sections
+    # refused an arm model without one)
     config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench writeback")
 
     timing = TIMING["quick" if quick else "full"]
