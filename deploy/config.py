@@ -137,7 +137,8 @@ class Ros2Config:
 
     ``domain_id`` -1: ``ROS_DOMAIN_ID`` from the environment, else 0;
     ``estimate_std_topic`` "": ``estimate_topic`` + ``_std``; ``joints``: "auto", "fr3",
-    "panda" or 7 names; ``flange_frame`` "": ``<arm>_link8`` of the joints read;
+    "panda" or 7 names ("auto": the arm model's, :meth:`CellConfig.link_options`);
+    ``flange_frame`` "": the arm model's flange;
     ``robot_state_topic``: franka_ros2's robot state, whose ``inertia_load`` is the load in
     force; ``diagnostics_topic``: where the gate's verdict goes;
     ``interface`` "" and ``peers`` (): Cyclone's configuration from ``CYCLONEDDS_URI``."""
