@@ -43,7 +43,13 @@ import numpy as np
 
 from iem.errors import InvalidInputError
 
-from .description import DEFAULT_ARM_MODEL, ArmDescription, arm_description, described_by
+from .description import (
+    DEFAULT_ARM_MODEL,
+    ArmDescription,
+    arm_description,
+    described,
+    described_by,
+)
 from .friction import FRICTION_COLUMNS, GAZ_COLUMNS, friction_torque
 
 ARM_SCHEMA = "iem-arm"
@@ -83,7 +89,7 @@ class ArmParams:
     Attributes:
         link_params: ``(7, 10)`` Pinocchio dynamic parameters of joint bodies 1..7 in their
             joint frames (kg, kg·m, kg·m² about the joint origin; body 7 holds link 7 and the
-            hand).
+            end effector).
         friction: per joint, ``(7, 3)`` Gaz's ``phi1`` (N·m), ``phi2`` (s/rad), ``phi3``
             (rad/s), or ``(7, 9)`` those plus viscous and Stribeck friction per direction
             (:data:`FRICTION_COLUMNS`, :func:`friction_torque`); all zero: no friction. Kept
@@ -132,7 +138,6 @@ class ArmParams:
         :class:`~sim.description.ArmDescription`; None: the default): its file's bodies with
         ``end_effector`` on body 7 (a spec or :class:`sim.end_effector.EndEffector`; None:
         the description's default), no friction, no offsets."""
-        from .description import described
         from .end_effector import EndEffector
         from .end_effector import end_effector as resolve
         from .robot import nominal_link_params
@@ -201,8 +206,6 @@ def load_arm(path, description=None) -> ArmParams:
     arm = load_model(path, registry={ArmParams.name: "sim.arm:ArmParams"},
                      schema=ARM_SCHEMA, label="arm")
     if description is not None:
-        from .description import described
-
         want = described(description)
         if want.digest != arm.description.digest:
             raise InvalidInputError(
@@ -274,7 +277,6 @@ def nominal_spec(end_effector, description=None) -> str:
     carrying ``end_effector`` (a name, or a tool file): on the default arm model a named one by
     its name, ``"sim.arm:nominal_dynamics@NAME"``; else by the content of that nominal arm
     (:func:`arm_spec`), never by a path."""
-    from .description import described
     from .end_effector import NAMED
 
     desc = described(description)

@@ -93,7 +93,7 @@ class RealityGap:
     What an arm model (:class:`sim.arm.ArmParams`, :meth:`realise`) describes, and a
     calibration can identify:
 
-    - per link body (``panda_link1..7``, each in its own frame): the mass scaled by
+    - per link body (the description's ``link_bodies``, each in its own frame): the mass scaled by
       ``1 + mass_rel u``, the principal moments about the CoM by ``1 + inertia_rel u`` (each,
       principal axes kept), the CoM moved by ``com_abs u`` per axis, ``u ~ U(-1, 1)``;
     - per joint, friction (:func:`sim.friction.friction_torque`): Gaz's
@@ -115,13 +115,14 @@ class RealityGap:
       ``U(0, offset_drift)`` N·m in a sine of period ``U(*drift_period_s)`` s;
     - two position ripples ``a sin(k q + phase)``, a slow one and a fast one (the fast one
       passes 3-10 Hz at the motion's speeds): ``a ~ U(0.5, 1)`` times ``ripple_large``
-      (joints 1-4) or ``ripple_small`` (joints 5-7), N·m, ``k ~ U(*ripple_wavenumber[i])``
-      rad⁻¹, ``phase ~ U(0, 2 pi)``.
+      (the large drives, :func:`large_drives`) or ``ripple_small`` (the others), N·m,
+      ``k ~ U(*ripple_wavenumber[i])`` rad⁻¹, ``phase ~ U(0, 2 pi)``.
 
     The defaults are tuned on gap seeds 10-12 so that the calibrated arm's held-out residual
     has the size and the colour of a real Panda's (docs/benchmarks.md, "The plants"). Body 7
-    keeps the Franka Hand. Each group of draws has its own stream of ``seed``: the links, Gaz's
-    factors and the offsets of a seed are the same whatever the other bounds.
+    keeps the end effector :meth:`realise` is given. Each group of draws has its own stream of
+    ``seed``: the links, Gaz's factors and the offsets of a seed are the same whatever the
+    other bounds.
 
     Attributes:
         mass_rel: relative mass error bound (-, default 0.05).

@@ -1,6 +1,7 @@
 """``iem bench e2e``: the plug-in against the simulated controller at 1 kHz, end to end.
 
-The simulated controller (MuJoCo Panda, default test payload) plays the excitation path back
+The simulated controller (the arm model's MuJoCo plant, the Panda by default; the default
+test payload) plays the excitation path back
 and forth in real time on python-can's virtual bus, in a thread of this process; the plug-in
 service (the best available model, trained on the excitation path first) runs against it
 for ``--seconds`` (default 60) and writes loads back through the safety gate.

@@ -27,9 +27,9 @@ def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> 
     """µs per :meth:`iem.online.OnlineIdentifier.step_block` of ``model`` along ``rollout``'s
     block points (a new task, learning on) with its ensemble's training in the learning
     worker, as the plug-in runs it on a live link (:meth:`iem.base.Estimator.go_live`):
-    ``{"median", "p99", "cpu_mean"}`` (``cpu_mean``: the step thread's CPU). The worker's own
-    time is not counted (it competes for the interpreter, so it shows in the step's time as
-    it would there).
+    ``{"median", "p99", "cpu_mean", "points"}`` (``cpu_mean``: the step thread's CPU). The
+    worker's own time is not counted (it competes for the interpreter, so it shows in the
+    step's time as it would there).
 
     ``rate_hz``: one step per period of that rate, the thread idle between them, as on a live
     link; None: back to back. Paced, the same steps cost more: each is a short burst of

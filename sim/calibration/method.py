@@ -52,8 +52,8 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        refuse: bool = True, description=None) -> ArmParams:
     """:func:`calibrate` on several recordings ``[(t, q, dq, tau), ...]``, each filtered on
     its own and split at its gaps (:func:`.signals.calibration_signals`).
-    ``end_effector`` (a spec or :class:`sim.end_effector.EndEffector`; None: the Franka
-    Hand) is the prior's body 7 and the nominal model the result is compared with, on the
+    ``end_effector`` (a spec or :class:`sim.end_effector.EndEffector`; None: the arm
+    model's default) is the prior's body 7 and the nominal model the result is compared with, on the
     arm model ``description`` (:mod:`sim.description`; None: the default).
     ``refuse=False`` fits too little excitation instead of refusing it (the prior holds the
     directions it lacks): the cross-validation's folds (:mod:`sim.calibration_noise`)."""
