@@ -61,7 +61,7 @@ class EndEffector:
         """``(10,)`` Pinocchio dynamic parameters it adds to body 7 of the arm ``description``
         (None: the default arm model), in the joint-7 frame."""
         from .description import described
-        from .robot import flange_placement
+        from .nominal import flange_placement
 
         desc = described(description)
         if self.inertia is None:
@@ -73,7 +73,7 @@ class EndEffector:
     def body7(self, description=None) -> np.ndarray:
         """``(10,)`` parameters of body 7 carrying it: the arm's bodies from joint 7 to the
         flange plus the end effector."""
-        from .robot import link7_params
+        from .nominal import link7_params
 
         return link7_params(description) + self.params(description)
 
@@ -81,9 +81,9 @@ class EndEffector:
 @cache
 def _own_hand(description) -> np.ndarray:
     """The hand a description's own file fuses into body 7 (joint-7 frame)."""
-    from .robot import _nominal_model, link7_params
+    from .nominal import link7_params, nominal_model
 
-    return _nominal_model(description).inertias[7].toDynamicParameters() - \
+    return nominal_model(description).inertias[7].toDynamicParameters() - \
         link7_params(description)
 
 
@@ -92,7 +92,7 @@ def _franka_hand() -> pin.Inertia:
     """The Franka Hand with its fingers, in the flange frame: example-robot-data's Panda
     hand, taken off that description's flange."""
     from .description import arm_description
-    from .robot import flange_placement
+    from .nominal import flange_placement
 
     panda = arm_description("panda")
     return flange_placement(panda).actInv(

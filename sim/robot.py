@@ -16,7 +16,8 @@ from functools import cache
 import numpy as np
 import pinocchio as pin
 
-from .description import ArmDescription, described
+from .description import described
+from .nominal import nominal_model
 
 # Paper order [m, mrx, mry, mrz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz] -> Pinocchio's dynamic
 # parameter order [m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz].
@@ -34,41 +35,6 @@ def phi_to_pin(phi: np.ndarray) -> np.ndarray:
     return np.asarray(phi)[..., PAPER_TO_PIN]
 
 
-@cache
-def _pin_model(description: ArmDescription, full: bool) -> pin.Model:
-    """The Pinocchio model of ``description``: its text (``full``: with what hangs beyond the
-    flange, the joints there locked at zero)."""
-    from iem.errors import InvalidInputError
-
-    text = description.full_text if full else description.text
-    try:
-        model = pin.buildModelFromXML(text)
-    except (RuntimeError, ValueError) as exc:
-        raise InvalidInputError(f"arm model {description.source}: Pinocchio cannot read it: "
-                                f"{exc}") from exc
-    locked = [model.getJointId(n) for n in description.locked if model.existJointName(n)]
-    if locked:
-        model = pin.buildReducedModel(model, locked, pin.neutral(model))
-    names = tuple(model.names[1:])
-    if model.nq != 7 or model.nv != 7 or names != description.joint_names:
-        raise InvalidInputError(f"arm model {description.source}: Pinocchio reads joints "
-                                f"{names} (nq {model.nq}, nv {model.nv}), the description's "
-                                f"arm joints are {description.joint_names}")
-    return model
-
-
-def _nominal_model(description=None) -> pin.Model:
-    return _pin_model(described(description), True)
-
-
-def link7_params(description=None) -> np.ndarray:
-    """``(10,)`` Pinocchio dynamic parameters of body 7 without any end effector (the bodies
-    from joint 7 to the flange, joint-7 frame)."""
-    out = _pin_model(described(description), False).inertias[7].toDynamicParameters()
-    out.flags.writeable = False
-    return out
-
-
 def nominal_link_params(end_effector=None, description=None) -> np.ndarray:
     """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7 of the arm
     ``description`` (None: the default arm model), body 7 carrying ``end_effector`` (a
@@ -77,20 +43,13 @@ def nominal_link_params(end_effector=None, description=None) -> np.ndarray:
     from .end_effector import end_effector as resolve
 
     desc = described(description)
-    model = _nominal_model(desc)
+    model = nominal_model(desc)
     out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
     ee = end_effector if isinstance(end_effector, EndEffector) else \
         resolve(end_effector or desc.default_end_effector)
     if not desc.carries_own(ee.spec):
         out[6] = ee.body7(desc)
     return out
-
-
-def flange_placement(description=None) -> pin.SE3:
-    """The flange frame in the joint-7 frame."""
-    desc = described(description)
-    model = _pin_model(desc, False)
-    return model.frames[model.getFrameId(desc.flange)].placement.copy()
 
 
 class ArmModel:
@@ -114,7 +73,7 @@ class ArmModel:
 
     def __init__(self, arm=None, description=None) -> None:
         self.description = arm.description if arm is not None else described(description)
-        self.model = _nominal_model(self.description).copy()
+        self.model = nominal_model(self.description).copy()
         self.arm = arm
         if arm is not None:
             for j in range(1, 8):

@@ -20,7 +20,8 @@ from iem.errors import InvalidInputError
 from sim.arm import ArmParams, load_arm, save_arm
 from sim.description import arm_description
 from sim.mujoco_model import build_mujoco_model
-from sim.robot import ArmModel, _pin_model, flange_placement
+from sim.nominal import flange_placement, pin_model
+from sim.robot import ArmModel
 
 # franka_description (github.com/frankarobotics/franka_description, Apache-2.0, Franka
 # Robotics GmbH), robots/fr3/inertials.yaml: per link its mass (kg), its centre of mass in the
@@ -103,7 +104,7 @@ def check_fr3_bodies(model: pin.Model) -> None:
 
 
 def test_fr3_bodies_are_franka_descriptions_inertials(fr3):
-    check_fr3_bodies(_pin_model(fr3, False))
+    check_fr3_bodies(pin_model(fr3, False))
     # the nominal arm bare (no end effector) is the same bodies, through the arm parameters
     check_fr3_bodies(ArmModel(arm=ArmParams.nominal("none", "fr3")).model)
 
@@ -111,7 +112,7 @@ def test_fr3_bodies_are_franka_descriptions_inertials(fr3):
 def test_fr3_is_not_the_panda(fr3):
     fr3_masses = [FR3_INERTIALS[j][0] for j in range(1, 8)]
     assert all(a != b for a, b in zip(fr3_masses, FER_MASSES, strict=True))
-    panda = _pin_model(arm_description("panda"), False)
+    panda = pin_model(arm_description("panda"), False)
     assert FR3_INERTIALS[1][0] == pytest.approx(2.93, abs=0.005)
     assert abs(panda.inertias[1].mass - FR3_INERTIALS[1][0]) > 0.1  # example-robot-data's
     assert arm_description("panda").digest != fr3.digest
@@ -121,7 +122,7 @@ def test_fr3_kinematics_names_flange_and_limits(fr3):
     assert fr3.joint_names == tuple(f"fr3_joint{i}" for i in range(1, 8))
     assert fr3.link_bodies == tuple(f"fr3_link{i}" for i in range(1, 8))
     assert fr3.flange == "fr3_link8"
-    model = _pin_model(fr3, False)
+    model = pin_model(fr3, False)
     for j, (xyz, rpy) in enumerate(FR3_KINEMATICS, start=1):
         placement = model.jointPlacements[j]
         np.testing.assert_allclose(placement.translation, xyz, **EXACT, err_msg=f"joint {j}")
@@ -201,7 +202,7 @@ def test_a_file_finds_its_own_flange_and_is_the_same_arm(tmp_path, fr3):
     assert desc.flange == "fr3_link8"
     assert desc.joint_names == fr3.joint_names
     assert desc.digest == fr3.digest  # known by content, not by its path or name
-    check_fr3_bodies(_pin_model(desc, False))
+    check_fr3_bodies(pin_model(desc, False))
 
 
 def test_a_mesh_that_does_not_resolve_costs_nothing(tmp_path, fr3):
@@ -223,7 +224,7 @@ def test_a_continuous_joint_is_revolute_within_one_turn():
     desc = arm_description(str(kinova_urdf()), "end_effector_link")
     for j in (0, 2, 4, 6):  # joint_1, 3, 5 and 7 are continuous in the file
         assert (desc.limits.q_min[j], desc.limits.q_max[j]) == (-np.pi, np.pi)
-    assert _pin_model(desc, False).nq == 7  # not cos/sin pairs
+    assert pin_model(desc, False).nq == 7  # not cos/sin pairs
 
 
 @pytest.mark.parametrize("spec, flange, names", [

@@ -7,8 +7,9 @@ from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import check_arm
 from sim.arm import ArmParams, arm_record, load_arm, save_arm
 from sim.end_effector import check_same, end_effector
+from sim.nominal import link7_params
 from sim.payload import Payload, save_payload
-from sim.robot import ArmModel, link7_params, nominal_link_params
+from sim.robot import ArmModel, nominal_link_params
 
 
 def test_franka_hand_is_the_nominal_model_to_the_bit():
