@@ -16,7 +16,7 @@ from pathlib import Path as FsPath
 from firmware_bridge.links import LINKS
 from firmware_bridge.protocol import PROFILES
 from iem.errors import InvalidInputError
-from iem.persistence import DEFAULT_MODEL
+from iem.model_kinds import DEFAULT_MODEL
 from iem.signals.filters import DEFAULT_CUTOFF_HZ
 from iem.signals.smoothing import DEFAULT_TAU_S
 
@@ -41,8 +41,8 @@ class ConfigError(InvalidInputError):
 
 LINK_KINDS = tuple(LINKS)  # the one table of link kinds (firmware_bridge.links)
 MODEL_KINDS = ("IEM", "IEM+phys")
-"""The model kinds a cell runs and ``iem train`` makes: those of :data:`iem.persistence.
-MODELS` that learn online; the default is :data:`iem.persistence.DEFAULT_MODEL`."""
+"""The model kinds a cell runs and ``iem train`` makes: those of :data:`iem.model_kinds.
+MODELS` that learn online; the default is :data:`iem.model_kinds.DEFAULT_MODEL`."""
 LOG_FORMATS = ("json", "text")
 LOG_LEVELS = ("debug", "info", "warning", "error")
 STATUS_MODES = ("auto", "on", "off")

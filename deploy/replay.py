@@ -14,7 +14,7 @@ runs; a replay has no silences (a gap in the recording is just a gap).
 
 The model is the one of ``--model FILE`` (loaded with the arm that ``--arm`` and
 ``--end-effector`` give: a model file references its arm by content, never by path) or, by
-default, a fresh model of the default kind (:data:`iem.persistence.DEFAULT_MODEL`,
+default, a fresh model of the default kind (:data:`iem.model_kinds.DEFAULT_MODEL`,
 IEM+phys) trained on the built-in excitation path with seed 0 for the recording's rate and
 ``--block-frames``. Either way the
 replay learns in memory only: the file is never written unless ``--save-model FILE`` asks
@@ -60,7 +60,7 @@ import numpy as np
 from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
-from iem.persistence import DEFAULT_MODEL
+from iem.model_kinds import DEFAULT_MODEL
 from iem.types import PARAMS
 
 from .options import (
@@ -155,7 +155,7 @@ def replay(log_file, *, profile: str = "fd", model=None, truth=None, save_model_
             rosbag2 bag (directory, ``.db3``, ``.mcap``) or a joint-state CSV.
         profile: the wire profile a CAN log was recorded with (``fd`` or ``classic``).
         model: the estimator to start from (copied, never changed); None: a fresh model
-            of :data:`iem.persistence.DEFAULT_MODEL` trained on the built-in excitation
+            of :data:`iem.model_kinds.DEFAULT_MODEL` trained on the built-in excitation
             path with seed 0, for the recording's rate and ``block_frames``.
         truth: a :class:`sim.payload.Payload` to compute the MAE against, or None.
         save_model_to: save the model learnt during the replay to this file (atomic).

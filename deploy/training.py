@@ -4,7 +4,7 @@ The tandem simulators of the configured training family (``cell`` by default: th
 container configurations and 77 random tools, :data:`sim.family.DEPLOY_FAMILY`) give
 the samples at every state of the planned excitation path (the built-in one, or a path CSV);
 the model's ``fit`` forms the initial bags and trains their learners. The model kinds are
-those of :data:`iem.persistence.MODELS` that can learn online (``IEM``, ``IEM+phys``).
+those of :data:`iem.model_kinds.MODELS` that can learn online (``IEM``, ``IEM+phys``).
 
 With an arm file (``--arm ARM``, from ``iem calibrate``) the tandem simulators are the
 calibrated arm (:class:`sim.robot.ArmModel` with ``arm=``: its bodies, friction and
@@ -23,7 +23,8 @@ import time
 
 from iem.ensemble.budget import DEFAULT_BUDGET_BAGS
 from iem.errors import InvalidInputError
-from iem.persistence import DEFAULT_MODEL, MODELS, new_model, save_model
+from iem.model_kinds import DEFAULT_MODEL, MODELS, new_model
+from iem.persistence import save_model
 from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY, FAMILIES
 
@@ -33,7 +34,7 @@ from .options import add_arm_model, add_block_frames, add_end_effector, add_rate
 
 def best_model_kind() -> str:
     """The kind ``iem train`` and the benchmarks make unless told otherwise:
-    :data:`iem.persistence.DEFAULT_MODEL`."""
+    :data:`iem.model_kinds.DEFAULT_MODEL`."""
     return DEFAULT_MODEL
 
 

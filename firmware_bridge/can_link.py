@@ -110,7 +110,8 @@ def open_bus(kind: str, channel: str, profile: str = "fd", **overrides) -> can.B
                         f"{exc}{hint}") from exc
 
 
-def _message(codec, data: bytes) -> can.Message:
+def can_message(codec, data: bytes) -> can.Message:
+    """The CAN frame of ``codec`` (its ID, classic or FD) carrying ``data``."""
     return can.Message(arbitration_id=codec.frame_id, data=data, is_extended_id=False,
                        is_fd=codec.is_fd, bitrate_switch=codec.is_fd, check=False)
 
@@ -274,7 +275,7 @@ class CanLink(FramedLink):
         frames, self._cmd_counter = codec.encode(seq, payload, self._cmd_counter)
         for data in frames:
             try:
-                self.bus.send(_message(codec.frame, data), timeout=SEND_TIMEOUT)
+                self.bus.send(can_message(codec.frame, data), timeout=SEND_TIMEOUT)
             except can.CanError as exc:
                 raise LinkError(f"{self.name}: sending the payload command failed: {exc}"
                                 ) from exc
@@ -321,7 +322,7 @@ class CanControllerPort(FramedControllerPort):
 
     def _emit(self, codec, data: bytes) -> None:
         try:
-            self.bus.send(_message(codec, data), timeout=SEND_TIMEOUT)
+            self.bus.send(can_message(codec, data), timeout=SEND_TIMEOUT)
             self.sent += 1
         except can.CanError as exc:
             self._send_failed(codec, exc)

@@ -45,7 +45,7 @@ class Estimator(Protocol):
     """What a caller may ask of an estimator (defaults: :class:`BaseEstimator`)."""
 
     name: str
-    """The kind, a key of :data:`iem.persistence.MODELS`."""
+    """The kind, a key of :data:`iem.model_kinds.MODELS`."""
     detects_changes: bool
     """Its estimates report payload changes (``extra["change"]``)."""
     tracks_payload: bool

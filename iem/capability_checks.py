@@ -25,14 +25,14 @@ from collections.abc import Callable
 from .base import Estimator
 from .check_data import (
     CheckData,
-    _fail,
-    _identical,
-    _learn,
-    _predictions,
-    _predictions_one,
-    _same_params,
-    _samples,
-    _train,
+    fail,
+    identical,
+    learn,
+    predictions,
+    predictions_one,
+    same_params,
+    samples,
+    train,
 )
 
 LIVE_POINTS = 5
@@ -43,16 +43,16 @@ def _same_estimate(a, b) -> bool:
     """Two :class:`iem.types.PayloadEstimate` alike field for field (arrays bit for bit)."""
     if (a.std is None) != (b.std is None):
         return False
-    return (_identical(a.phi, b.phi) and (a.std is None or _identical(a.std, b.std))
+    return (identical(a.phi, b.phi) and (a.std is None or identical(a.std, b.std))
             and a.t == b.t and a.bag == b.bag and a.learning == b.learning
-            and _same_params(a.nis, b.nis) and a.ood == b.ood
+            and same_params(a.nis, b.nis) and a.ood == b.ood
             and a.unverified == b.unverified and a.determined == b.determined
-            and _same_params(a.extra, b.extra))
+            and same_params(a.extra, b.extra))
 
 
 def _same_predictions(a, b, data: CheckData) -> bool:
-    return (_identical(_predictions(a, data), _predictions(b, data))
-            and _identical(_predictions_one(a, data), _predictions_one(b, data)))
+    return (identical(predictions(a, data), predictions(b, data))
+            and identical(predictions_one(a, data), predictions_one(b, data)))
 
 
 def check_capabilities_declared(make, data: CheckData) -> None:
@@ -64,25 +64,25 @@ def check_capabilities_declared(make, data: CheckData) -> None:
         declared = {*Estimator.__annotations__, *(m for m in vars(Estimator)
                                                   if not m.startswith("_"))}
         missing = sorted(declared - set(dir(est)))
-        raise _fail(name, f"{type(est).__name__} lacks {', '.join(missing)}: inherit "
+        raise fail(name, f"{type(est).__name__} lacks {', '.join(missing)}: inherit "
                           "iem.base.BaseEstimator for the defaults")
-    _train(est, data)
+    train(est, data)
     flags = {"detects_changes": est.detects_changes, "tracks_payload": est.tracks_payload,
              "background_learning": est.background_learning}
     for flag, value in flags.items():
         if not isinstance(value, bool):
-            raise _fail(name, f"{flag} is {value!r}, expected a bool")
+            raise fail(name, f"{flag} is {value!r}, expected a bool")
     if est.busy is not False:
-        raise _fail(name, f"busy is {est.busy!r} off a live link, expected False")
+        raise fail(name, f"busy is {est.busy!r} off a live link, expected False")
     cpu = est.learning_cpu_s
     if not (isinstance(cpu, float) and math.isfinite(cpu) and cpu >= 0.0):
-        raise _fail(name, f"learning_cpu_s is {cpu!r}, expected a finite float >= 0")
+        raise fail(name, f"learning_cpu_s is {cpu!r}, expected a finite float >= 0")
 
 
 def _twins(make, data: CheckData, n: int) -> list:
     """``n`` estimators trained alike (fresh from ``make()``, not copies: a copy of an
     estimator that learns in a worker holds only its published state)."""
-    twins = [_train(make(), data) for _ in range(n)]
+    twins = [train(make(), data) for _ in range(n)]
     for est in twins:
         est.drain()
     return twins
@@ -96,7 +96,7 @@ def check_resume_and_gap_keep_the_estimate(make, data: CheckData) -> None:
     for label, call in (("resume()", est.resume), ("gap(3)", lambda: est.gap(3))):
         call()
         if not _same_predictions(est, twin, data):
-            raise _fail(name, f"{label} changed the estimates")
+            raise fail(name, f"{label} changed the estimates")
 
 
 def check_learn_predict_one(make, data: CheckData) -> None:
@@ -106,15 +106,15 @@ def check_learn_predict_one(make, data: CheckData) -> None:
     est, twin = _twins(make, data, 2)
     for i in data.further_points():
         t = i * 1e-3
-        x, f, s = data.X[i].copy(), data.F[i].copy(), _samples(data, i)
+        x, f, s = data.X[i].copy(), data.F[i].copy(), samples(data, i)
         a = est.learn_predict_one(x, f, s, t=t)
         twin.learn_one(x, f, s)
         b = twin.predict_one(x, f, t=t)
         if not _same_estimate(a, b):
-            raise _fail(name, f"at point {i} learn_predict_one gave {a}, learn_one then "
+            raise fail(name, f"at point {i} learn_predict_one gave {a}, learn_one then "
                               f"predict_one {b}")
     if est.n_bags != twin.n_bags or not _same_predictions(est, twin, data):
-        raise _fail(name, "the model after learn_predict_one differs from the one after "
+        raise fail(name, "the model after learn_predict_one differs from the one after "
                           "learn_one and predict_one")
 
 
@@ -129,9 +129,9 @@ def check_observe_one_trains_nothing(make, data: CheckData) -> None:
     est.reset()
     twin.reset()
     if est.n_bags != twin.n_bags:
-        raise _fail(name, f"observe_one changed the bags: {twin.n_bags} -> {est.n_bags}")
+        raise fail(name, f"observe_one changed the bags: {twin.n_bags} -> {est.n_bags}")
     if not _same_predictions(est, twin, data):
-        raise _fail(name, "after reset() the model that observed predicts differently from "
+        raise fail(name, "after reset() the model that observed predicts differently from "
                           "one that did not: observe_one trained it")
 
 
@@ -146,21 +146,21 @@ def check_go_live_idempotent(make, data: CheckData) -> None:
         once.go_live()
         twice.go_live()
         twice.go_live()
-        if not _same_params(once.params(), twice.params()):
-            raise _fail(name, f"params() after go_live() once {once.params()}, twice "
+        if not same_params(once.params(), twice.params()):
+            raise fail(name, f"params() after go_live() once {once.params()}, twice "
                               f"{twice.params()}")
         if not _same_predictions(once, twice, data):
-            raise _fail(name, "estimates after go_live() twice differ from once")
+            raise fail(name, "estimates after go_live() twice differ from once")
         for i in data.further_points()[:LIVE_POINTS]:
             for est in (once, twice):
-                _learn(est, data, i)
+                learn(est, data, i)
                 est.drain()
         if not _same_predictions(once, twice, data):
-            raise _fail(name, "live learning landed differently after go_live() twice")
+            raise fail(name, "live learning landed differently after go_live() twice")
         for est in (once, twice):
             est.go_live(False)
-            if not _same_params(est.params(), offline.params()):
-                raise _fail(name, f"params() after go_live() and go_live(False) {est.params()}, "
+            if not same_params(est.params(), offline.params()):
+                raise fail(name, f"params() after go_live() and go_live(False) {est.params()}, "
                                   f"after go_live(False) alone {offline.params()}")
     finally:
         for est in (offline, once, twice):
@@ -175,18 +175,18 @@ def check_close_drain_stop_twice(make, data: CheckData) -> None:
     further = data.further_points()
     for model in (est, twin):
         for i in further[:-1]:
-            _learn(model, data, i)
+            learn(model, data, i)
         model.close()
         model.drain()
     for call in (est.close, est.drain, est.stop) * 2:
         call()
     if not _same_predictions(est, twin, data):
-        raise _fail(name, "close(), drain() or stop() after close() changed the estimates")
+        raise fail(name, "close(), drain() or stop() after close() changed the estimates")
     for model in (est, twin):
-        _learn(model, data, further[-1])
+        learn(model, data, further[-1])
         model.stop()
     if not _same_predictions(est, twin, data):
-        raise _fail(name, "learning after close(), drain() and stop() twice differs from "
+        raise fail(name, "learning after close(), drain() and stop() twice differs from "
                           "learning after close() once")
 
 

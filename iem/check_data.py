@@ -63,21 +63,22 @@ class CheckData:
 
 
 # -- helpers -----------------------------------------------------------------------------
-def _fail(check: str, message: str) -> CheckFailed:
+def fail(check: str, message: str) -> CheckFailed:
+    """The failure of ``check``, saying ``message``."""
     return CheckFailed(f"{check}: {message}")
 
 
-def _identical(a, b) -> bool:
+def identical(a, b) -> bool:
     """Same shape and the same bits (NaN where the other has NaN)."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-def _same_params(a, b) -> bool:
+def same_params(a, b) -> bool:
     """Equality of plain hyper-parameter values (NaN equals NaN, arrays by value)."""
     if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same_params(a[k], b[k]) for k in a)
+        return a.keys() == b.keys() and all(same_params(a[k], b[k]) for k in a)
     if isinstance(a, list | tuple | np.ndarray) or isinstance(b, list | tuple | np.ndarray):
         try:
             return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
@@ -88,7 +89,9 @@ def _same_params(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
-def _fit(est, data: CheckData, readonly: bool = False) -> None:
+def fit(est, data: CheckData, readonly: bool = False) -> None:
+    """``est.fit`` on the data's fit points, where the data have them and ``est`` has ``fit``
+    (``readonly``: its inputs not writeable)."""
     if data.fit_points is None or not hasattr(est, "fit"):
         return
     idx = np.asarray(data.fit_points, dtype=int)
@@ -99,12 +102,13 @@ def _fit(est, data: CheckData, readonly: bool = False) -> None:
         F.flags.writeable = False
 
     def samples_at(i: int):
-        return _samples(data, int(idx[i]), readonly)
+        return samples(data, int(idx[i]), readonly)
 
     est.fit(Q, F, samples_at)
 
 
-def _samples(data: CheckData, i: int, readonly: bool = False):
+def samples(data: CheckData, i: int, readonly: bool = False):
+    """The training samples at point ``i`` as fresh arrays (``readonly``: not writeable)."""
     Xs, Ys = data.samples_at(i)
     Xs = np.array(Xs, dtype=float)
     Ys = np.array(Ys, dtype=float)
@@ -114,35 +118,38 @@ def _samples(data: CheckData, i: int, readonly: bool = False):
     return Xs, Ys
 
 
-def _learn(est, data: CheckData, i: int) -> None:
-    est.learn_one(data.X[i].copy(), data.F[i].copy(), _samples(data, i))
+def learn(est, data: CheckData, i: int) -> None:
+    """``est`` learns point ``i``."""
+    est.learn_one(data.X[i].copy(), data.F[i].copy(), samples(data, i))
 
 
-def _train(est, data: CheckData):
+def train(est, data: CheckData):
     """Fit (if the data and the estimator allow) and learn the training points."""
-    _fit(est, data)
+    fit(est, data)
     for i in data.train_points():
-        _learn(est, data, i)
+        learn(est, data, i)
     return est
 
 
-def _predictions(est, data: CheckData) -> np.ndarray:
+def predictions(est, data: CheckData) -> np.ndarray:
+    """``est``'s estimates at every point of the path, by ``predict_many``."""
     return np.asarray(est.predict_many(data.X.copy(), data.F.copy()), dtype=float)
 
 
-def _predictions_one(est, data: CheckData) -> np.ndarray:
+def predictions_one(est, data: CheckData) -> np.ndarray:
+    """``est``'s estimates at every point of the path, by ``predict_one``."""
     return np.array([np.asarray(est.predict_one(data.X[i].copy(), data.F[i].copy()).phi,
                                 dtype=float) for i in range(data.n)])
 
 
-def _learn_together(a, b, data: CheckData, points):
+def learn_together(a, b, data: CheckData, points):
     """``a`` and ``b`` learn each point in turn and estimate at it; the first point where the
     estimates differ, as ``(i, phi_a, phi_b)``, or None."""
     for i in points:
-        _learn(a, data, i)
-        _learn(b, data, i)
+        learn(a, data, i)
+        learn(b, data, i)
         pa = a.predict_one(data.X[i].copy(), data.F[i].copy()).phi
         pb = b.predict_one(data.X[i].copy(), data.F[i].copy()).phi
-        if not _identical(pa, pb):
+        if not identical(pa, pb):
             return i, pa, pb
     return None

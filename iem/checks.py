@@ -35,16 +35,16 @@ from .capability_checks import CAPABILITY_CHECKS
 from .check_data import (
     CheckData,
     CheckFailed,
-    _fail,
-    _fit,
-    _identical,
-    _learn,
-    _learn_together,
-    _predictions,
-    _predictions_one,
-    _same_params,
-    _samples,
-    _train,
+    fail,
+    fit,
+    identical,
+    learn,
+    learn_together,
+    predictions,
+    predictions_one,
+    same_params,
+    samples,
+    train,
 )
 
 BYTES_PER_BAG = 8 * 1024
@@ -64,10 +64,10 @@ def check_predict_before_learn(make, data: CheckData) -> None:
     for i in (0, data.n - 1):
         phi = np.asarray(est.predict_one(data.X[i].copy(), data.F[i].copy()).phi)
         if phi.shape != (10,):
-            raise _fail(name, f"predict_one gave phi of shape {phi.shape}, expected (10,)")
+            raise fail(name, f"predict_one gave phi of shape {phi.shape}, expected (10,)")
     out = np.asarray(est.predict_many(data.X.copy(), data.F.copy()))
     if out.shape != (data.n, 10):
-        raise _fail(name, f"predict_many gave shape {out.shape}, expected ({data.n}, 10)")
+        raise fail(name, f"predict_many gave shape {out.shape}, expected ({data.n}, 10)")
 
 
 def check_inputs_not_mutated(make, data: CheckData) -> None:
@@ -78,72 +78,72 @@ def check_inputs_not_mutated(make, data: CheckData) -> None:
 
     # writable inputs: compare with copies after every call
     est = make()
-    _fit(est, data)
+    fit(est, data)
     X = data.X.copy()
     F = data.F.copy()
     for i in range(data.n):
         x, f = X[i].copy(), F[i].copy()
-        Xs, Ys = _samples(data, i)
+        Xs, Ys = samples(data, i)
         Xs0, Ys0 = Xs.copy(), Ys.copy()
         lazy = i % 2 == 1  # every other point gives its samples lazily
         est.learn_one(x, f, (lambda s=(Xs, Ys): s) if lazy else (Xs, Ys))
         for label, arr, ref in (("x", x, X0[i]), ("flange", f, F0[i]),
                                 ("samples X", Xs, Xs0), ("samples Y", Ys, Ys0)):
-            if not _identical(arr, ref):
-                raise _fail(name, f"learn_one changed its input {label} at point {i}")
+            if not identical(arr, ref):
+                raise fail(name, f"learn_one changed its input {label} at point {i}")
         est.predict_one(x, f)
-        if not (_identical(x, X0[i]) and _identical(f, F0[i])):
-            raise _fail(name, f"predict_one changed its input x or flange at point {i}")
+        if not (identical(x, X0[i]) and identical(f, F0[i])):
+            raise fail(name, f"predict_one changed its input x or flange at point {i}")
     est.predict_many(X, F)
-    if not (_identical(X, X0) and _identical(F, F0)):
-        raise _fail(name, "predict_many changed its input X or F")
+    if not (identical(X, X0) and identical(F, F0)):
+        raise fail(name, "predict_many changed its input X or F")
 
     # read-only inputs: must not raise
     est = make()
     try:
-        _fit(est, data, readonly=True)
+        fit(est, data, readonly=True)
         X.flags.writeable = False
         F.flags.writeable = False
         for i in range(data.n):
-            Xs, Ys = _samples(data, i, readonly=True)
+            Xs, Ys = samples(data, i, readonly=True)
             est.learn_one(X[i], F[i], (Xs, Ys))
             est.predict_one(X[i], F[i])
         est.predict_many(X, F)
     except ValueError as exc:
         if "read-only" not in str(exc):
             raise
-        raise _fail(name, f"the estimator writes into a read-only input: {exc}") from exc
-    if not (_identical(data.X, X0) and _identical(data.F, F0)):
-        raise _fail(name, "the estimator changed the CheckData's arrays")
+        raise fail(name, f"the estimator writes into a read-only input: {exc}") from exc
+    if not (identical(data.X, X0) and identical(data.F, F0)):
+        raise fail(name, "the estimator changed the CheckData's arrays")
 
 
 def check_copies_independent(make, data: CheckData) -> None:
     """A deep copy learns on its own; ``clone()`` is untrained with equal ``params()``."""
     name = "copies independent"
-    est = _train(make(), data)
-    before = _predictions(est, data)
+    est = train(make(), data)
+    before = predictions(est, data)
     twin = copy.deepcopy(est)
     for i in data.further_points():
-        _learn(twin, data, i)
-    if not _identical(_predictions(est, data), before):
-        raise _fail(name, "learning on a deep copy changed the original's predictions")
-    twin_before = _predictions(twin, data)
+        learn(twin, data, i)
+    if not identical(predictions(est, data), before):
+        raise fail(name, "learning on a deep copy changed the original's predictions")
+    twin_before = predictions(twin, data)
     for i in data.further_points():
-        _learn(est, data, i)
-    if not _identical(_predictions(twin, data), twin_before):
-        raise _fail(name, "learning on the original changed a deep copy's predictions")
+        learn(est, data, i)
+    if not identical(predictions(twin, data), twin_before):
+        raise fail(name, "learning on the original changed a deep copy's predictions")
     fresh = est.clone()
     if type(fresh) is not type(est):
-        raise _fail(name, f"clone() gave a {type(fresh).__name__}, expected {type(est).__name__}")
-    if not _same_params(fresh.params(), est.params()):
-        raise _fail(name, f"clone().params() = {fresh.params()} differs from "
+        raise fail(name, f"clone() gave a {type(fresh).__name__}, expected {type(est).__name__}")
+    if not same_params(fresh.params(), est.params()):
+        raise fail(name, f"clone().params() = {fresh.params()} differs from "
                           f"params() = {est.params()}")
     untrained = make()
     if fresh.n_bags != untrained.n_bags:
-        raise _fail(name, f"clone() has {fresh.n_bags} bags, a fresh estimator "
+        raise fail(name, f"clone() has {fresh.n_bags} bags, a fresh estimator "
                           f"{untrained.n_bags}: the clone is not untrained")
-    if not _identical(_predictions(fresh, data), _predictions(untrained, data)):
-        raise _fail(name, "clone() predicts differently from a fresh estimator: "
+    if not identical(predictions(fresh, data), predictions(untrained, data)):
+        raise fail(name, "clone() predicts differently from a fresh estimator: "
                           "it is not untrained")
 
 
@@ -152,55 +152,55 @@ def check_save_load(make, data: CheckData) -> None:
     from .persistence import load_model, save_model
 
     name = "save/load round trip"
-    est = _train(make(), data)
+    est = train(make(), data)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.iem"
         save_model(est, path)
         loaded = load_model(path)
     if type(loaded) is not type(est):
-        raise _fail(name, f"loaded a {type(loaded).__name__}, saved a {type(est).__name__}")
+        raise fail(name, f"loaded a {type(loaded).__name__}, saved a {type(est).__name__}")
     if loaded.n_bags != est.n_bags:
-        raise _fail(name, f"loaded model has {loaded.n_bags} bags, saved {est.n_bags}")
-    if not _identical(_predictions(loaded, data), _predictions(est, data)):
-        raise _fail(name, "predict_many differs after the round trip")
-    if not _identical(_predictions_one(loaded, data), _predictions_one(est, data)):
-        raise _fail(name, "predict_one differs after the round trip")
-    differ = _learn_together(est, loaded, data, data.further_points())
+        raise fail(name, f"loaded model has {loaded.n_bags} bags, saved {est.n_bags}")
+    if not identical(predictions(loaded, data), predictions(est, data)):
+        raise fail(name, "predict_many differs after the round trip")
+    if not identical(predictions_one(loaded, data), predictions_one(est, data)):
+        raise fail(name, "predict_one differs after the round trip")
+    differ = learn_together(est, loaded, data, data.further_points())
     if differ is not None:
         i, a, b = differ
-        raise _fail(name, f"after learning point {i} the loaded model predicts "
+        raise fail(name, f"after learning point {i} the loaded model predicts "
                           f"{np.asarray(b).tolist()}, the original {np.asarray(a).tolist()}")
-    if not _identical(_predictions(loaded, data), _predictions(est, data)):
-        raise _fail(name, "predictions differ after both learnt the same further points")
+    if not identical(predictions(loaded, data), predictions(est, data)):
+        raise fail(name, "predictions differ after both learnt the same further points")
 
 
 def check_seeded_determinism(make, data: CheckData) -> None:
     """Two estimators from ``make()`` fed the same data predict bit for bit the same."""
     name = "seeded determinism"
     one, two = make(), make()
-    _fit(one, data)
-    _fit(two, data)
-    differ = _learn_together(one, two, data, data.train_points() + data.further_points())
+    fit(one, data)
+    fit(two, data)
+    differ = learn_together(one, two, data, data.train_points() + data.further_points())
     if differ is not None:
         i, a, b = differ
-        raise _fail(name, f"after point {i}: {np.asarray(a).tolist()} vs "
+        raise fail(name, f"after point {i}: {np.asarray(a).tolist()} vs "
                           f"{np.asarray(b).tolist()}")
-    if not _identical(_predictions(one, data), _predictions(two, data)):
-        raise _fail(name, "predict_many differs between two estimators with the same seed")
+    if not identical(predictions(one, data), predictions(two, data)):
+        raise fail(name, "predict_many differs between two estimators with the same seed")
 
 
 def check_memory_bounded(make, data: CheckData) -> None:
     """``nbytes()`` stays within the bag budget, and relearning the same points adds nothing."""
     name = "memory bounded"
-    est = _train(make(), data)
+    est = train(make(), data)
     for i in data.further_points():
-        _learn(est, data, i)
+        learn(est, data, i)
 
     def within(when: str) -> int:
         nbytes = int(est.nbytes())
         bound = BYTES_PER_BAG * max(1, est.n_bags) + BYTES_FIXED
         if nbytes > bound:
-            raise _fail(name, f"{when}: nbytes() = {nbytes} exceeds {bound} "
+            raise fail(name, f"{when}: nbytes() = {nbytes} exceeds {bound} "
                               f"({BYTES_PER_BAG} per bag x {est.n_bags} bags + {BYTES_FIXED})")
         return nbytes
 
@@ -208,10 +208,10 @@ def check_memory_bounded(make, data: CheckData) -> None:
     bags = est.n_bags
     for p in range(REPEAT_PASSES):
         for i in range(data.n):
-            _learn(est, data, i)
+            learn(est, data, i)
         now = within(f"after relearning pass {p + 1}")
         if est.n_bags == bags and now > nbytes:
-            raise _fail(name, f"relearning pass {p + 1} grew nbytes() from {nbytes} to {now} "
+            raise fail(name, f"relearning pass {p + 1} grew nbytes() from {nbytes} to {now} "
                               f"with the number of bags unchanged ({bags})")
         nbytes, bags = now, est.n_bags
 

@@ -86,7 +86,7 @@ def register_factory(spec: str, target: str | None = None, names: tuple[str, ...
                      resource: str | None = None) -> None:
     """Let models name ``spec`` (``"module:function"``), built from ``target`` (default: the
     spec itself) with the ``names`` or the ``resource`` kind it takes as ``ARG``: how code
-    (a test's stand-in robot, say) adds a factory, as :func:`iem.persistence.register_model`
+    (a test's stand-in robot, say) adds a factory, as :func:`iem.model_kinds.register_model`
     adds a model kind."""
     target = spec if target is None else target
     for text, what in ((spec, "spec"), (target, "target")):

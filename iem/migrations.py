@@ -37,7 +37,7 @@ The steps:
         ``sim.arm:arm_dynamics@arm:CRC32`` too, that arm as the file records it (the record
         of a model trained with a tool is the nominal arm carrying it).
 
-A file names its kind's class (:data:`iem.persistence.MODELS`, ``"module:Class"``) and the
+A file names its kind's class (:data:`iem.model_kinds.MODELS`, ``"module:Class"``) and the
 factories in its state (``coverage``, ``reversal``, ``dynamics``: names of
 :data:`iem.factories.FACTORIES`). These go through :data:`ALIASES` at load
 (:func:`current_path`, :func:`with_current_paths`): a name that changes adds one row, old ->
@@ -57,7 +57,7 @@ Step = Callable[..., dict]
 ALIASES: dict[str, str] = {
     # the nominal arm's dynamics: one factory for every arm model (sim.description)
     "sim.robot:panda_dynamics": "sim.arm:arm_dynamics",
-    # iem's modules into sub-packages: the estimators' classes (iem.persistence.MODELS)
+    # iem's modules into sub-packages: the estimators' classes (iem.model_kinds.MODELS)
     "iem.ensemble:IncrementalEnsemble": "iem.ensemble.model:IncrementalEnsemble",
     "iem.physics:PhysicsInformedEnsemble": "iem.physics.model:PhysicsInformedEnsemble",
     "iem.old_iem": "iem.baselines.old_iem",

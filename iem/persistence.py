@@ -19,9 +19,9 @@ version cannot send a state through another version's migrations.
 The arm file (:mod:`sim.arm`) is written and read by the same functions under its own schema
 (``schema=``, ``label=``).
 
-``kind`` is the estimator's ``name``, looked up in :data:`MODELS` (name -> ``"module:Class"``,
-imported only when a file of that kind is loaded, as python-can does with its interfaces);
-the class rebuilds itself with ``Class.from_state(state)``.
+``kind`` is the estimator's ``name``, looked up in :data:`iem.model_kinds.MODELS` (name ->
+``"module:Class"``, imported only when a file of that kind is loaded, as python-can does with
+its interfaces); the class rebuilds itself with ``Class.from_state(state)``.
 
 ``version`` is the schema version the file was written at; files are written at
 :data:`VERSION`. A file of an older version is loaded through the steps of
@@ -32,10 +32,11 @@ through :data:`iem.migrations.ALIASES` at load, so that a name that changes keep
 loading.
 
 A model file holds data only: its kind and factory specs are looked up in fixed tables
-(:data:`MODELS`, :data:`iem.factories.FACTORIES`), and a spec the table lacks is refused
-with nothing imported. It names no path: the arm a model runs on is referenced by content
-(``...@arm:CRC32``, its ``arm`` record's CRC) and given at run time, ``load_model(path,
-resources={"arm": arm})``; without it, or with another, the file is refused naming both.
+(:data:`iem.model_kinds.MODELS`, :data:`iem.factories.FACTORIES`), and a spec the table lacks
+is refused with nothing imported. It names no path: the arm a model runs on is referenced by
+content (``...@arm:CRC32``, its ``arm`` record's CRC) and given at run time,
+``load_model(path, resources={"arm": arm})``; without it, or with another, the file is refused
+naming both.
 
 A file is written atomically (:mod:`iem.atomic_file`: a crash or an error at any point leaves
 either the old file or the new one). Every problem with a file, on saving or on loading,
@@ -45,70 +46,23 @@ escapes for a bad file.
 
 from __future__ import annotations
 
-import importlib
 import zlib
 from collections.abc import Mapping
 from pathlib import Path
 
 import msgpack
 
+from . import model_kinds
 from .atomic_file import write_atomically
 from .errors import InvalidInputError, ModelFileError
 from .factories import parse, provide, referenced, specs_in
-from .migrations import VERSION, current_path, migrate, with_current_paths
+from .migrations import VERSION, migrate, with_current_paths
 
 SCHEMA = "iem-payload-model"
 """The ``schema`` field of every model file."""
 
-MODELS: dict[str, str] = {
-    "IEM": "iem.ensemble.model:IncrementalEnsemble",
-    "old_IEM": "iem.baselines.old_iem:InPlaceEnsemble",
-    "BEM": "iem.baselines.bem:BatchEnsemble",
-    "LS": "iem.baselines.least_squares:RecursiveLeastSquares",
-    "IEM+phys": "iem.physics.model:PhysicsInformedEnsemble",
-}
-"""Estimator kinds that can be loaded: ``name -> "module:Class"``. Add one line per kind (or
-call :func:`register_model`); the module is imported only when a file of that kind is read."""
-
-DEFAULT_MODEL = "IEM+phys"
-"""The kind a plug-in runs unless its configuration names another (:func:`new_model`): the
-most accurate one, with uncertainty, physical consistency and payload-change detection."""
-
 _FIELDS: dict[str, type | tuple[type, ...]] = {
     "schema": str, "version": int, "kind": str, "crc32": int, "state": bytes}
-
-
-def register_model(kind: str, target: str) -> None:
-    """Make files of ``kind`` loadable by :func:`load_model` (``target``: ``"module:Class"``)."""
-    if not isinstance(kind, str) or not kind:
-        raise ValueError(f"model kind must be a non-empty str, got {kind!r}")
-    if not isinstance(target, str) or target.count(":") != 1:
-        raise ValueError(f"model target must be 'module:Class', got {target!r}")
-    MODELS[kind] = target
-
-
-def new_model(kind: str = DEFAULT_MODEL, **params):
-    """A fresh, untrained estimator of ``kind`` (a key of :data:`MODELS`), built with
-    ``params`` (its constructor's hyper-parameters): how a configuration selects a model.
-
-    Raises:
-        InvalidInputError: the kind is unknown or cannot be imported, or a parameter is not
-            one the kind accepts.
-    """
-    if kind not in MODELS:
-        raise InvalidInputError(f"unknown model kind {kind!r}; valid kinds are "
-                                f"{', '.join(sorted(MODELS))}")
-    module_name, _, class_name = MODELS[kind].partition(":")
-    try:
-        cls = getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError) as exc:
-        raise InvalidInputError(f"model kind {kind!r} ({MODELS[kind]}) cannot be imported: "
-                                f"{exc}") from exc
-    try:
-        return cls(**params)
-    except TypeError as exc:
-        raise InvalidInputError(f"model kind {kind!r} does not take these parameters "
-                                f"{sorted(params)}: {exc}") from exc
 
 
 # -- encoding ----------------------------------------------------------------------------
@@ -280,7 +234,8 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     if crc != head["crc32"]:
         raise ModelFileError(f"{where} is corrupt: the state's CRC32 is {crc:#010x}, the "
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
-    cls = _model_class(head["kind"], MODELS if registry is None else registry, where)
+    cls = model_kinds.model_class(head["kind"], model_kinds.MODELS if registry is None
+                                   else registry, where)
     state = _unpack(state_bytes, f"{where}: the state is not valid msgpack")
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
@@ -348,19 +303,6 @@ def _checked_head(data: bytes, where: str, schema: str) -> dict:
     return head
 
 
-def _model_class(kind: str, registry: Mapping[str, str], where: str):
-    if kind not in registry:
-        raise ModelFileError(f"{where} holds a model of unknown kind {kind!r}; known kinds: "
-                             f"{', '.join(sorted(registry)) or '(none)'}")
-    target = registry[kind]
-    try:
-        module_name, _, class_name = current_path(str(target)).partition(":")
-        return getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError, ValueError, InvalidInputError) as exc:
-        raise ModelFileError(f"{where} holds a model of kind {kind!r}, registered as "
-                             f"{target!r}, which cannot be imported: {exc}") from exc
-
-
 # -- files -------------------------------------------------------------------------------
 def save_model(model, path, schema: str = SCHEMA, label: str = "model") -> None:
     """Write ``model`` to ``path`` atomically (:func:`iem.atomic_file.write_atomically`: the
@@ -385,7 +327,7 @@ def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SC
     Args:
         path: the model file.
         registry: ``kind -> "module:Class"`` to resolve the model's kind (default
-            :data:`MODELS`).
+            :data:`iem.model_kinds.MODELS`).
         schema, label: as for :func:`loads` (the arm file has its own).
         resources: what the model runs on, given at run time: ``{"arm": arm}``
             (:class:`sim.arm.ArmParams`: the configured arm file, or the nominal arm

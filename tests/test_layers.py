@@ -5,7 +5,7 @@ The rules: the value types and errors (``iem.types``, ``iem.payload``, ``iem.err
 the numpy-only home everything imports; ``iem`` imports neither ``sim`` nor ``deploy``;
 ``firmware_bridge`` and the safety gate (``deploy/gate*.py``) never import ``sim``; ``sim``
 imports neither ``deploy`` nor ``firmware_bridge``. So a definition every layer shares (the
-model kind's default, :data:`iem.persistence.DEFAULT_MODEL`) lives in the lowest layer that
+model kind's default, :data:`iem.model_kinds.DEFAULT_MODEL`) lives in the lowest layer that
 needs it.
 """
 

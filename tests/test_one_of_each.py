@@ -1,5 +1,5 @@
 """One of each: the model kind a cell runs unless told otherwise is defined once,
-:data:`iem.persistence.DEFAULT_MODEL`, and every default of a kind (the configuration's,
+:data:`iem.model_kinds.DEFAULT_MODEL`, and every default of a kind (the configuration's,
 ``iem train``'s, ``iem replay``'s fresh model, the trainer's) is that constant, imported.
 
 The source check reads every module of the packages (ast) for a model kind written as a
@@ -12,7 +12,7 @@ from pathlib import Path
 
 from tests.test_layers import PACKAGES, REPO
 
-THE_DEFINITION = ("iem/persistence.py", "DEFAULT_MODEL")
+THE_DEFINITION = ("iem/model_kinds.py", "DEFAULT_MODEL")
 
 
 def _kind(node, kinds) -> bool:
@@ -57,7 +57,7 @@ def kind_defaults(root: Path, kinds) -> list[tuple[str, int, str]]:
 
 
 def _kinds():
-    from iem.persistence import MODELS
+    from iem.model_kinds import MODELS
 
     return set(MODELS)
 
@@ -70,7 +70,7 @@ def test_the_check_sees_a_second_default(tmp_path):
     """The test above can fail: each way of writing a second default is found."""
     for package in PACKAGES:
         (tmp_path / package).mkdir()
-    (tmp_path / "iem" / "persistence.py").write_text('DEFAULT_MODEL = "IEM+phys"\n')
+    (tmp_path / "iem" / "model_kinds.py").write_text('DEFAULT_MODEL = "IEM+phys"\n')
     (tmp_path / "deploy" / "more.py").write_text(
         'from dataclasses import dataclass\n'
         'DEFAULT_KIND = "IEM"\n'
@@ -94,7 +94,7 @@ def test_every_default_of_a_kind_is_the_one_constant(tmp_path, monkeypatch):
     import deploy.training
     from deploy.config import MODEL_KINDS, ModelConfig
     from deploy.replay import replay
-    from iem.persistence import DEFAULT_MODEL, new_model
+    from iem.model_kinds import DEFAULT_MODEL, new_model
 
     assert DEFAULT_MODEL in MODEL_KINDS
     assert ModelConfig().kind == DEFAULT_MODEL

@@ -53,7 +53,7 @@ def _states(n: int) -> list[JointState]:
 
 def _frames(profile: str, n: int) -> list[tuple[int, list[can.Message]]]:
     """``(cycle, messages)`` of ``n`` published cycles (cycle numbers step by the stride)."""
-    from firmware_bridge.can_link import _message
+    from firmware_bridge.can_link import can_message
     from firmware_bridge.protocol import profile as get_profile
 
     js = get_profile(profile).joint_state
@@ -62,7 +62,7 @@ def _frames(profile: str, n: int) -> list[tuple[int, list[can.Message]]]:
         state = JointState(t=s.t * js.stride, q=s.q, dq=s.dq, tau_J=s.tau_J,
                            cycle=s.cycle * js.stride)
         frames, _ = js.encode(state, i & 0x0F)
-        out.append((state.cycle, [_message(codec, data) for codec, data in frames]))
+        out.append((state.cycle, [can_message(codec, data) for codec, data in frames]))
     return out
 
 

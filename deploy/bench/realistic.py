@@ -236,7 +236,7 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
     out_dir = FsPath(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     bench = RealisticBench(quick=quick, seed=seed, log=log, description=description)
-    arm, held_out, arm_file = _arm(bench, out_dir, arm_file, log)
+    arm, held_out, arm_file = calibrated_arm(bench, out_dir, arm_file, log)
     cal_tandem = TandemSimulators(bench.tandem.phi, model=ArmModel(arm=arm))
     tandems = {"IEM+cal": cal_tandem, "IEM+phys+cal": cal_tandem}
     models = bench.make_models(arm_file)
@@ -263,7 +263,7 @@ def run_realistic(out_dir, quick: bool = False, seed: int = 0, log=print,
     return results
 
 
-def _arm(bench: RealisticBench, out_dir: FsPath, arm_file, log):
+def calibrated_arm(bench: RealisticBench, out_dir: FsPath, arm_file, log):
     """``(arm, held_out, arm_file)``: the bare arm calibrated (its file written to
     ``out_dir``, its held-out residuals), or the given ``arm_file`` (held out: None)."""
     from sim.arm import load_arm, save_arm

@@ -89,13 +89,13 @@ def realistic_plant(seed: int, out_dir, log=print, description=None,
     """``iem bench realistic``'s plant of ``seed`` (its reality gap), the bare arm calibrated
     as that bench does (written to ``out_dir``), IEM+phys trained for the calibrated arm (as
     ``iem train --arm``)."""
-    from deploy.bench.realistic import RealisticBench, _arm
+    from deploy.bench.realistic import RealisticBench, calibrated_arm
     from deploy.training import train_initial_model
 
     bench = RealisticBench(seed=seed, log=lambda *a: None, description=description)
     folder = FsPath(out_dir) / f"realistic-seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
-    arm, held_out, arm_file = _arm(bench, folder, None, log)
+    arm, held_out, arm_file = calibrated_arm(bench, folder, None, log)
     model = train_initial_model("IEM+phys", seed=seed, arm_file=str(arm_file), log=log,
                                 description=description)
     return Plant("realistic", seed, model, gap=bench.gap, arm_file=str(arm_file),

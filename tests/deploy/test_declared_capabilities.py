@@ -16,7 +16,8 @@ from firmware_bridge.protocol import profile as wire_profile
 from iem.base import BaseEstimator
 from iem.ensemble import IncrementalEnsemble
 from iem.errors import ModelFileError
-from iem.persistence import DEFAULT_MODEL, save_model
+from iem.model_kinds import DEFAULT_MODEL
+from iem.persistence import save_model
 from iem.physics import PhysicsInformedEnsemble
 from sim.arm import NOMINAL_DYNAMICS
 

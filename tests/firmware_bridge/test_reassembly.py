@@ -5,7 +5,7 @@ import itertools
 import can
 import pytest
 
-from firmware_bridge.can_link import CanDecoder, _message
+from firmware_bridge.can_link import CanDecoder, can_message
 from firmware_bridge.links import LinkCounters
 from firmware_bridge.protocol import profile
 from firmware_bridge.reassembly import Sequencer, TimeUnwrapper
@@ -19,7 +19,7 @@ def frames_of(name, states, counter0=0):
     out = []
     for i, s in enumerate(states):
         frames, _ = js.encode(s, (counter0 + i) & 0x0F)
-        out.append([_message(c, d) for c, d in frames])
+        out.append([can_message(c, d) for c, d in frames])
     return out
 
 
@@ -85,7 +85,7 @@ def test_the_same_cycle_number_with_new_content_is_stale():
     js = profile("fd").joint_state
     s0, s1 = synthetic_states(2)
     frozen = type(s1)(t=s1.t, q=s1.q, dq=s1.dq, tau_J=s1.tau_J, cycle=0)  # cycle did not advance
-    msgs = [_message(c, d) for st_, k in ((s0, 0), (frozen, 1)) for c, d in js.encode(st_, k)[0]]
+    msgs = [can_message(c, d) for st_, k in ((s0, 0), (frozen, 1)) for c, d in js.encode(st_, k)[0]]
     dec = CanDecoder("fd")
     assert len(feed(dec, msgs)) == 1
     assert dec.counters.stale == 1
@@ -94,7 +94,8 @@ def test_the_same_cycle_number_with_new_content_is_stale():
 def test_a_repeated_alive_counter_is_stale():
     js = profile("fd").joint_state
     s0, s1, s2 = synthetic_states(3)
-    frames = [_message(c, d) for s, k in ((s0, 4), (s1, 4), (s2, 5)) for c, d in js.encode(s, k)[0]]
+    frames = [can_message(c, d) for s, k in ((s0, 4), (s1, 4), (s2, 5))
+              for c, d in js.encode(s, k)[0]]
     dec = CanDecoder("fd")
     assert [s.cycle for s in feed(dec, frames)] == [0, 2]
     assert dec.counters.stale == 1 and dec.counters.lost == 1

@@ -7,7 +7,7 @@ import can
 import numpy as np
 import pytest
 
-from firmware_bridge.can_link import CanControllerPort, CanDecoder, CanLink, _message, open_bus
+from firmware_bridge.can_link import CanControllerPort, CanDecoder, CanLink, can_message, open_bus
 from firmware_bridge.faults import FaultSpec
 from firmware_bridge.links import LinkCounters
 from firmware_bridge.protocol import Heartbeat, profile
@@ -25,7 +25,7 @@ def encoded(name, states, counter0=0, t0=1000.0):
     out = []
     for i, s in enumerate(states):
         frames, _ = js.encode(s, (counter0 + i) & 0x0F)
-        msgs = [_message(c, d) for c, d in frames]
+        msgs = [can_message(c, d) for c, d in frames]
         for m in msgs:
             m.timestamp = t0 + s.t
         out.append(msgs)

@@ -18,12 +18,12 @@ from iem.baselines.old_iem import InPlaceEnsemble
 from iem.checks import CheckData, CheckFailed, check_estimator
 from iem.ensemble import IncrementalEnsemble
 from iem.errors import IemError, InvalidInputError
-from iem.persistence import MODELS
+from iem.model_kinds import MODELS
 from iem.physics import PhysicsInformedEnsemble
 from iem.types import PayloadEstimate
 from sim.arm import NOMINAL_DYNAMICS
 
-# One line per estimator kind of iem.persistence.MODELS; each lambda returns a fresh, seeded
+# One line per estimator kind of iem.model_kinds.MODELS; each lambda returns a fresh, seeded
 # estimator.
 ESTIMATORS = {
     "IEM": lambda: IncrementalEnsemble(seed=0, fit_epochs=2, warmup_iters=10, iters=2),
@@ -85,10 +85,10 @@ def test_synthetic_path_forms_several_bags():
     spread = np.linalg.norm(Q.max(0) - Q.min(0))
     assert np.degrees(spread) > 60
     est = ESTIMATORS["IEM"]()
-    checks._train(est, DATA)
+    checks.train(est, DATA)
     n_train = est.n_bags
     for i in DATA.further_points():
-        checks._learn(est, DATA, i)
+        checks.learn(est, DATA, i)
     assert n_train >= 2
     assert est.n_bags > n_train  # the further points reach new ground
 

@@ -31,7 +31,8 @@ from iem.migrations import (
     migrate,
     with_current_paths,
 )
-from iem.persistence import MODELS, dumps, load_model, loads, new_model
+from iem.model_kinds import MODELS, new_model
+from iem.persistence import dumps, load_model, loads
 from sim.arm import NOMINAL_DYNAMICS
 
 DATA = Path(__file__).parent / "data"
@@ -322,7 +323,7 @@ def test_a_registered_class_at_a_moved_path_loads(monkeypatch):
 OLD_MODELS = {"IEM": "iem.ensemble:IncrementalEnsemble", "old_IEM": "iem.old_iem:InPlaceEnsemble",
               "BEM": "iem.bem:BatchEnsemble", "LS": "iem.least_squares:RecursiveLeastSquares",
               "IEM+phys": "iem.physics:PhysicsInformedEnsemble"}
-"""The estimators' classes as :data:`iem.persistence.MODELS` named them before iem/ became
+"""The estimators' classes as :data:`iem.model_kinds.MODELS` named them before iem/ became
 sub-packages."""
 
 

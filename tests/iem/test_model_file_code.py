@@ -20,7 +20,8 @@ import pytest
 from deploy.cli import main
 from iem import factories
 from iem.errors import InvalidInputError, ModelFileError
-from iem.persistence import VERSION, dumps, load_model, loads, new_model
+from iem.model_kinds import new_model
+from iem.persistence import VERSION, dumps, load_model, loads
 from sim.arm import NOMINAL_DYNAMICS, ArmParams, arm_record, arm_spec, load_arm, save_arm
 from sim.end_effector import NAMED
 from sim.family import PAYLOAD_DIR

@@ -17,10 +17,11 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from iem import persistence
+from iem import model_kinds, persistence
 from iem.ensemble import IncrementalEnsemble
 from iem.errors import IemError, ModelFileError
-from iem.persistence import MODELS, SCHEMA, load_model, loads, save_model
+from iem.model_kinds import MODELS
+from iem.persistence import SCHEMA, load_model, loads, save_model
 
 K = 12  # samples per point (the tandem simulators give 77; a dozen keeps this fast)
 
@@ -219,13 +220,13 @@ def test_explicit_registry(tmp_path):
 
 
 def test_register_model_extends_the_table(tmp_path, monkeypatch):
-    monkeypatch.setattr(persistence, "MODELS", dict(MODELS))
-    persistence.register_model("toy", TOY)
+    monkeypatch.setattr(model_kinds, "MODELS", dict(MODELS))
+    model_kinds.register_model("toy", TOY)
     save_model(_Toy(3), tmp_path / "toy")
     assert load_model(tmp_path / "toy").value == 3
     assert "toy" not in MODELS  # the real table was not touched
     with pytest.raises(ValueError, match="module:Class"):
-        persistence.register_model("bad", "no_colon")
+        model_kinds.register_model("bad", "no_colon")
 
 
 @pytest.mark.parametrize("target", ["no_such_module_xyz:Model", f"{__name__}:Missing",
@@ -669,7 +670,7 @@ def test_loads_names_its_source():
 def test_new_model_selects_a_kind_by_name():
     from iem.baselines.least_squares import RecursiveLeastSquares
     from iem.errors import InvalidInputError
-    from iem.persistence import DEFAULT_MODEL, new_model
+    from iem.model_kinds import DEFAULT_MODEL, new_model
     from iem.physics import PhysicsInformedEnsemble
 
     assert DEFAULT_MODEL == "IEM+phys" and DEFAULT_MODEL in MODELS
@@ -707,8 +708,8 @@ def _regression(dynamics):
 
 @pytest.mark.parametrize("build", [
     _physics, _least_squares, _regression,
-    lambda d: persistence.new_model("IEM+phys", dynamics=d),
-    lambda d: persistence.new_model("LS", dynamics=d)],
+    lambda d: model_kinds.new_model("IEM+phys", dynamics=d),
+    lambda d: model_kinds.new_model("LS", dynamics=d)],
     ids=["IEM+phys", "LS", "regression", "new_model IEM+phys", "new_model LS"])
 def test_an_estimator_without_dynamics_refuses_saying_what_it_needs(build):
     from iem.errors import InvalidInputError
