@@ -57,23 +57,25 @@ BENCHES: Table = {
     "longrun": ("deploy.bench.longrun", "IEM and IEM+phys over a long random motion, per 30 s"),
     "real": ("deploy.bench.real", "the plug-in on a real Panda's recording: calibrated on one "
              "part, payloads identified on the rest"),
-    "writeback": ("deploy.bench.writeback", "the write-back, scenario by scenario, simulated"),
+    "writeback": ("deploy.bench.writeback.command",
+                  "the write-back, scenario by scenario, simulated"),
 }
 
 COMMANDS: Table = {
-    "demo": ("deploy.demo", "run the main job on the simulated arm (--arm-model; the Panda by "
-             "default) and print a summary"),
-    "run": ("deploy.run", "the plug-in service: identify the payload, write it back"),
-    "train": ("deploy.training", "make an initial model from the excitation path"),
-    "calibrate": ("deploy.calibrate", "identify the arm's departure from its model from "
-                  "bare-arm traffic: the arm file"),
-    "replay": ("deploy.replay", "run the plug-in over a recording (CAN log, rosbag2 bag, "
-                               "joint-state CSV), as fast as possible"),
-    "identify": ("deploy.identify", "identify a payload offline from a loaded and a bare log"),
-    "set-load": ("deploy.set_load", "write a payload file (or --clear: no load) to the "
+    "demo": ("deploy.commands.demo", "run the main job on the simulated arm (--arm-model; the "
+             "Panda by default) and print a summary"),
+    "run": ("deploy.commands.run", "the plug-in service: identify the payload, write it back"),
+    "train": ("deploy.commands.train", "make an initial model from the excitation path"),
+    "calibrate": ("deploy.commands.calibrate", "identify the arm's departure from its model "
+                  "from bare-arm traffic: the arm file"),
+    "replay": ("deploy.commands.replay", "run the plug-in over a recording (CAN log, rosbag2 "
+               "bag, joint-state CSV), as fast as possible"),
+    "identify": ("deploy.commands.identify",
+                 "identify a payload offline from a loaded and a bare log"),
+    "set-load": ("deploy.commands.set_load", "write a payload file (or --clear: no load) to the "
                  "controller through the gate's checks"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),
-    "sim-controller": ("deploy.sim_controller",
+    "sim-controller": ("deploy.commands.sim_controller",
                        "the simulated controller: the plant at 1 kHz behind a bus or link"),
     "bus-load": ("firmware_bridge.busload", "bits per frame and bus load of a wire profile"),
     "record": ("firmware_bridge.record", "record a CAN bus to .blf, .log, .asc or .trc"),
@@ -116,10 +118,9 @@ def is_config_error(exc: BaseException) -> bool:
     (:class:`deploy.config.ConfigError`), a payload file (:class:`iem.errors.PayloadError`),
     a path file (:class:`iem.errors.PathError`), a link kind, profile or option
     (:class:`firmware_bridge.errors.BridgeConfigError`)."""
+    from deploy.config import ConfigError
     from firmware_bridge.errors import BridgeConfigError
     from iem.errors import PathError, PayloadError
-
-    from .config import ConfigError
 
     return isinstance(exc, ConfigError | PayloadError | PathError | BridgeConfigError)
 

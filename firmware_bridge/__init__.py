@@ -19,7 +19,7 @@ The plug-in's only way to the robot. Modules, one concept each:
 - :mod:`.franka_link`: a Franka Research 3 through pylibfranka (extra ``franka``; libfranka
   >= 0.10, exclusive FCI).
 - :mod:`.controller_port`: the controller's end of a link (the simulated controller,
-  :mod:`deploy.sim_controller`, stands behind it).
+  :mod:`deploy.simcell.controller`, stands behind it).
 - :mod:`.slcan_adapter`, :mod:`.pty_pair`: an emulated slcan adapter on a pty, for
   cross-process tests on a machine without AF_CAN.
 - :mod:`.faults`: drop, corrupt, duplicate, delay, silence.

@@ -4,7 +4,7 @@
 :class:`~firmware_bridge.can_link.CanControllerPort` on a python-can bus or an emulated slcan
 adapter, a :class:`~firmware_bridge.serial_link.SerialControllerPort` on a serial device or
 a pty), with the faults of :func:`fault_spec` injected on what it sends. The simulated
-controller (:mod:`deploy.sim_controller`) and the link check suite
+controller (:mod:`deploy.simcell.controller`) and the link check suite
 (:class:`firmware_bridge.link_harness.ControllerHarness`) stand behind it.
 """
 

@@ -215,8 +215,8 @@ class RecordingSource:
     asked for (``iem replay``); ``pace="recorded"`` waits until each is due at the recorded
     pace (gaps longer than ``skip`` s shortened to it), as python-can's ``MessageSync`` paces
     a CAN log for ``iem run``, whose reader thread drops the oldest states once the estimator
-    is 0.5 s behind (:mod:`deploy.reader`). ``counters``: ``received`` and ``delivered`` count
-    joint states; ``lost`` counts the cycles at ``rate_hz`` that the time stamps
+    is 0.5 s behind (:mod:`deploy.service.reader`). ``counters``: ``received`` and
+    ``delivered`` count joint states; ``lost`` counts the cycles at ``rate_hz`` that the time stamps
     skip (as the ``ros2`` link counts them), ``silences`` the gaps longer than
     ``silence_timeout`` (what a live link would have reported there). Nothing is dropped:
     the file was checked whole. ``truncated`` and ``bad_lines`` are those of a CAN log's

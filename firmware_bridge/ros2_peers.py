@@ -6,7 +6,7 @@
   ``matched`` when a reader matched, then ``done <n>``).
 - :class:`Ros2ControllerPort`: a controller's port behind ROS 2: its joint states on
   ``/franka/joint_states``, its loads set through a :class:`SetLoadServer`; the simulated
-  controller stands behind it in its own process (``python -m deploy.ros2_controller``).
+  controller stands behind it in its own process (``python -m deploy.simcell.ros2_controller``).
 - :class:`SetLoadServer`: ``/service_server/set_load`` as rmw_cyclonedds_cpp serves it
   (request header echoed, USER_DATA ``serviceid=``), or, with ``layout="fastrtps"``, a
   replier as rmw_fastrtps_cpp's looks to a Cyclone client: no ``serviceid=`` and no header

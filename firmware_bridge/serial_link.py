@@ -179,7 +179,8 @@ def open_serial_link(kind: str, channel: str, *, profile: str = "fd",
 
 # -- the controller's side -----------------------------------------------------------------
 class SerialControllerPort(FramedControllerPort):
-    """The controller's end of the serial link (see :class:`deploy.sim_controller.SimController`).
+    """The controller's end of the serial link (see
+    :class:`deploy.simcell.controller.SimController`).
 
     Faults apply to ``body + CRC32`` before COBS, so a corrupted message fails its CRC.
     """

@@ -250,7 +250,7 @@ def test_a_quote_that_differs_from_benchmarks_is_found():
         assert quote_problems(doc, figures), doc
 
 
-# -- docs/configuration.md against deploy/config.py ------------------------------------------
+# -- docs/configuration.md against deploy/config/sections.py ---------------------------------
 def reference_tables() -> dict[str, dict[str, tuple[str, str]]]:
     """``{section: {key: (default cell, range cell)}}`` of the configuration reference."""
     out: dict[str, dict[str, tuple[str, str]]] = {}
@@ -340,13 +340,13 @@ def test_the_commissioning_page_names_every_step():
 def test_the_commissioning_procedure_runs_on_simulated_traffic(tmp_path, capsys):
     """Steps 2-8 of ``docs/commissioning.md`` on the modelled-only plant (gap seed 3: an arm
     whose departure from its model an arm file describes), the recordings written as the
-    controller would have sent them (``tests/deploy/test_identify.py``'s ``write_log``)."""
+    controller would have sent them (``tests/deploy/commands/test_identify.py``'s ``write_log``)."""
     from deploy.cli import main
     from sim.family import default_test_payload
     from sim.paths import calibration_path
     from sim.payload import load_payload
     from sim.plant import ArmPlant, RealityGap
-    from tests.deploy.test_identify import write_log
+    from tests.deploy.commands.test_identify import write_log
 
     gap = RealityGap(seed=3).modelled_only()
     truth = default_test_payload()
@@ -376,7 +376,7 @@ def test_the_commissioning_procedure_runs_on_simulated_traffic(tmp_path, capsys)
             if command == "record":  # the plant's recording stands in for the bus
                 assert Path(args[args.index("--out") + 1]).name in recordings
                 continue
-            if command == "set-load":  # no controller here: tests/deploy/test_set_load.py
+            if command == "set-load":  # no controller here: tests/deploy/commands/test_set_load.py
                 continue
             args = [here(a) for a in args]
             if command == "run":

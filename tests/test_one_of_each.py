@@ -91,23 +91,24 @@ class _Trained(Exception):
 def test_every_default_of_a_kind_is_the_one_constant(tmp_path, monkeypatch):
     import argparse
 
-    import deploy.training
+    import deploy.commands.train
+    import deploy.model.training
     from deploy.config import MODEL_KINDS, ModelConfig
-    from deploy.replay import replay
+    from deploy.replay.core import replay
     from iem.model_kinds import DEFAULT_MODEL, new_model
 
     assert DEFAULT_MODEL in MODEL_KINDS
     assert ModelConfig().kind == DEFAULT_MODEL
-    for function in (deploy.training.train_initial_model, new_model):
+    for function in (deploy.model.training.train_initial_model, new_model):
         assert inspect.signature(function).parameters["kind"].default == DEFAULT_MODEL
     parser = argparse.ArgumentParser()
-    deploy.training.configure(parser)
+    deploy.commands.train.configure(parser)
     assert parser.parse_args(["--out", "m.msgpack"]).kind == DEFAULT_MODEL  # iem train
 
     def trainer(kind, *args, **kwargs):
         raise _Trained(kind, kwargs["rate_hz"], kwargs["block_frames"])
 
-    monkeypatch.setattr(deploy.training, "train_initial_model", trainer)
+    monkeypatch.setattr(deploy.model.training, "train_initial_model", trainer)
     csv = tmp_path / "rec.csv"
     header = ["t", *(f"{n}{j}" for n in ("q", "dq", "tau") for j in range(1, 8))]
     rows = [",".join([f"{k * 1e-3:.3f}", *["0.1"] * 21]) for k in range(20)]

@@ -14,9 +14,9 @@ import json
 import time
 from pathlib import Path as FsPath
 
+from deploy.options import add_arm_model, arm_description_of
 from iem.types import PARAMS
 
-from ..options import add_arm_model, arm_description_of
 from .harness import Bench
 
 

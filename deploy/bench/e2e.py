@@ -19,19 +19,19 @@ live beside the same steps again back to back: once the run is over and the cont
 stopped, a copy of the model as it was before the run steps through the run's own block
 points in this thread without a pause. The back-to-back figure is the code's own cost; what
 the live one adds is the price of each point starting after the thread slept (the caches it
-finds cold, :mod:`deploy.host`) and of what runs beside it. Targets: no lost cycles,
+finds cold, :mod:`deploy.service.host`) and of what runs beside it. Targets: no lost cycles,
 block-to-estimate p99 ≤ 2 ms, at most 0.10 of one core (0.12 with ``--link slcan-pty``).
 ``--json FILE`` writes ``{"cycles", "lost", "latency_us": {"p50", "p99"}, "age_us": {"p50",
 "p99"}, "cpu_share", "cpu_share_parts", "peak_rss_mb", "cpu_dma_latency_us", "step_cpu_us": {"live",
 "back_to_back", "points"}, ...}`` (``cycles``: block points; ``step_cpu_us``: µs of CPU a
 point).
 ``--cpu-dma-latency-us US`` holds a CPU wake-up latency limit during the run, as ``[host]
-cpu_dma_latency_us`` does for the service (:mod:`deploy.host`; the JSON's
+cpu_dma_latency_us`` does for the service (:mod:`deploy.service.host`; the JSON's
 ``cpu_dma_latency_us`` is the limit held, null for none): the idle cores then poll, and
 their CPU is not in ``cpu_share``.
 
-The controller shares the interpreter (:mod:`deploy.inprocess`), so each frame also waits for
-the controller thread's own work.
+The controller shares the interpreter (:mod:`deploy.simcell.inprocess`), so each frame also
+waits for the controller thread's own work.
 ``--link slcan-pty`` runs the controller in its own process instead, as a cell has it, as
 an slcan adapter on a pty that the plug-in opens with python-can's slcan interface (fd
 profile); there the latency starts when python-can parses the frame in the plug-in's
@@ -59,8 +59,8 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     ``rated_mass_kg`` (None: the arm model's rated payload), from ``model`` (a trained
     model of that arm; None: trained first, as the service does)."""
     from deploy.config import config_from_dict
-    from deploy.sim_controller import cell_sections
-    from deploy.training import best_model_kind
+    from deploy.model.training import best_model_kind
+    from deploy.simcell.cell import cell_sections
 
     kind = model.name if model is not None else kind or best_model_kind()
     host = {"cpu_dma_latency_us": cpu_dma_latency_us}
@@ -71,7 +71,7 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
                      where="bench e2e")
     if link == "slcan-pty":
         return _measure_slcan_pty(seconds, kind, seed, log, host, description, cell, model)
-    from deploy.inprocess import simulated_cell, virtual_channel
+    from deploy.simcell.inprocess import simulated_cell, virtual_channel
 
     with tempfile.TemporaryDirectory() as tmp:
         config = config_from_dict({
@@ -100,9 +100,9 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
                        description=None, cell: dict | None = None, model=None) -> dict:
     """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
     from deploy.config import config_from_dict
-    from deploy.service import Service
-    from deploy.status import StatusLine
-    from deploy.training import train_initial_model
+    from deploy.model.training import train_initial_model
+    from deploy.service.loop import Service
+    from deploy.service.status import StatusLine
 
     if model is None:
         model = train_initial_model(kind, seed=seed, log=lambda *a: None,
@@ -212,7 +212,7 @@ def configure(parser) -> None:
     parser.add_argument("--link", choices=["virtual", "slcan-pty"], default="virtual",
                         help="virtual: the controller in this process (default); slcan-pty: "
                              "the controller in its own process behind slcan on a pty")
-    from deploy.host import add_cpu_latency_option
+    from deploy.service.host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
     from deploy.options import add_arm_model

@@ -87,8 +87,8 @@ def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
 def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dict | None,
          fault_seed: int, log, cell: dict | None = None) -> dict:
     """One run: the controller process, the service here; what it estimated and wrote."""
-    from deploy.service import Service
-    from deploy.status import StatusLine
+    from deploy.service.loop import Service
+    from deploy.service.status import StatusLine
 
     cell = cell or {"arm": {}, "gate": {}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -126,7 +126,7 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
 def _cell_config(pty: str, model, tmp: str, cell: dict | None = None):
     """The cell of a run: slcan on the controller's pty, the model checkpointed in ``tmp``,
     the arm model and the gate's rating of ``cell``
-    (:func:`deploy.sim_controller.cell_sections`)."""
+    (:func:`deploy.simcell.cell.cell_sections`)."""
     from deploy.config import config_from_dict
 
     cell = cell or {"arm": {}, "gate": {}}
@@ -291,8 +291,8 @@ def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str
     """Both runs on the arm model ``description`` (None: the default), the gate rated for
     ``rated_mass_kg`` (None: the arm model's rated payload)."""
     from deploy.config import config_from_dict
-    from deploy.sim_controller import cell_sections
-    from deploy.training import best_model_kind, train_initial_model
+    from deploy.model.training import best_model_kind, train_initial_model
+    from deploy.simcell.cell import cell_sections
     from sim.family import test_payloads
 
     kind = kind or best_model_kind()

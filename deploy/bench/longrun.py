@@ -8,7 +8,7 @@ Set-up (everything seeded by ``--seed``):
 - The plant (:class:`sim.plant.ArmPlant`, perfect arm, default sensor model) carries the
   test payload (``test-3w``) and is told it, so it follows the motion.
 - The models are trained as ``iem train`` does
-  (:func:`deploy.training.train_initial_model`) and fed through
+  (:func:`deploy.model.training.train_initial_model`) and fed through
   :class:`iem.online.OnlineIdentifier` as the service feeds them, learning as they go.
 
 Per 30 s window (the last one also takes the tail of the last segment past the run's length,
@@ -53,12 +53,12 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from deploy.options import add_arm_model, arm_description_of
 from iem.ensemble.budget import DEFAULT_BUDGET_BAGS
 from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
 from iem.types import JointState
 
-from ..options import add_arm_model, arm_description_of
 from .harness import rollout_blocks
 from .random_motion import random_segments, reversed_path
 from .window_feed import WindowFeed, percentiles, rss_mb
@@ -71,13 +71,13 @@ ROUTE_SIZES = (2000, 20000, 100000)
 """Bags of the maps the scan and exact distances are timed on (``route_sizes``)."""
 LONGRUN_PARAMS = {"reversal": "sim.coverage:reversed_velocities", "coverage": None}
 """The ensemble's parameters for long runs (plus ``budget_bags``): the plug-in's
-(:data:`deploy.training.DEPLOY_ENSEMBLE`)."""
+(:data:`deploy.model.training.DEPLOY_ENSEMBLE`)."""
 PLAIN_PARAMS = {"reversal": None, "coverage": None, "budget_bags": None}
 """``--plain``: the paper's rule, none of the plug-in's ensemble settings."""
 
 
 def train_models(seed: int, log, params: dict | None = None, description=None) -> dict:
-    from deploy.training import train_initial_model
+    from deploy.model.training import train_initial_model
 
     return {kind: train_initial_model(kind, seed=seed, log=log, noise="sensor",
                                       description=description, **(params or {}))

@@ -94,12 +94,12 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from deploy.options import add_arm_model, arm_description_of
 from iem.baselines.old_iem import RUNNING_CENTRE, InPlaceEnsemble
 from iem.sensor import SensorModel
 from iem.signals.smoothing import DEFAULT_TAU_S
 from iem.types import PARAMS
 
-from ..options import add_arm_model, arm_description_of
 from .harness import Bench
 from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path, unchanged
 from .report import paper_forgetting

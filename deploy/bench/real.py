@@ -143,8 +143,8 @@ def case_figures(summary: dict, estimates, truth_phi) -> dict:
 
 def run_real(out_dir, directory=None, split: float = SPLIT, cases=None, log=print) -> dict:
     """Calibrate, train and replay as the module docstring says; the results dict."""
-    from deploy.replay import replay
-    from deploy.training import train_initial_model
+    from deploy.model.training import train_initial_model
+    from deploy.replay.core import replay
     from iem.persistence import save_model
     from sim.arm import save_arm
     from sim.calibration import segments
@@ -227,7 +227,7 @@ def configure(parser) -> None:
     parser.add_argument("--split", type=float, default=SPLIT,
                         help="share of the recording that calibrates (default 0.5)")
     parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
-    from ..options import add_arm_model
+    from deploy.options import add_arm_model
 
     add_arm_model(parser)
 
@@ -247,7 +247,7 @@ def require_panda(description, what: str) -> None:
 
 
 def run(args) -> int:
-    from ..options import arm_description_of
+    from deploy.options import arm_description_of
 
     require_panda(arm_description_of(args), "iem bench real")
     if not 0.2 <= args.split <= 0.8:

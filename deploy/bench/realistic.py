@@ -46,12 +46,12 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from deploy.options import add_arm_model, arm_description_of
 from iem.ensemble import IncrementalEnsemble
 from iem.physics import PhysicsInformedEnsemble
 from iem.sensor import DEFAULT_SENSOR
 from iem.types import GROUPS, NOMINAL_RATE_HZ
 
-from ..options import add_arm_model, arm_description_of
 from .harness import CHANGE_TO, Bench
 from .realistic_report import report
 
@@ -157,7 +157,7 @@ class RealisticBench(Bench):
         return arm, check
 
     def make_models(self, arm_file=None) -> dict:
-        from deploy.training import arm_torque_noise
+        from deploy.model.training import arm_torque_noise
         from sim.arm import arm_spec, load_arm
 
         q = self.quick

@@ -72,7 +72,7 @@ def measure(calls: int = 2000, repeats: int = 15, plant_seconds: float = 2.0,
 
 
 def configure(parser) -> None:
-    from ..options import add_arm_model
+    from deploy.options import add_arm_model
 
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     parser.add_argument("--calls", type=int, default=2000, help="calls per timing batch")
@@ -80,7 +80,7 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from ..options import arm_description_of
+    from deploy.options import arm_description_of
 
     figures = measure(calls=args.calls, description=arm_description_of(args))
     print(f"RNEA                 {figures['rnea_us']:8.2f} µs/call")

@@ -36,7 +36,7 @@ def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> 
     interpreter and NumPy code that starts with cold caches and predictors. The paced figure
     is the one a cell meets; the back-to-back one is the code's own cost."""
     model.reset()
-    model.go_live()  # the live link's set-up, as deploy.service makes it
+    model.go_live()  # the live link's set-up, as deploy.service.loop makes it
     online = OnlineIdentifier(model, bench.kin.flange_position, bench.tandem.samples,
                               learn=True)
     blocks = rollout_blocks(rollout)

@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import InvalidInputError
 
 DEFAULT_BUDGET_BAGS = 2000
-"""The bag budget of a model the plug-in trains (``deploy.training.DEPLOY_ENSEMBLE``) and of
+"""The bag budget of a model the plug-in trains (``deploy.model.training.DEPLOY_ENSEMBLE``) and of
 ``iem bench longrun`` (``--budget``)."""
 
 PROBATION_SHARE = 0.1

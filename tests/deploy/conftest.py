@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[2]
 def _trained_file(kind: str, tmp_path_factory, arm_model: str | None = None) -> Path:
     """A model of ``kind`` trained on the excitation path (lightly, to keep tests quick) for
     the arm model ``arm_model`` (None: the default), saved once per session."""
-    from deploy.training import train_initial_model
+    from deploy.model.training import train_initial_model
     from iem.persistence import save_model
 
     model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20,

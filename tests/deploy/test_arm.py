@@ -6,7 +6,7 @@ import pytest
 
 from deploy.cli import main
 from deploy.config import config_from_dict, load_config
-from deploy.replay import CSV_HEADER
+from deploy.replay.core import CSV_HEADER
 from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import check_arm, load_model
 from iem.physics.regression import load_dynamics
@@ -100,7 +100,7 @@ def trained_on_a_copy_of_the_arm(files, tmp_path, kind: str):
     copy of the fixture's arm file in ``tmp_path``, accepted by ``check_model_arm``."""
     import shutil
 
-    from deploy.training import check_model_arm
+    from deploy.model.training import check_model_arm
 
     arm_file = tmp_path / "arm.msgpack"
     shutil.copy(files / "arm.msgpack", arm_file)
@@ -113,7 +113,7 @@ def trained_on_a_copy_of_the_arm(files, tmp_path, kind: str):
 
 
 def test_the_learners_reversal_is_the_arms_and_a_changed_arm_file_is_refused(files, tmp_path):
-    from deploy.training import check_model_arm
+    from deploy.model.training import check_model_arm
     from sim.coverage import reversal_spec
 
     model, arm_file, _ = trained_on_a_copy_of_the_arm(files, tmp_path, "IEM")

@@ -7,10 +7,12 @@ from __future__ import annotations
 import pytest
 
 from deploy.config import ConfigError, config_from_dict
-from deploy.gate import SafetyGate
-from deploy.load_writer import LoadWriter
-from deploy.model_setup import load_or_train_model, wire_check_of
-from deploy.training import check_model_arm
+from deploy.model.setup import load_or_train_model
+from deploy.model.training import check_model_arm
+from deploy.service.capabilities import check_sink, wire_check_for
+from deploy.writeback.gate import SafetyGate
+from deploy.writeback.wire import wire_check_of
+from deploy.writeback.writer import LoadWriter
 from firmware_bridge.links import EstimatePublisher, PayloadSink, WireProfiled
 from firmware_bridge.protocol import profile as wire_profile
 from iem.base import BaseEstimator
@@ -103,9 +105,11 @@ _NoReport = type("_NoReport", (), {k: v for k, v in vars(_Sink).items()
 def test_a_writer_needs_a_payload_sink_and_refuses_anything_else():
     gate = SafetyGate()
     assert isinstance(_Sink(), PayloadSink) and not isinstance(_NoReport(), PayloadSink)
+    check_sink(_Sink(), write=True)
     assert LoadWriter(gate, _Sink(), write=True).sink is not None
     with pytest.raises(ConfigError, match=r"_NoReport cannot write loads.*PayloadSink"):
-        LoadWriter(gate, _NoReport(), write=True)
+        check_sink(_NoReport(), write=True)
+    check_sink(_NoReport(), write=False)
     assert LoadWriter(gate, _NoReport(), write=False).sink is None  # decides only
 
 
@@ -115,11 +119,13 @@ class _Profiled:
 
 def test_a_can_kind_needs_a_declared_wire_profile():
     assert isinstance(_Profiled(), WireProfiled) and not isinstance(_Sink(), WireProfiled)
-    check = wire_check_of(_Profiled(), "virtual")
+    check = wire_check_for(_Profiled(), "virtual")
     assert check is not None and check.keywords == {"profile": "classic"}
+    assert wire_check_of(_Profiled()).keywords == {"profile": "classic"}
     with pytest.raises(ConfigError, match=r"kind 'socketcan'.*_Sink declares no wire profile"):
-        wire_check_of(_Sink(), "socketcan")
-    assert wire_check_of(_Sink(), "serial") is None  # msgpack floats: no ranges
+        wire_check_for(_Sink(), "socketcan")
+    assert wire_check_for(_Sink(), "serial") is None  # msgpack floats: no ranges
+    assert wire_check_for(_Sink()) is None
     assert wire_check_of(_Sink()) is None
 
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from deploy.config import config_from_dict, load_config
-from deploy.service import Service
-from deploy.status import StatusLine
+from deploy.service.loop import Service
+from deploy.service.status import StatusLine
 from iem.metrics import mae_groups
 from iem.persistence import load_model
 from sim.family import default_test_payload
@@ -58,7 +58,7 @@ def run_in_process(model_file, *, faults=None, seconds=7.0, gate=None, path=None
     The service works on ``model_file`` and saves it at the end; give each run its own copy.
     Returns the service summary, the controller, and the smoothed estimates per cycle.
     """
-    from deploy.inprocess import simulated_cell, virtual_channel
+    from deploy.simcell.inprocess import simulated_cell, virtual_channel
     from sim.paths import new_task_path
 
     doc = cell_config(model_file, {"kind": "virtual", "channel": virtual_channel("test"),

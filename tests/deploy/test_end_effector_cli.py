@@ -6,9 +6,9 @@ import logging
 import numpy as np
 import pytest
 
-from deploy.arm_watch import HOLD_S, ArmWatch
 from deploy.cli import main
 from deploy.config import ConfigError, config_from_dict
+from deploy.service.arm_watch import HOLD_S, ArmWatch
 from iem.types import PayloadEstimate
 from sim.arm import ArmParams, load_arm, save_arm
 

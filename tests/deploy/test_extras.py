@@ -36,7 +36,7 @@ class Absent:
 
 sys.meta_path.insert(0, Absent())
 out = {}
-import deploy.service, deploy.calibrate, deploy.identify  # the cell PC's commands
+import deploy.service, deploy.commands.calibrate, deploy.commands.identify  # a cell PC's
 from deploy.cli import main
 
 

@@ -134,8 +134,8 @@ def test_a_given_rate_overrides_the_detected_one(csvs, pipeline, capsys, tmp_pat
     s = json.loads(summary.read_text())
     assert (s["rate_hz"], s["rate_source"], s["block_frames"]) == (400.0, "given", 4)
     assert "recording at 400 Hz (given), block points of 4 frames" in capsys.readouterr().err
-    from deploy.calibrate import traffic_rate
-    from deploy.identify import recording_rate_line
+    from deploy.commands.calibrate import traffic_rate
+    from deploy.commands.identify import recording_rate_line
     from iem.signals.recording import Recording
 
     t = np.arange(100) / 200.0
@@ -156,7 +156,7 @@ def test_a_model_for_another_point_rate_is_refused_naming_the_train(csvs, pipeli
 
 
 def test_recordings_at_different_rates_are_not_calibrated_together(tmp_path):
-    from deploy.calibrate import traffic_rate
+    from deploy.commands.calibrate import traffic_rate
 
     parts = [(np.arange(100) / r, *(np.zeros((100, 7)) for _ in range(3))) for r in (200, 1000)]
     with pytest.raises(InvalidInputError, match=r"different rates \(a at 200 Hz, b at 1000 Hz"):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from deploy.cli import main
-from deploy.replay import CSV_HEADER, replay
+from deploy.replay.core import CSV_HEADER, replay
 from firmware_bridge.recordings import CSV_COLUMNS, read_recording
 from sim.family import default_test_payload
 from sim.paths import new_task_path
@@ -239,9 +239,9 @@ def test_calibrate_and_identify_take_the_same_formats(tmp_path, monkeypatch, cap
     logs give; iem calibrate reads the same joint states from every format (what its
     numerics make of them, 3-25 s a run on this machine, is sim.calibration's tests' matter:
     the run stops once read); both name a bad recording as iem replay does."""
-    import deploy.calibrate
-    from deploy.calibrate import calibrate_sources, read_states
-    from deploy.identify import read_log
+    import deploy.commands.calibrate
+    from deploy.commands.calibrate import calibrate_sources, read_states
+    from deploy.commands.identify import read_log
     from sim.identify import identify
     from sim.paths import excitation_path
     from sim.plant import RealityGap
@@ -265,7 +265,7 @@ def test_calibrate_and_identify_take_the_same_formats(tmp_path, monkeypatch, cap
     def stop_after_reading(source, *args):
         raise Read(read_states(source, *args))
 
-    monkeypatch.setattr(deploy.calibrate, "read_states", stop_after_reading)
+    monkeypatch.setattr(deploy.commands.calibrate, "read_states", stop_after_reading)
     read = {}
     for name, path in bare.items():
         with pytest.raises(Read) as info:

@@ -226,8 +226,8 @@ def test_the_service_writes_a_load_the_simulated_kinova_acknowledges(kin, models
     import shutil
 
     from deploy.config import config_from_dict
-    from deploy.inprocess import simulated_cell, virtual_channel
-    from deploy.sim_controller import cell_sections
+    from deploy.simcell.cell import cell_sections
+    from deploy.simcell.inprocess import simulated_cell, virtual_channel
     from sim.paths import new_task_path
     from tests.deploy.conftest import cell_config
 

@@ -160,7 +160,7 @@ def test_fault_specs_are_checked():
 @pytest.mark.parametrize("name", ["fd", "classic"])
 def test_soak_real_time_controller_with_every_fault(name, channel):
     """20 s of the real-time controller on the virtual bus with every kind of fault."""
-    from deploy.sim_controller import SimController
+    from deploy.simcell.controller import SimController
 
     spec = FaultSpec(drop=0.02, corrupt=0.01, duplicate=0.01, delay=0.01, silence_at=8.0,
                      silence_for=0.5, seed=11)

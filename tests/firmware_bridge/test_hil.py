@@ -4,7 +4,7 @@ pty with the simulated controller in a separate process, (c) vcan (skipped witho
 import numpy as np
 import pytest
 
-from deploy.sim_controller import SimController
+from deploy.simcell.controller import SimController
 from firmware_bridge.can_link import CanControllerPort, CanLink, open_bus
 from sim.family import default_test_payload
 from sim.paths import Q0, excitation_path

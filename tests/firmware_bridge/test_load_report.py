@@ -13,7 +13,7 @@ from iem.payload import Payload
 
 pytest.importorskip("mujoco", reason="the simulated controller needs MuJoCo")
 
-from deploy.sim_controller import SimController
+from deploy.simcell.controller import SimController
 from sim.paths import excitation_path
 
 _channels = itertools.count()

@@ -48,7 +48,7 @@ def record_virtual(tmp_path, channel, profile, suffix, n=200, pace=0.0):
 def states_of(path, profile, pace="fast"):
     # these logs are well under a second long: a stall of this shared machine between two
     # frames of one recorded cycle is not a controller silence to replay (it would forget
-    # the cycle in flight, as tests/deploy/test_replay.py shows); the identity is on trial
+    # the cycle in flight, as tests/deploy/replay/test_replay.py shows); the identity is on trial
     with ReplaySource(path, profile, pace=pace, silence_timeout=5.0) as src:
         return list(src), src.counters
 

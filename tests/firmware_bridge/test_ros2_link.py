@@ -313,7 +313,7 @@ VERDICT = {"reason": "over_rated", "detail": "mass 3.400 kg + end effector 0.730
 
 
 def test_every_gate_reason_has_a_level():
-    from deploy.gate import REASONS
+    from deploy.writeback.gate import REASONS
     from firmware_bridge.ros2_diagnostics import ERROR, LEVELS, OK, WARN, level_of
 
     assert set(REASONS) <= set(LEVELS), set(REASONS) - set(LEVELS)

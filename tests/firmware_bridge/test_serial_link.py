@@ -7,7 +7,7 @@ import serial
 from hypothesis import given
 from hypothesis import strategies as st
 
-from deploy.sim_controller import SimController
+from deploy.simcell.controller import SimController
 from firmware_bridge.errors import ControllerSilent, DecodeError, LinkError
 from firmware_bridge.pty_pair import PtyPair
 from firmware_bridge.serial_link import SerialControllerPort, SerialDecoder, SerialLink, open_serial

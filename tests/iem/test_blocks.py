@@ -24,7 +24,7 @@ def recorded(tmp_path_factory):
     from sim.family import default_test_payload
     from sim.paths import excitation_path
     from sim.plant import ArmPlant
-    from tests.deploy.test_identify import write_log
+    from tests.deploy.commands.test_identify import write_log
 
     path = tmp_path_factory.mktemp("blocks") / "rec.blf"
     rollout = ArmPlant(payload=default_test_payload(), seed=3).follow(

@@ -183,7 +183,7 @@ def test_online_loop_bridges_skips_and_restarts_by_one_rule():
 def excitation_run():
     """A light IEM+phys trained on the excitation path, and the plant's run along its first
     8 s with test-3w (noise seed 7)."""
-    from deploy.training import tandem_for, train_initial_model
+    from deploy.model.training import tandem_for, train_initial_model
     from sim.family import test_payloads
     from sim.paths import excitation_path
     from sim.plant import ArmPlant

@@ -209,7 +209,7 @@ def test_a_moved_model_runs_with_its_arm_given_from_elsewhere(trained, tmp_path)
 
 
 def test_a_model_for_a_tool_on_the_nominal_arm_references_that_arm(tmp_path):
-    from deploy.training import load_arm_file, make_model
+    from deploy.model.training import load_arm_file, make_model
 
     tool = tmp_path / "tool.toml"
     shutil.copy(PAYLOAD_DIR / "test-3w.toml", tool)
@@ -260,7 +260,7 @@ def test_a_file_of_the_previous_version_with_an_absolute_arm_path_loads(trained,
 
 def test_a_previous_version_file_with_a_tool_path_loads_as_the_nominal_arm_carrying_it(
         tmp_path):
-    from deploy.training import load_arm_file
+    from deploy.model.training import load_arm_file
 
     tool = tmp_path / "tool.toml"
     shutil.copy(PAYLOAD_DIR / "test-3w.toml", tool)

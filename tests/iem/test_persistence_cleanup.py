@@ -79,7 +79,7 @@ def test_the_service_start_removes_them(tmp_path, caplog):
     import logging
 
     from deploy.config import config_from_dict
-    from deploy.model_setup import load_or_train_model
+    from deploy.model.setup import load_or_train_model
 
     model = tmp_path / "model.msgpack"
     save_model(IncrementalEnsemble(seed=1), model)

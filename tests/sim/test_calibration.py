@@ -182,8 +182,8 @@ def test_cli_writes_the_calibration_motion(tmp_path):
 def test_calibrates_from_a_live_link():
     """The simulated controller (nominal plant: no friction, no offsets) plays the
     calibration motion on the virtual bus; the live link's joint states calibrate the arm."""
-    from deploy.calibrate import calibrate_sources
-    from deploy.sim_controller import SimController
+    from deploy.commands.calibrate import calibrate_sources
+    from deploy.simcell.controller import SimController
     from firmware_bridge.controller_port import open_port
     from firmware_bridge.links import open_link
 

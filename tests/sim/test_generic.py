@@ -41,7 +41,7 @@ def test_seeded_and_registered():
 
 
 def test_a_model_trains_on_it():
-    from deploy.training import train_initial_model
+    from deploy.model.training import train_initial_model
 
     model = train_initial_model("IEM", family="generic", log=lambda *a: None, fit_epochs=2,
                                 fit_stride=50)
@@ -52,7 +52,7 @@ def test_a_model_file_records_its_family_and_the_service_refuses_another(tmp_pat
     import pytest
 
     from deploy.config import ConfigError
-    from deploy.training import check_model_family, train_initial_model
+    from deploy.model.training import check_model_family, train_initial_model
     from iem.persistence import dumps, load_model, loads, save_model
 
     model = train_initial_model("IEM", family="generic", log=lambda *a: None, fit_epochs=1,
