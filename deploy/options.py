@@ -32,6 +32,18 @@ def arm_description_of(args):
                            getattr(args, "arm_flange", None) or None)
 
 
+def arm_model_options(description) -> list[str]:
+    """The options that name the arm model ``description`` (an
+    :class:`~sim.description.ArmDescription`; None: the default) on another command's line
+    (``iem sim-controller``'s): ``--arm-model``, and ``--arm-flange`` for a file."""
+    if description is None:
+        return []
+    out = ["--arm-model", description.source_spec]
+    if description.source_spec == description.source:  # a file, not a named arm model
+        out += ["--arm-flange", description.flange]
+    return out
+
+
 def add_end_effector(parser, help: str = END_EFFECTOR_HELP) -> None:
     """``--end-effector EE`` (:mod:`sim.end_effector`; default None: the Franka Hand)."""
     parser.add_argument("--end-effector", metavar="EE", default=None, help=help)

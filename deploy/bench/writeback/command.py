@@ -119,13 +119,10 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     ``rated_mass_kg`` (None: the arm model's rated payload); the figures, with ``runs`` (the
     records, for the figures) beside them."""
     from deploy.bench.writeback.scenarios import ideal_plant, realistic_plant, run_scenario
-    from deploy.config import config_from_dict
-    from deploy.simcell.cell import cell_sections
+    from deploy.config import cell_config
 
-    cell = cell_sections(description, rated_mass_kg)
-    # an end effector beyond the rated payload fails before training (cell_sections
-    # refused an arm model without one)
-    config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench writeback")
+    # an end effector beyond the rated payload fails before training
+    cell_config(description, rated_mass_kg, where="bench writeback")
 
     timing = TIMING["quick" if quick else "full"]
     records, figures, setup = [], [], []
@@ -133,10 +130,11 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     for seed in seeds:
         for kind in plants if sim else ():
             t0 = time.perf_counter()
-            plant = (ideal_plant(seed, log=log, description=description, cell=cell)
+            plant = (ideal_plant(seed, log=log, description=description,
+                                 rated_mass_kg=rated_mass_kg)
                      if kind == "ideal" else
                      realistic_plant(seed, out_dir, log=log, description=description,
-                                     cell=cell))
+                                     rated_mass_kg=rated_mass_kg))
             setup.append({"plant": kind, "seed": seed, "calibration": plant.calibration,
                           "set_up_s": time.perf_counter() - t0})
             for name in sim:
