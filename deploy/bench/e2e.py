@@ -202,9 +202,10 @@ def configure(parser) -> None:
     from deploy.service.host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
-    from deploy.options import add_arm_model
+    from deploy.options import add_arm_model, add_rated_mass
 
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:

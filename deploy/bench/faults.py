@@ -332,9 +332,10 @@ def configure(parser) -> None:
     parser.add_argument("--model", choices=["IEM", "IEM+phys"], default=None,
                         help="model kind (default: the best available)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    from deploy.options import add_arm_model
+    from deploy.options import add_arm_model, add_rated_mass
 
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:

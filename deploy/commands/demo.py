@@ -26,7 +26,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from deploy.options import add_arm_model, arm_description_of
+from deploy.options import add_arm_model, add_rated_mass, arm_description_of
 from iem.model_kinds import DEFAULT_MODEL
 
 TRANSFER_S = 4.0
@@ -245,6 +245,7 @@ def configure(parser) -> None:
 
     add_cpu_latency_option(parser)
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:
