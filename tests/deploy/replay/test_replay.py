@@ -11,6 +11,7 @@ import json
 import math
 
 import can
+import numpy as np
 import pytest
 
 from deploy.cli import main
@@ -203,6 +204,25 @@ def test_bad_files_exit_2_with_clear_errors(tmp_path, fd_log, replay_model_file,
     missing_model = tmp_path / "none.msgpack"
     assert main(["replay", str(bad), "--model", str(missing_model)]) == 2
     assert "none.msgpack" in capsys.readouterr().err
+
+
+def test_an_empty_blf_and_a_random_asc_are_said_once_and_clearly(tmp_path, replay_model_file,
+                                                                 capsys):
+    """An empty ``.blf`` names what a BLF file starts with (not python-can's "unpack requires
+    a buffer of 72 bytes"); a random ``.asc`` says each warning once (the rate's peek at the
+    start no longer says them too)."""
+    empty = tmp_path / "empty.blf"
+    empty.write_bytes(b"")
+    assert main(["replay", str(empty), "--model", str(replay_model_file), "--no-status"]) == 2
+    err = capsys.readouterr().err
+    assert "empty.blf: empty (0 bytes): a BLF file starts with its header" in err, err
+    random = tmp_path / "random.asc"
+    random.write_bytes(np.random.default_rng(0).integers(0, 256, 4000, np.uint8).tobytes())
+    assert main(["replay", str(random), "--model", str(replay_model_file), "--no-status"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("random.asc is truncated") == 1, err
+    assert err.count("lines python-can could not read") == 1, err
+    assert err.count("iem: error:") == 1
 
 
 # -- damaged logs: a truncated one replays what it holds, a bad line is skipped and counted --
