@@ -40,18 +40,18 @@ def _open(path: Path, what: str, error: type[Exception]) -> int:
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
-        raise error(f"{what} {path} does not exist") from None
+        raise error(f"{path}: cannot read the {what}: it does not exist") from None
     except OSError as exc:
-        raise error(f"{what} {path} cannot be opened: {exc.strerror or exc}") from exc
+        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from exc
     try:
         mode = os.fstat(fd).st_mode
     except OSError as exc:
         os.close(fd)
-        raise error(f"{what} {path} cannot be read: {exc.strerror or exc}") from exc
+        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from exc
     if not stat.S_ISREG(mode):
         os.close(fd)
         kind = next((name for test, name in _KINDS if test(mode)), "not a regular file")
-        raise error(f"{what} {path} is {kind}; valid is a regular file")
+        raise error(f"{path}: cannot read the {what}: it is {kind}; valid is a regular file")
     return fd
 
 
@@ -67,7 +67,8 @@ def open_regular(path, what: str, error: type[Exception]):
 
 
 def read_file(path, max_bytes: int, what: str, error: type[Exception]) -> bytes:
-    """The bytes of the regular file ``path`` (``what`` names it in messages: "model file").
+    """The bytes of the regular file ``path`` (``what`` names it in messages: "model file":
+    ``PATH: cannot read the model file: it is a FIFO (named pipe); valid is a regular file``).
 
     Raises:
         error: the path does not exist or cannot be opened, is not a regular file, or holds
@@ -78,8 +79,8 @@ def read_file(path, max_bytes: int, what: str, error: type[Exception]) -> bytes:
     try:
         info = os.fstat(fd)
         if info.st_size > max_bytes:
-            raise error(f"{what} {path} holds {_size(info.st_size)}; valid is at most "
-                        f"{_size(max_bytes)}")
+            raise error(f"{path}: cannot read the {what}: it holds {_size(info.st_size)}; "
+                        f"valid is at most {_size(max_bytes)}")
         chunks, size = [], 0
         while size <= max_bytes:  # a file that grew since: no more than the bound
             chunk = os.read(fd, max_bytes + 1 - size)
@@ -88,13 +89,13 @@ def read_file(path, max_bytes: int, what: str, error: type[Exception]) -> bytes:
             chunks.append(chunk)
             size += len(chunk)
     except OSError as exc:
-        raise error(f"{what} {path} cannot be read: {exc.strerror or exc}") from exc
+        raise error(f"{path}: cannot read the {what}: {exc.strerror or exc}") from exc
     finally:
         os.close(fd)
     data = b"".join(chunks)
     if len(data) > max_bytes:
-        raise error(f"{what} {path} holds more than {_size(max_bytes)}; valid is at most "
-                    f"{_size(max_bytes)}")
+        raise error(f"{path}: cannot read the {what}: it holds more than "
+                    f"{_size(max_bytes)}; valid is at most {_size(max_bytes)}")
     return data
 
 
@@ -107,8 +108,8 @@ def read_text(path, max_bytes: int, what: str, error: type[Exception],
         return data.decode(encoding)
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
-        raise error(f"{what} {path} is not UTF-8 text (byte 0x{data[exc.start]:02x} on line "
-                    f"{line}, offset {exc.start}); it must be UTF-8") from exc
+        raise error(f"{path}: not UTF-8 text (byte 0x{data[exc.start]:02x} on line {line}, "
+                    f"offset {exc.start}); a {what} must be UTF-8") from exc
 
 
 def read_toml(path, what: str, error: type[Exception]) -> dict:
@@ -121,12 +122,12 @@ def read_toml(path, what: str, error: type[Exception]) -> dict:
     text = read_text(path, MAX_TOML_BYTES, what, error)
     line = _too_deep(text, MAX_TOML_DEPTH)
     if line:
-        raise error(f"{what} {path}: arrays or inline tables nested more than "
-                    f"{MAX_TOML_DEPTH} deep on line {line}; valid is at most {MAX_TOML_DEPTH}")
+        raise error(f"{path}: arrays or inline tables nested more than {MAX_TOML_DEPTH} deep "
+                    f"on line {line}; a {what} nests them at most {MAX_TOML_DEPTH} deep")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise error(f"{what} {path}: not valid TOML: {exc}") from exc
+        raise error(f"{path}: not valid TOML: {exc}") from exc
 
 
 def _too_deep(text: str, limit: int) -> int:

@@ -5,9 +5,7 @@ limit or re-joins an object with every container after it."""
 
 from __future__ import annotations
 
-import contextlib
 import re
-import signal
 import struct
 import zlib
 
@@ -30,21 +28,7 @@ from can.io.blf import (
 from firmware_bridge.blf_reader import MAX_CONTAINER_BYTES, BlfError, BlfReader
 from firmware_bridge.errors import LogFileError
 from firmware_bridge.replay import ReplaySource
-
-
-@contextlib.contextmanager
-def within(seconds: int):
-    """Fail, rather than hang, if the block takes longer than ``seconds``."""
-    def expire(signum, frame):
-        raise TimeoutError(f"still reading after {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, expire)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
+from tests.watchdog import within
 
 
 # -- a BLF file, object by object ----------------------------------------------------------
