@@ -58,9 +58,8 @@ def test_a_non_utf8_payload_file(tmp_path, capsys):
     status, err = run_iem(capsys, "replay", str(tmp_path / "traffic.blf"), "--truth",
                           str(payload))
     assert status == 2  # a command at a terminal: only the service exits EX_CONFIG
-    assert err.startswith(f"iem: error: {payload}: payload file is not UTF-8 text "
-                          "(byte 0xe9 on line 1, offset 9)")
-    assert "must be UTF-8 TOML" in err
+    assert err.startswith(f"iem: error: {payload}: not UTF-8 text (byte 0xe9 on line 1, "
+                          "offset 9); a payload file must be UTF-8")
 
 
 @pytest.mark.parametrize(("seed", "parts"), [
@@ -114,7 +113,8 @@ def test_a_bad_path_file_is_a_config_error(tmp_path, capsys):
     path.write_bytes(b"t,q1,q2,q3,q4,q5,q6,q7\n0,\xff\n")
     status, err = run_iem(capsys, "sim-controller", "--interface", "virtual", "--path",
                           str(path))
-    assert status == 2 and err.startswith(f"iem: error: {path}: path file is not UTF-8")
+    assert status == 2 and err.startswith(f"iem: error: {path}: not UTF-8 text")
+    assert "a path file must be UTF-8" in err
 
 
 def test_which_errors_are_configuration_errors():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import re
 
 import numpy as np
@@ -25,6 +26,7 @@ from sim.paths import (
     save_path_csv,
 )
 from sim.robot import arm_model
+from tests.watchdog import within
 
 H = 1.0 / RATE_HZ
 DELTA = math.radians(30.0)  # the paper's joint-space threshold, rad
@@ -483,10 +485,15 @@ def test_csv_errors_name_file_line_and_what_is_valid(tmp_path, case):
 
 def test_csv_unreadable_files(tmp_path):
     missing = tmp_path / "missing.csv"
-    with pytest.raises(PathError, match=r"missing\.csv: cannot read path file"):
+    with pytest.raises(PathError, match=r"missing\.csv: cannot read the path file: it does "
+                                        "not exist"):
         load_path_csv(missing)
-    with pytest.raises(PathError, match="cannot read path file"):
+    with pytest.raises(PathError, match="cannot read the path file: it is a directory"):
         load_path_csv(tmp_path)  # a folder
+    fifo = tmp_path / "fifo.csv"  # once a read that waited for a writer for good
+    os.mkfifo(fifo)
+    with within(10), pytest.raises(PathError, match="it is a FIFO"):
+        load_path_csv(fifo)
     binary = tmp_path / "binary.csv"
     binary.write_bytes(b"\xff\xfe\x00t,q1")
     with pytest.raises(PathError, match="not UTF-8 text"):

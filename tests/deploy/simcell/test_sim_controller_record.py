@@ -106,7 +106,7 @@ def test_cli_writes_the_record_to_stats_json(tmp_path):
     ("x:none", "time 'x' is not a number"),
     ("-1:none", "time -1.0: valid is a number of s >= 0"),
     ("0:none,0:none", "time 0 s given twice"),
-    ("0:/no/such/tool.toml", "cannot read payload file"),
+    ("0:/no/such/tool.toml", "cannot read the payload file: it does not exist"),
 ])
 def test_cli_bad_schedules_exit_2_naming_what_is_valid(spec, wanted, capsys):
     with pytest.raises(SystemExit) as info:
