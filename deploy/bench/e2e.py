@@ -49,6 +49,8 @@ import sys
 import tempfile
 from pathlib import Path as FsPath
 
+from iem.model_kinds import DEFAULT_MODEL
+
 REPO = FsPath(__file__).resolve().parents[2]
 
 
@@ -58,31 +60,21 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     """The figures on the arm model ``description`` (None: the default), the gate rated for
     ``rated_mass_kg`` (None: the arm model's rated payload), from ``model`` (a trained
     model of that arm; None: trained first, as the service does)."""
-    from deploy.config import config_from_dict
-    from deploy.model.training import best_model_kind
-    from deploy.simcell.cell import cell_sections
+    from deploy.config import cell_config
 
-    kind = model.name if model is not None else kind or best_model_kind()
-    host = {"cpu_dma_latency_us": cpu_dma_latency_us}
-    cell = cell_sections(description, rated_mass_kg)
+    kind = model.name if model is not None else kind or DEFAULT_MODEL
+    cell = {"description": description, "rated_mass_kg": rated_mass_kg, "where": "bench e2e",
+            "host": {"cpu_dma_latency_us": cpu_dma_latency_us}}
     # a bad limit or an end effector beyond the rated payload fails before training
-    # (cell_sections refused an arm model without one)
-    config_from_dict({"host": host, "arm": cell["arm"], "gate": cell["gate"]},
-                     where="bench e2e")
+    cell_config(**cell)
     if link == "slcan-pty":
-        return _measure_slcan_pty(seconds, kind, seed, log, host, description, cell, model)
-    from deploy.simcell.inprocess import simulated_cell, virtual_channel
+        return _measure_slcan_pty(seconds, kind, seed, log, cell, model)
+    from deploy.simcell.inprocess import simulated_cell, virtual_link
 
     with tempfile.TemporaryDirectory() as tmp:
-        config = config_from_dict({
-            "link": {"kind": "virtual", "channel": virtual_channel("bench-e2e"),
-                     "profile": "fd"},
-            "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
-            "arm": cell["arm"],
-            "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
-                      "seed": seed, "checkpoint_period_s": 30.0},
-            "log": {"status_line": "off"}, "host": host,
-        }, where="bench e2e")
+        config = cell_config(**cell, link=virtual_link("bench-e2e"),
+                             model={"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
+                                    "seed": seed, "checkpoint_period_s": 30.0})
         # the controller plays the excitation path back and forth
         with simulated_cell(config, seed=seed, description=description,
                             model=model) as (controller, service):
@@ -96,23 +88,23 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
                     again=_back_to_back(service, before, states))
 
 
-def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
-                       description=None, cell: dict | None = None, model=None) -> dict:
-    """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
-    from deploy.config import config_from_dict
+def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, cell: dict,
+                       model=None) -> dict:
+    """The controller in its own process, an slcan adapter on a pty; the plug-in here, in
+    the cell of :func:`deploy.config.cell_config`'s arguments ``cell``."""
+    from deploy.config import cell_config
     from deploy.model.training import train_initial_model
+    from deploy.options import arm_model_options
     from deploy.service.loop import Service
     from deploy.service.status import StatusLine
 
     if model is None:
         model = train_initial_model(kind, seed=seed, log=lambda *a: None,
                                     noise="sensor",  # the simulated arm is its model
-                                    description=description)
-    cell = cell or {"arm": {}, "gate": {}}
+                                    description=cell["description"])
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
-           "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30)]
-    if cell["arm"]:
-        cmd += ["--arm-model", cell["arm"]["model"], "--arm-flange", cell["arm"]["flange"]]
+           "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30),
+           *arm_model_options(cell["description"])]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
@@ -120,14 +112,9 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
         if not pty.startswith("/dev/"):
             raise RuntimeError(f"sim-controller did not announce its pty: {pty!r}")
         with tempfile.TemporaryDirectory() as tmp:
-            config = config_from_dict({
-                "link": {"kind": "slcan", "channel": pty, "profile": "fd"},
-                "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
-                "arm": cell["arm"],
-                "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
-                          "checkpoint_period_s": 30.0},
-                "log": {"status_line": "off"}, "host": host,
-            }, where="bench e2e")
+            config = cell_config(**cell, link={"kind": "slcan", "channel": pty, "profile": "fd"},
+                                 model={"path": str(FsPath(tmp) / "model.msgpack"),
+                                        "kind": kind, "checkpoint_period_s": 30.0})
             service = Service(config, model=model, status=StatusLine(False))
             try:
                 service.open()
@@ -215,9 +202,10 @@ def configure(parser) -> None:
     from deploy.service.host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
-    from deploy.options import add_arm_model
+    from deploy.options import add_arm_model, add_rated_mass
 
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:

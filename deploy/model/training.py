@@ -28,13 +28,6 @@ from iem.model_kinds import DEFAULT_MODEL, MODELS, new_model
 from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY
 
-
-def best_model_kind() -> str:
-    """The kind ``iem train`` and the benchmarks make unless told otherwise:
-    :data:`iem.model_kinds.DEFAULT_MODEL`."""
-    return DEFAULT_MODEL
-
-
 DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities",
                    "budget_bags": DEFAULT_BUDGET_BAGS}
 """The ensemble settings of a model the plug-in trains (``iem train``, ``train_if_missing``),

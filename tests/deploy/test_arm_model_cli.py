@@ -105,7 +105,6 @@ def test_train_refuses_a_bad_description_before_training(case, tmp_path, capsys)
 
 
 @pytest.mark.parametrize("argv, names", [
-    (["--arm-model", "fr3", "--arm-flange", "nosuchlink"], ("no flange", "'nosuchlink'")),
     (["--arm-model", "{tmp}/missing.urdf"], ("missing.urdf", "cannot read the URDF file: it "
                                               "does not exist")),
     (["--arm-model", "{tmp}/latin1.urdf"], ("latin1.urdf", "not UTF-8 text")),
