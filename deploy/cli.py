@@ -8,13 +8,13 @@ an exit status that tells a service manager whether to try again:
 - :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``), only from the service (``iem run``, which
   systemd restarts): a configuration error, which a restart cannot fix
   (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8, not TOML, an unknown
-  key, a value out of range, a model file made for another link rate), a bad payload or path
-  file, an unknown link kind, profile or option, a link's missing extra; ``deploy/iem.service``
-  has ``RestartPreventExitStatus=78``;
+  key, a value out of range, a model file made for another link rate), any file it names
+  that is missing or cannot be read (the model, the arm file, the arm's description, the
+  end effector, the initial payload, the excitation path, the recording a replay link
+  plays), a bad payload or path file, an unknown link kind, profile or option, a link's
+  missing extra; ``deploy/iem.service`` has ``RestartPreventExitStatus=78``;
 - :data:`EX_ERROR` (2): any error of the other commands, and any other error of the service,
-  e.g. a link failure (an adapter
-  unplugged, a bus error), a model file or traffic log that cannot be read: systemd
-  restarts the service.
+  e.g. a link failure (an adapter unplugged, a bus error): systemd restarts the service.
 
 A missing optional extra (MuJoCo for the simulator, matplotlib for the plots:
 :mod:`iem.extras`) is such an error too, naming the ``pip install`` to run, even where a module

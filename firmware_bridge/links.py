@@ -252,6 +252,9 @@ class LinkKind:
         controller: the simulated controller can serve a link of this kind.
         pty: the simulated controller can also serve it on a new pty (``<kind>-pty``).
         sink: the link also writes loads (a :class:`PayloadSink`).
+        recorded: the link plays a recording back (its channel is a file): the service
+            never writes the model over one (a replay learns in memory only), and a channel
+            it cannot read is an error of the configuration.
         fixed_rate_hz: joint states per second the link delivers whatever the profile; None:
             the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
         load_report: what a sink's ``load_report`` carries (one of :data:`LOAD_REPORTS`):
@@ -266,6 +269,7 @@ class LinkKind:
     controller: bool = False
     pty: bool = False
     sink: bool = True
+    recorded: bool = False
     fixed_rate_hz: float | None = None
     load_report: str = ""
 
@@ -296,11 +300,11 @@ LINKS: dict[str, LinkKind] = {
                      load_report="values"),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
-                       sink=False),
+                       sink=False, recorded=True),
     "recording": LinkKind("firmware_bridge.recordings", "open_recording_link",
                           "a recorded rosbag2 bag (directory, .db3, .mcap; JointState topic "
                           "/franka/joint_states) or joint-state CSV (t,q1..q7,dq1..dq7,"
-                          "tau1..tau7); channel: the path", sink=False,
+                          "tau1..tau7); channel: the path", sink=False, recorded=True,
                           fixed_rate_hz=NOMINAL_RATE_HZ),
 }
 """The one table of link kinds: the configuration, the service, the simulated controller and

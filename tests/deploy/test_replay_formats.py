@@ -316,3 +316,22 @@ def test_iem_run_replays_a_recording_link(files, model_file, tmp_path, capsys):
     err = capsys.readouterr().err
     assert int(err.split("iem run: ")[1].split(" block points")[0]) == -(-(int(SECONDS * 1000) + 1)
                                                                     // 10)  # block points
+
+
+def test_iem_run_over_a_recording_never_writes_the_model(files, model_file, tmp_path, capsys):
+    """A recorded link (kind "recording" or "replay") never writes ``[model] path``, as ``iem
+    replay`` never does without ``--save-model``: no checkpoint while it runs (every 1 s
+    here), none at the stop, and a model trained because none was there stays in memory.
+    ``iem run`` over a recording overwrote the model file."""
+    before, mtime = model_file.read_bytes(), model_file.stat().st_mtime_ns
+    doc = cell_config(model_file, {"kind": "recording", "channel": str(files["csv"])},
+                      model={"checkpoint_period_s": 1.0})
+    assert main(["run", "--config", str(write_toml(tmp_path / "cell.toml", doc))]) == 0
+    assert model_file.read_bytes() == before and model_file.stat().st_mtime_ns == mtime
+    new = tmp_path / "new.msgpack"
+    doc = cell_config(new, {"kind": "replay", "channel": str(files["can"])},
+                      model={"train_if_missing": True, "kind": "IEM+phys"},
+                      arm={"noise": "sensor"})
+    assert main(["run", "--config", str(write_toml(tmp_path / "new.toml", doc))]) == 0
+    assert not new.exists()
+    assert "trained a model in memory" in capsys.readouterr().err
