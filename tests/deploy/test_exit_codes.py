@@ -200,3 +200,17 @@ def test_every_file_cell_toml_names_exits_78_when_missing_or_unreadable(tmp_path
     last = err.strip().splitlines()[-1]
     assert status == EX_CONFIG, (case, err)
     assert last.startswith("iem: error: ") and named in last, (case, last)
+
+
+@pytest.mark.parametrize("command", [["run", "--config", "cell.toml"],
+                                     ["sim-controller", "--interface", "virtual"]])
+@pytest.mark.parametrize("duration", ["nan", "-5", "0", "inf", "soon"])
+def test_a_duration_that_is_not_a_number_of_seconds_is_a_usage_error(capsys, command,
+                                                                     duration):
+    """``iem run --duration nan`` ran for ever and ``--duration -5`` exited 0 at once: a
+    duration is a finite number of seconds > 0, or the command does not start."""
+    with pytest.raises(SystemExit) as exit_:
+        main([*command, "--duration", duration])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument --duration: {duration!r}: valid is a number of seconds > 0" in err
