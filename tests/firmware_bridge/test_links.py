@@ -133,3 +133,12 @@ def test_a_recorded_source_iterates_to_its_end_and_closes_on_leaving_with():
         raise RuntimeError("a failure inside")
     assert failing.closed == 1
     RecordedSource().close()  # nothing to release by default
+
+
+def test_the_recordings_sources_write_none_of_it_again():
+    from firmware_bridge.recordings import RecordingSource
+    from firmware_bridge.replay import ReplaySource
+
+    for source in (ReplaySource, RecordingSource):
+        assert issubclass(source, RecordedSource)
+        assert not {"__iter__", "__enter__", "__exit__"} & set(vars(source)), source
