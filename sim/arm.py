@@ -138,13 +138,11 @@ class ArmParams:
         :class:`~sim.description.ArmDescription`; None: the default): its file's bodies with
         ``end_effector`` on body 7 (a spec or :class:`sim.end_effector.EndEffector`; None:
         the description's default), no friction, no offsets."""
-        from .end_effector import EndEffector
-        from .end_effector import end_effector as resolve
+        from .end_effector import end_effector_of
         from .robot import nominal_link_params
 
         desc = described(description)
-        ee = end_effector if isinstance(end_effector, EndEffector) else \
-            resolve(end_effector or desc.default_end_effector)
+        ee = end_effector_of(end_effector, desc)
         return cls(nominal_link_params(ee, desc), np.zeros((7, 3)), np.zeros(7),
                    {"source": "nominal"}, end_effector=ee.label, description=desc)
 
@@ -280,7 +278,7 @@ def nominal_spec(end_effector, description=None) -> str:
     from .end_effector import NAMED
 
     desc = described(description)
-    spec = str(end_effector or desc.default_end_effector)
+    spec = desc.end_effector_spec(end_effector)
     if spec in NAMED and desc.name == DEFAULT_ARM_MODEL:
         return f"sim.arm:nominal_dynamics@{spec}"
     return arm_spec(ArmParams.nominal(spec, desc))

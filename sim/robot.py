@@ -39,14 +39,12 @@ def nominal_link_params(end_effector=None, description=None) -> np.ndarray:
     """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7 of the arm
     ``description`` (None: the default arm model), body 7 carrying ``end_effector`` (a
     :class:`sim.end_effector.EndEffector` or its spec; None: the description's default)."""
-    from .end_effector import EndEffector
-    from .end_effector import end_effector as resolve
+    from .end_effector import end_effector_of
 
     desc = described(description)
     model = nominal_model(desc)
     out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
-    ee = end_effector if isinstance(end_effector, EndEffector) else \
-        resolve(end_effector or desc.default_end_effector)
+    ee = end_effector_of(end_effector, desc)
     if not desc.carries_own(ee.spec):
         out[6] = ee.body7(desc)
     return out

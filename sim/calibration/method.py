@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..arm import ArmParams
+from ..end_effector import end_effector_of
 from ..friction import friction_torque
 from ..robot import ArmModel, nominal_link_params
 from .consistency import consistent, consistent_map
@@ -65,7 +66,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        for k in ("q", "dq", "ddq", "tau"))
     kinematics = ArmModel(description=description)
     nominal_model = kinematics.model
-    ee = _end_effector(end_effector, kinematics.description)  # the prior's centre
+    ee = end_effector_of(end_effector, kinematics.description)  # the prior's centre
     theta0 = nominal_link_params(ee, kinematics.description).ravel()
     W = regressors(nominal_model, q, dq, ddq)  # (N, 7, 70)
     basis = base_basis(nominal_model, kinematics=kinematics)
@@ -113,16 +114,6 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     }
     return ArmParams(params, phi, off, report, end_effector=ee.label,
                      description=kinematics.description)
-
-
-def _end_effector(end_effector, description):
-    """The :class:`sim.end_effector.EndEffector` of a spec (None: the arm model's
-    default)."""
-    from ..end_effector import EndEffector
-    from ..end_effector import end_effector as resolve_end_effector
-
-    return end_effector if isinstance(end_effector, EndEffector) else resolve_end_effector(
-        end_effector or description.default_end_effector)
 
 
 def _payload_warning(params: np.ndarray, theta0: np.ndarray, sd_theta: np.ndarray) -> list:
