@@ -12,6 +12,7 @@ from deploy.options import (
     add_rate,
     arm_description_of,
 )
+from iem.ensemble.learners import LEARNERS
 from iem.model_kinds import DEFAULT_MODEL
 from iem.persistence import save_model
 from iem.types import NOMINAL_RATE_HZ
@@ -49,6 +50,11 @@ def configure(parser) -> None:
                         "the nominal arm)")
     add_end_effector(parser)
     add_arm_model(parser)
+    parser.add_argument("--learner", choices=list(LEARNERS), default=None,
+                        help="how the bags' learners are trained: 'sgd', the paper's "
+                             "Algorithm 2, or 'expected', the same in expectation, exact "
+                             "(microseconds a point and a refit); default: the kind's "
+                             "(IEM sgd, IEM+phys expected)")
     parser.add_argument("--noise", choices=NOISE_SOURCES, default="arm",
                         help="IEM+phys's equation error: 'arm' (default), the arm file's "
                              "measured noise, or a conservative default for an uncalibrated "
@@ -63,7 +69,8 @@ def run(args) -> int:
     model = train_initial_model(args.kind, args.family, args.excitation, args.seed,
                                 rate_hz=args.rate, arm_file=args.arm,
                                 end_effector=args.end_effector, noise=args.noise,
-                                block_frames=frames, description=arm_description_of(args))
+                                block_frames=frames, description=arm_description_of(args),
+                                **({} if args.learner is None else {"learner": args.learner}))
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0
