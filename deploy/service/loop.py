@@ -123,7 +123,9 @@ class Service:
         self.notifier = Notifier() if notifier is None else notifier
         self.status = status if status is not None else StatusLine.from_config(config.log)
         self.write = write
-        self.gate = SafetyGate(config.gate)
+        self.gate: SafetyGate | None = None
+        """The safety gate, built complete by :meth:`open` (the link's wire check, the arm's
+        regressor)."""
         self._diagnostics = None  # the link's status topic, if it has one (set by run)
         self._next_diagnostics = 0.0
         self.arm_watch = ArmWatch()
@@ -196,9 +198,10 @@ class Service:
         self._zeros = np.zeros(7)
         self.tandem = tandem_for(self.config.model.family, arm)
         self.online = self.identifier(self.model)
-        # out_of_wire_range before send; a CAN kind's link must declare its profile
-        self.gate.wire_check = wire_check_for(self.link, self.config.link.kind)
-        self.gate.motion.regressor = self._regressor  # the torque bound of a write
+        # out_of_wire_range before send (a CAN kind's link must declare its profile); the
+        # torque bound of a write along the recent motion
+        self.gate = SafetyGate(self.config.gate,
+                               wire_check_for(self.link, self.config.link.kind), self._regressor)
         return self
 
     def identifier(self, model) -> OnlineIdentifier:
@@ -291,14 +294,13 @@ class Service:
         if item is None:
             return
         self._controller_silent(item.value)
-        if smoothed is not None:
-            self.gate.decide(time.monotonic(), smoothed)
+        self.gate.step(time.monotonic())  # a silence: no estimate, the hold counted
 
     def _after_step(self, out: CycleRecord, started: float) -> None:
         """The load writer, the checkpointer and the status line after one estimate."""
         now = time.monotonic()
         t_gate = out.state.t if self.gate_clock == "controller" else now
-        self.writer.observe(t_gate, out.smoothed, out.raw, self.model.busy, out.state)
+        self.writer.step(t_gate, out.smoothed, out.raw, out.state, self.model.busy)
         self.checkpointer.tick(now, self.model)
         if self._diagnostics is not None and now >= self._next_diagnostics:
             self._next_diagnostics = now + DIAGNOSTICS_PERIOD_S

@@ -26,12 +26,13 @@ def status_text(service, elapsed: float, phi: np.ndarray) -> str:
     com = phi[1:4] / m if m > 0 else np.full(3, np.nan)
     drops = sum(c.dropped().values())
     verdict = service.gate.verdict()
+    commands = service.gate.commands
     return (f"{elapsed:6.1f} s  m {m:6.3f} kg  c [{com[0]:+.3f} {com[1]:+.3f} "
             f"{com[2]:+.3f}] m  bags {service.model.n_bags}  {rate:6.0f} est/s  writes "
-            f"{service.gate.sent}/{service.gate.acked}"
-            + (f" lost {service.gate.lost}" if service.gate.lost else "")
-            + (f" refused {service.gate.refusals}" if service.gate.refusals else "")
-            + f"  in force {_load_text(service.gate.in_force)}"
+            f"{commands.sent}/{commands.acked}"
+            + (f" lost {commands.lost}" if commands.lost else "")
+            + (f" refused {commands.refused}" if commands.refused else "")
+            + f"  in force {_load_text(commands.load)}"
             + f"  gate {verdict['reason'] or '-'}"
             + f"  drops {drops} lost {c.lost}"
             + ("  SILENT" if service.silent else ""))

@@ -240,7 +240,7 @@ def test_the_service_writes_a_load_the_simulated_kinova_acknowledges(kin, models
                         once=True, seed=1, description=kin) as (controller, service):
         controller.start()
         summary = service.run(until=lambda: controller.cycles >= 7000 or (
-            controller.plant.controller_load is not None and service.gate.acked))
+            controller.plant.controller_load is not None and service.gate.commands.acked))
     assert summary["writes"]["acked"] >= 1 and summary["writes"]["refused_by_controller"] == 0
     load = controller.plant.controller_load
     assert controller.plant.description is kin

@@ -3,7 +3,8 @@ version; each step on its own; the module-path aliases.
 
 ``data/v1_*.iem`` are files the version-1 code wrote (an IEM+phys at 1 kHz with blocks of
 10 samples, an LS), and ``data/v1_expected.json`` what each predicted then at a sample
-(``x``, ``flange``): the loaded model must predict the same, to the bit.
+(``x``, ``flange``), on the machine that wrote them: the loaded model must predict the same,
+to :data:`SAME_ARITHMETIC`.
 """
 
 from __future__ import annotations
@@ -53,6 +54,20 @@ def _file(kind: str, state: dict, version: int) -> bytes:
                           "crc32": zlib.crc32(packed), "state": packed}, use_bin_type=True)
 
 
+SAME_ARITHMETIC = 1e-10
+"""Relative tolerance of a prediction against ``v1_expected.json``: the same arithmetic on
+the same state, up to the last bits, which depend on the machine's BLAS kernels (OpenBLAS's
+SkylakeX, Haswell and Sandybridge kernels on one CPU differ by up to 6e-14 relative on
+these fixtures); a state that a migration changed predicts otherwise by far more."""
+
+
+def assert_predicts_as_version_1(model, expected: dict) -> None:
+    """``model`` predicts at ``expected``'s sample what the version-1 code predicted."""
+    est = model.predict_one(np.array(expected["x"]), np.array(expected["flange"]))
+    np.testing.assert_allclose(est.phi, expected["phi"], rtol=SAME_ARITHMETIC, atol=0.0)
+    np.testing.assert_allclose(est.std, expected["std"], rtol=SAME_ARITHMETIC, atol=0.0)
+
+
 PHYS_HEAD, PHYS_V1 = _head(DATA / "v1_iem_phys.iem")
 LS_HEAD, LS_V1 = _head(DATA / "v1_ls.iem")
 
@@ -86,10 +101,7 @@ def test_an_old_file_loads_to_the_model_it_held_and_is_saved_at_the_newest_versi
     newest = with_current_paths(migrate(head["kind"], state, 1))  # the moved factory names
     assert _same_state(model.to_state(), newest)
     saved = dumps(model)
-    expected = EXPECTED[path.stem.partition("_")[2]]
-    est = model.predict_one(np.array(expected["x"]), np.array(expected["flange"]))
-    assert est.phi.tolist() == expected["phi"]  # what the version-1 code predicted, to the bit
-    assert est.std.tolist() == expected["std"]
+    assert_predicts_as_version_1(model, EXPECTED[path.stem.partition("_")[2]])
     assert msgpack.unpackb(saved, raw=False)["version"] == VERSION
     again = loads(saved)
     assert _same_state(again.to_state(), newest)
@@ -363,9 +375,7 @@ def test_the_fixtures_load_through_a_registry_naming_the_old_paths(path):
     module, _, name = MODELS[head["kind"]].partition(":")
     assert type(model) is getattr(importlib.import_module(module), name)
     assert _same_state(model.to_state(), load_model(path).to_state())
-    expected = EXPECTED[path.stem.partition("_")[2]]
-    est = model.predict_one(np.array(expected["x"]), np.array(expected["flange"]))
-    assert est.phi.tolist() == expected["phi"]
+    assert_predicts_as_version_1(model, EXPECTED[path.stem.partition("_")[2]])
 
 
 @pytest.mark.parametrize("kind", sorted(OLD_MODELS))
