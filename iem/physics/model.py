@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from ..base import BaseEstimator, Samples
+from ..ensemble.learners import FAST_LEARNER
 from ..ensemble.model import IncrementalEnsemble
 from ..errors import InvalidInputError
 from ..sensor import DEFAULT_SENSOR
@@ -32,7 +33,8 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
     """The IEM's estimate as a prior, fused with Bayesian least squares on the regressor.
 
     Args:
-        ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included).
+        ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included;
+            its ``learner`` is :data:`iem.ensemble.learners.FAST_LEARNER` unless given).
         dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
             (see :mod:`iem.physics.regression`), stored in the model file.
         sigma_tau: torque noise of one measured frame, N·m.
@@ -105,7 +107,8 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         self._schedule = RefreshScheduler(project_budget, self.update_every, self.refresh_every)
         # the physics governs out of distribution through the per-input score's inflation;
         # the velocity score serves only the IEM's own hold and the gate: not scored here
-        self._ens = IncrementalEnsemble(**{"velocity_threshold": None, **self.ensemble})
+        self._ens = IncrementalEnsemble(**{"velocity_threshold": None,
+                                           "learner": FAST_LEARNER, **self.ensemble})
         self._ens.report_errors = True  # the prior's calibration: every learnt point
         self._reg = self._regression(noise)
         self._weight = self._reg.correlation_weight
