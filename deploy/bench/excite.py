@@ -75,16 +75,16 @@ def design_figures(path, design, model) -> dict:
 def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     """The motion on ``iem bench realistic``'s plant of ``seed``: identify and live figures
     per payload."""
-    from deploy.training import train_initial_model
+    from deploy.model.training import train_initial_model
     from sim.identify import identify
     from sim.robot import ArmModel
 
-    from .realistic import RealisticBench, _arm
+    from .realistic import RealisticBench, calibrated_arm
 
     bench = RealisticBench(seed=seed, log=lambda *a: None, description=description)
     folder = FsPath(out_dir) / f"seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
-    arm, _, arm_file = _arm(bench, folder, None, log)
+    arm, _, arm_file = calibrated_arm(bench, folder, None, log)
     model = train_initial_model("IEM+phys", seed=seed, arm_file=str(arm_file),
                                 log=lambda *a: None, description=description)
     bare = bench.rollout(path, None, seed + EXCITE_NOISE)
