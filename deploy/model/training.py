@@ -181,7 +181,7 @@ def excitation(spec: str = "builtin", model=None):
 
     if spec == "builtin":
         return excitation_path(model=model)
-    return load_path_csv(spec).check_limits(model)
+    return load_path_csv(spec, model=model)
 
 
 def tandem_for(family: str, arm=None):
