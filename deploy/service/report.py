@@ -8,8 +8,9 @@ the parts that keep it: the gate (decisions, writes, the load in force), the lin
 the model (bags), the checkpointer.
 
 A centre of mass is shown only where the mass is surely above zero: ``m - 2 sigma > 0``
-with the raw estimate's standard deviation (``m > 0`` for a model that reports none). At a
-mass the band does not tell from zero (a bare flange), ``m c / m`` divides noise by noise.
+with the raw estimate's standard deviation (``m > 0`` for a model that reports none; never
+for a NaN one), the rule the gate judges the empty load by. At a mass the band does not tell
+from zero (a bare flange), ``m c / m`` divides noise by noise.
 """
 
 from __future__ import annotations
@@ -23,16 +24,23 @@ from firmware_bridge.links import JointStateSource
 
 log = logging.getLogger("iem.service")
 
-__all__ = ["log_rate", "mass_band", "status_text", "summary_lines", "summary_of"]
+__all__ = ["excludes_zero", "log_rate", "mass_std", "status_text", "summary_lines", "summary_of"]
 
 
-def mass_band(estimate) -> float:
-    """The 2-sigma band of an estimate's mass, kg: NaN where the model reports no spread."""
+def mass_std(estimate) -> float | None:
+    """The standard deviation of an estimate's mass, kg: None where the model reports no
+    spread (its ``std`` is None); NaN where it reports one that is not a number."""
     std = getattr(estimate, "std", None)
     if std is None:
-        return math.nan
-    band = 2.0 * float(np.asarray(std, dtype=float).reshape(-1)[0])
-    return band if math.isfinite(band) and band >= 0.0 else math.nan
+        return None
+    s = float(np.asarray(std, dtype=float).reshape(-1)[0])
+    return s if s >= 0.0 else math.nan
+
+
+def excludes_zero(mass: float, std: float | None) -> bool:
+    """Whether the mass's 2-sigma band lies above zero (``std`` None: no band, the mass
+    alone; NaN or inf: nothing known, never)."""
+    return float(mass) - 2.0 * (0.0 if std is None else std) > 0.0
 
 
 def status_text(service, elapsed: float, record) -> str:
@@ -43,10 +51,10 @@ def status_text(service, elapsed: float, record) -> str:
     gate's last verdict, drops, losses, silence."""
     c = service.link.counters
     rate = service.tally.cycles / elapsed if elapsed > 0 else 0.0
-    phi, band = record.smoothed, mass_band(record.raw)
+    phi, std = record.smoothed, mass_std(record.raw)
     m = float(phi[0])
-    mass = f"m {m:6.3f} kg" if math.isnan(band) else f"m {m:6.3f}±{band:.3f} kg"
-    if m - (0.0 if math.isnan(band) else band) > 0.0:
+    mass = f"m {m:6.3f} kg" if std is None else f"m {m:6.3f}±{2.0 * std:.3f} kg"
+    if excludes_zero(m, std):
         com = phi[1:4] / m
         where = f"c [{com[0]:+.3f} {com[1]:+.3f} {com[2]:+.3f}] m"
     else:
