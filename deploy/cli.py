@@ -59,6 +59,8 @@ BENCHES: Table = {
              "part, payloads identified on the rest"),
     "writeback": ("deploy.bench.writeback.command",
                   "the write-back, scenario by scenario, simulated"),
+    "excite": ("deploy.bench.excite", "what the motion of 'iem excite' determines, on the "
+               "realistic plant"),
 }
 
 COMMANDS: Table = {
@@ -72,6 +74,8 @@ COMMANDS: Table = {
                "bag, joint-state CSV), as fast as possible"),
     "identify": ("deploy.commands.identify",
                  "identify a payload offline from a loaded and a bare log"),
+    "excite": ("deploy.commands.excite", "design a short motion that determines a payload: a "
+               "path CSV"),
     "set-load": ("deploy.commands.set_load", "write a payload file (or --clear: no load) to the "
                  "controller through the gate's checks"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),

@@ -13,6 +13,10 @@ pylibfranka robot, a replayed log):
   (processed while ``read`` runs) or is awaited with ``wait_ack(seq, timeout)``; the load in
   force, as the controller reports it, is ``load_report``.
 
+A source that ends, a recording read back (a CAN log, a rosbag2 bag, a joint-state CSV),
+inherits :class:`RecordedSource`: iteration until its end, ``close`` and ``with``, written
+once over its ``read``, as python-can's ``BusABC`` writes them over ``recv``.
+
 Three more declare what some links do beyond that, so that a caller asks ``isinstance``
 rather than probing for a method: :class:`DiagnosticsSink` and :class:`EstimatePublisher`
 (the ``ros2`` link's status and estimate topics) and :class:`WireProfiled` (a link whose
@@ -35,7 +39,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from iem.types import NOMINAL_RATE_HZ, JointState
 
-from .errors import BridgeConfigError
+from .errors import BridgeConfigError, EndOfStream
 
 if TYPE_CHECKING:
     from .protocol import WireProfile
@@ -151,6 +155,32 @@ class JointStateSource(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+class RecordedSource:
+    """The base of a :class:`JointStateSource` over a recording: a subclass implements
+    ``read``, which raises :class:`~firmware_bridge.errors.EndOfStream` after the last joint
+    state, and ``close`` if it holds something to release; iterating gives every joint state
+    up to the end, and ``with`` closes it."""
+
+    def read(self, timeout: float | None = None) -> JointState:
+        raise NotImplementedError
+
+    def __iter__(self):
+        while True:
+            try:
+                yield self.read()
+            except EndOfStream:
+                return
+
+    def close(self) -> None:
+        """Release what the source holds (nothing by default)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 @runtime_checkable

@@ -48,7 +48,7 @@ from iem.types import N_JOINTS, JointState
 from iem.user_files import open_regular
 
 from .errors import BridgeConfigError, EndOfStream, LogFileError
-from .links import LinkCounters, open_link
+from .links import LinkCounters, RecordedSource, open_link
 from .reassembly import CYCLE_MOD
 from .record import FORMATS as CAN_SUFFIXES
 from .recording_checks import MIN_JOINT_STATES, checked_recording, refuse_nonfinite
@@ -209,7 +209,7 @@ def read_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPI
 
 
 # -- the source --------------------------------------------------------------------------------
-class RecordingSource:
+class RecordingSource(RecordedSource):
     """A :class:`~firmware_bridge.links.JointStateSource` over a :class:`Recording`.
 
     ``read`` returns the recorded joint states in order, with their time stamps as recorded
@@ -271,21 +271,6 @@ class RecordingSource:
         c.delivered += 1
         return JointState(t=t, q=r.q[k], dq=r.dq[k], tau_J=r.tau[k], cycle=k % CYCLE_MOD)
 
-    def __iter__(self):
-        while True:
-            try:
-                yield self.read()
-            except EndOfStream:
-                return
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> RecordingSource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def open_recording_link(kind: str, channel: str, *, profile: str = "fd",

@@ -45,6 +45,7 @@ from iem.user_files import open_regular
 from .blf_reader import BlfError, BlfReader
 from .can_link import CanDecoder
 from .errors import BridgeConfigError, EndOfStream, LogFileError
+from .links import RecordedSource
 from .record import check_format
 
 PACES = ("recorded", "fast")
@@ -55,7 +56,7 @@ MAX_BAD_LINES_IN_A_ROW = 1000
 log = logging.getLogger("iem.bridge")
 
 
-class ReplaySource:
+class ReplaySource(RecordedSource):
     """A :class:`~firmware_bridge.links.JointStateSource` over a CAN log file."""
 
     def __init__(self, path, profile: str = "fd", pace: str = "fast", skip: float = 60.0,
@@ -194,21 +195,8 @@ class ReplaySource:
             self.counters.silences += 1
             self.decoder.resync()
 
-    def __iter__(self):
-        while True:
-            try:
-                yield self.read()
-            except EndOfStream:
-                return
-
     def close(self) -> None:
         self._reader.stop()
-
-    def __enter__(self) -> ReplaySource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def open_replay(kind: str, channel: str, *, profile: str = "fd", silence_timeout: float = 0.1,

@@ -159,11 +159,15 @@ class ArmDescription:
         """What arm files and model files record of it."""
         return {"name": self.name, "digest": self.digest}
 
+    def end_effector_spec(self, end_effector: str | None) -> str:
+        """The end effector ``end_effector`` declares on this arm model: itself, or None and
+        "" its default (:attr:`default_end_effector`)."""
+        return str(end_effector or self.default_end_effector)
+
     def carries_own(self, end_effector: str | None) -> bool:
         """Whether the end effector ``end_effector`` (a spec; None: the default) is the one
         this description's own file carries beyond the flange (the Panda's Franka Hand)."""
-        spec = end_effector or self.default_end_effector
-        return self.own_end_effector is not None and spec == self.own_end_effector
+        return self.end_effector_spec(end_effector) == self.own_end_effector
 
     def __repr__(self) -> str:
         return f"ArmDescription({self.name!r}, {self.digest})"

@@ -113,8 +113,10 @@ def _parse_csv(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array(rows), np.array(numbers)
 
 
-def load_path_csv(file, name: str | None = None) -> Path:
-    """Read a path CSV file (see the module docstring), resample it to 1 kHz and check limits.
+def load_path_csv(file, name: str | None = None, model=None) -> Path:
+    """Read a path CSV file (see the module docstring), resample it to 1 kHz and check the
+    limits of the arm model ``model`` (a :class:`sim.robot.ArmModel`; None: the default
+    arm model's).
 
     ``file`` is a file system path or an open text file. The path is named ``name`` or the
     file's stem. Raises :class:`PathError` naming the file, line and column of any problem.
@@ -128,7 +130,7 @@ def load_path_csv(file, name: str | None = None) -> Path:
     t = np.arange(math.floor(t_file[-1] * RATE_HZ + 1e-6) + 1) / RATE_HZ
     path = Path(name=name if name is not None else FsPath(where).stem, t=t, q=spline(t),
                 dq=spline(t, 1), ddq=spline(t, 2))
-    found = path.first_violation()
+    found = path.first_violation(model)
     if found is not None:
         k, message = found
         line = int(line_numbers[int(np.argmin(np.abs(t_file - t[k])))])

@@ -7,7 +7,8 @@ default: a parameter's default, a ``default=`` keyword, a class field's default,
 constant, or the fallback of ``or`` and of ``x if c else y``.
 
 A cell's configuration made in code (the demo, a replay, the benchmarks) has one builder,
-:func:`deploy.config.cell_config`: no other module makes a configuration of a dict."""
+:func:`deploy.config.cell_config`: no other module makes a configuration of a dict. A
+declared end effector has one resolution, :func:`sim.end_effector.end_effector_of`."""
 
 import ast
 import inspect
@@ -160,3 +161,46 @@ def test_the_check_sees_a_second_builder(tmp_path):
         "import deploy.config\nfrom deploy.config import config_from_dict\n"
         "config_from_dict({'arm': {}})\ndeploy.config.config_from_dict({})\n")
     assert config_dicts(tmp_path) == [("deploy/bench.py", 3), ("deploy/bench.py", 4)]
+
+
+# -- an end effector: one resolution ----------------------------------------------------------
+THE_RESOLUTION = ("sim/description.py", "sim/end_effector.py")
+"""Where a declared end effector is resolved: ``ArmDescription.end_effector_spec`` (None and ""
+the arm model's default) and :func:`sim.end_effector.end_effector_of` (an ``EndEffector`` as
+it is)."""
+
+
+def end_effector_resolutions(root: Path) -> list[tuple[str, int, str]]:
+    """``(file, line, what)`` of every end-effector resolution written out in the packages
+    under ``root`` outside :data:`THE_RESOLUTION`: a fallback ``x or d.default_end_effector``,
+    or an ``isinstance(x, EndEffector)``."""
+    found = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            if rel in THE_RESOLUTION:
+                continue
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.BoolOp) and isinstance(node.op, ast.Or) and \
+                        getattr(node.values[-1], "attr", None) == "default_end_effector":
+                    found.append((rel, node.lineno, "default fallback"))
+                elif isinstance(node, ast.Call) and getattr(node.func, "id", None) == \
+                        "isinstance" and getattr(node.args[1], "id", None) == "EndEffector":
+                    found.append((rel, node.lineno, "isinstance"))
+    return found
+
+
+def test_an_end_effector_is_resolved_in_one_place():
+    assert end_effector_resolutions(REPO) == []
+
+
+def test_the_check_sees_a_second_resolution(tmp_path):
+    """The test above can fail: each way of resolving one again is found."""
+    for package in PACKAGES:
+        (tmp_path / package).mkdir()
+    (tmp_path / "sim" / "description.py").write_text("s = ee or self.default_end_effector\n")
+    (tmp_path / "sim" / "plant.py").write_text(
+        "from sim.end_effector import EndEffector, end_effector\n"
+        "ee = x if isinstance(x, EndEffector) else end_effector(x or d.default_end_effector)\n")
+    assert sorted(end_effector_resolutions(tmp_path)) == [
+        ("sim/plant.py", 2, "default fallback"), ("sim/plant.py", 2, "isinstance")]

@@ -114,12 +114,13 @@ def run(args) -> int:
     from iem.extras import require
     from sim.paths import load_path_csv
     from sim.payload import load_payload
+    from sim.robot import arm_model
 
     require("mujoco", "iem sim-controller (the simulated arm)")  # before a port opens
 
     refuse_unused_options(args)
     description = arm_description_of(args)
-    path = load_path_csv(args.path) if args.path else None
+    path = (load_path_csv(args.path, model=arm_model(description)) if args.path else None)
     payload = load_payload(args.payload) if args.payload else None
     profile = args.profile or "fd"
     port, announce = open_port(args.interface, args.channel, profile, fault_spec(args))

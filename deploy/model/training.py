@@ -144,20 +144,19 @@ def load_arm_file(arm_file, end_effector=None, description=None):
     model other than the arm file's is refused, naming both."""
     from sim.arm import ArmParams, arm_record, load_arm
     from sim.description import DEFAULT_ARM_MODEL, described
-    from sim.end_effector import check_same
-    from sim.end_effector import end_effector as resolve
+    from sim.end_effector import check_same, end_effector_of
 
     desc = described(description)
     if arm_file is None:
-        ee = resolve(end_effector or desc.default_end_effector)
+        ee = end_effector_of(end_effector, desc)
         if desc.name == DEFAULT_ARM_MODEL and ee.spec == desc.default_end_effector:
             return None, None
         arm = ArmParams.nominal(ee, desc)
         return arm, arm_record(arm)
     arm = load_arm(arm_file, desc)
     if end_effector:
-        check_same(arm.end_effector, resolve(end_effector).label, f"the arm file {arm_file}",
-                   "the configuration")
+        check_same(arm.end_effector, end_effector_of(end_effector, desc).label,
+                   f"the arm file {arm_file}", "the configuration")
     return arm, arm_record(arm, arm_file)
 
 
@@ -182,7 +181,7 @@ def excitation(spec: str = "builtin", model=None):
 
     if spec == "builtin":
         return excitation_path(model=model)
-    return load_path_csv(spec).check_limits(model)
+    return load_path_csv(spec, model=model)
 
 
 def tandem_for(family: str, arm=None):

@@ -162,8 +162,10 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     determined = estimate.determined
     if determined is not None and not {"mass", "com"} <= set(determined):
         missing = " and ".join(g for g in ("mass", "com") if g not in determined)
+        settle = (estimate.extra or {}).get("settle")  # what motion would (the model's)
         return ("uncertain", f"the data do not determine the {missing} yet: it is the "
-                             "prior's guess, not a measurement")
+                             "prior's guess, not a measurement"
+                             + (f"; {settle}" if settle else ""))
     if estimate.std is not None:
         wide = _band_unusable(np.asarray(estimate.std, dtype=float), estimate, config)
         if wide is not None:

@@ -505,3 +505,20 @@ def test_csv_with_byte_order_mark_and_crlf(tmp_path):
     f.write_bytes(("\ufeff" + HEADER + "\r\n" + "\r\n".join(_rows(6)) + "\r\n").encode())
     p = load_path_csv(f)
     assert p.duration == pytest.approx(0.05)
+
+
+def test_a_csv_is_checked_against_the_arm_model_it_is_for(tmp_path):
+    """An FR3 path faster than the Panda's limits allow (its wrist turns at 4.18 rad/s, the
+    Panda's at 2.61) loads for the FR3 and is refused for the Panda."""
+    from sim.robot import ArmModel
+
+    fr3 = ArmModel(description="fr3")
+    q0 = np.array(fr3.description.home)
+    q1 = q0.copy()
+    q1[5] += 1.6  # joint 6: a quintic's peak speed 1.875 x 1.6 / 1 s = 3.0 rad/s
+    path = linear_path(q0, q1, 1.0, model=fr3)
+    f = tmp_path / "fr3.csv"
+    save_path_csv(path, f)
+    assert load_path_csv(f, model=fr3).duration == pytest.approx(1.0)
+    with pytest.raises(PathError, match="joint 6 velocity"):
+        load_path_csv(f)

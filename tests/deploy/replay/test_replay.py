@@ -169,6 +169,18 @@ def test_cli_writes_csv_json_and_keeps_the_model_file(tmp_path, fd_log, replay_m
     assert hashlib.sha256(replay_model_file.read_bytes()).hexdigest() == before
 
 
+def test_the_replay_reports_its_cpu_and_speed_per_cpu_second(fd_log, replay_model):
+    """``cpu_speed`` is the recorded time over the CPU of the replay's threads, the loop's
+    (learning inline in it) and the reader's; never more than the wall time allows."""
+    log_file, _ = fd_log
+    summary, _ = replay(log_file, model=replay_model, log=lambda _: None)
+    parts = summary["cpu_parts"]
+    assert summary["replay_cpu_s"] == parts["cycle"] + parts["reader"] > 0.0
+    assert summary["cpu_speed"] == summary["recorded_s"] / summary["replay_cpu_s"]
+    assert parts["learning"] <= parts["cycle"]  # inline: a part of the loop's CPU
+    assert summary["replay_cpu_s"] <= summary["wall_s"] * 1.05  # one thread's CPU (+ clocks)
+
+
 def test_save_model_writes_the_learnt_model(tmp_path, fd_log, replay_model,
                                            replay_model_file):
     from iem.persistence import load_model
