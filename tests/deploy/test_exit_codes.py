@@ -5,6 +5,7 @@ systemd does not restart into it; a link failure keeps status 2 (restarted)."""
 from __future__ import annotations
 
 import configparser
+import json
 from pathlib import Path
 
 import pytest
@@ -104,8 +105,9 @@ def test_a_link_failure_keeps_status_2(tmp_path, capsys, model_file):
     status, err = run_iem(capsys, "run", "--config", str(write_toml(tmp_path / "cell.toml",
                                                                     doc)))
     assert status == 2
-    last = err.splitlines()[-1]  # after the JSON logs of the start
-    assert last.startswith("iem: error: cannot open slcan bus") and "ttyACM9" in last
+    fatal = json.loads(err.splitlines()[-1])  # JSON logging: the fatal line is a record too
+    assert fatal["event"] == "fatal" and fatal["error_type"] == "LinkError"
+    assert fatal["msg"].startswith("cannot open slcan bus") and "ttyACM9" in fatal["msg"]
 
 
 def test_a_bad_path_file_is_a_config_error(tmp_path, capsys):
@@ -193,6 +195,7 @@ def test_every_file_cell_toml_names_exits_78_when_missing_or_unreadable(tmp_path
         make(tmp_path)
     sections = sections(tmp_path, phys_model_file)
     link = sections.pop("link", {"kind": "virtual", "channel": f"exit-{case}"})
+    sections.setdefault("log", {})["format"] = "text"  # the fatal line as a person reads it
     doc = cell_config(phys_model_file, link, **sections)
     with within(60):
         status, err = run_iem(capsys, "run", "--config",
