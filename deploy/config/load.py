@@ -16,7 +16,13 @@ from pathlib import Path as FsPath
 
 from iem.errors import InvalidInputError
 
-from .arm import arm_model_of, with_description, with_end_effector, with_rated_payload
+from .arm import (
+    arm_model_of,
+    check_rating,
+    with_description,
+    with_end_effector,
+    with_rated_payload,
+)
 from .sections import (
     CHOICES,
     DERIVED_GATE_KEYS,
@@ -134,6 +140,8 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
     cfg = CellConfig(**built, source=where)
     if "rated_mass_kg" not in doc.get("gate", {}):
         cfg = with_rated_payload(cfg)
+    else:
+        check_rating(cfg)
     if not FsPath(cfg.arm.model).suffix or FsPath(cfg.arm.model).is_absolute():
         cfg = with_description(cfg)  # a relative description file: once load_config found it
     return cfg

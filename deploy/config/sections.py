@@ -227,12 +227,14 @@ RANGES = {
     ("ros2", "set_load_timeout_s"): (0.05, 4.0),  # below the unit's WatchdogSec=5
 }
 RANGES.update({("gate", key): valid for key, valid in GATE_RANGES.items()
-               if key not in DERIVED_GATE_KEYS})
+               if key not in DERIVED_GATE_KEYS and not isinstance(valid[0], int)})
 INT_RANGES = {
     ("estimate", "block_frames"): (0, 100),  # frames per block point; 0: the link's rate / 100
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
     ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
     ("host", "cpu_dma_latency_us"): (-1, 1_000_000),  # µs; -1: no limit (deploy.service.host)
+    **{("gate", key): valid for key, valid in GATE_RANGES.items()
+       if isinstance(valid[0], int)},  # counts (max_disagreements)
 }
 MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
                 ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm"),

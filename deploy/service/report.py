@@ -35,7 +35,8 @@ def status_text(service, elapsed: float, phi: np.ndarray) -> str:
             + f"  in force {_load_text(commands.load)}"
             + f"  gate {verdict['reason'] or '-'}"
             + f"  drops {drops} lost {c.lost}"
-            + ("  SILENT" if service.silent else ""))
+            + ("  SILENT" if service.silent else "")
+            + ("  UNCHECKED: allow_without_uncertainty" if "warning" in verdict else ""))
 
 
 def summary_of(service) -> dict:

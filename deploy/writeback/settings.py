@@ -29,6 +29,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "max_nis": (1.0, 1e6),
     "refusal_retry_s": (0.1, 3600.0),
     "refusal_retry_max_s": (0.1, 3600.0),
+    "max_disagreements": (1, 100),
 }
 """The valid range of every numeric setting (``cell.toml``'s ``[gate]`` checks the same)."""
 
@@ -63,6 +64,10 @@ class GateConfig:
         allow_without_uncertainty: write estimates that do not report ``std``, ``nis`` or
             ``ood`` (the paper's IEM); by default they are held back (``unreported``).
         refusal_retry_s, refusal_retry_max_s: the wait after a refusal, doubling, up to the max.
+        max_disagreements: a controller whose own report contradicts a load it had
+            confirmed this many times in a row is not written to again until it reports
+            another load (``controller_disagrees``); each such write waits the refusal's
+            back-off first.
     """
 
     rated_mass_kg: float = 3.0
@@ -86,6 +91,7 @@ class GateConfig:
     allow_without_uncertainty: bool = False
     refusal_retry_s: float = 1.0
     refusal_retry_max_s: float = 10.0
+    max_disagreements: int = 5
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -95,6 +101,12 @@ class GateConfig:
                     raise InvalidInputError(f"GateConfig.{f.name} = {value!r}: valid is a bool")
                 continue
             lo, hi = RANGES[f.name]
+            if isinstance(lo, int) and isinstance(hi, int):
+                if isinstance(value, bool) or not isinstance(value, int) or not (
+                        lo <= value <= hi):
+                    raise InvalidInputError(f"GateConfig.{f.name} = {value!r} is out of "
+                                            f"range; valid is an integer from {lo} to {hi}")
+                continue
             if isinstance(value, bool) or not isinstance(value, int | float) or not (
                     lo <= value <= hi):
                 raise InvalidInputError(f"GateConfig.{f.name} = {value!r} is out of range; "

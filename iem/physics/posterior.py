@@ -267,6 +267,7 @@ class Posterior:
         gain_var: the variance per parameter (10) the torque sensors' gain errors add to
             the estimate (:class:`EquationWindow`'s ``gain_var``; zeros without). Not
             saved: the window's sums are, and the next refresh makes it again.
+        prior: the prior's mean it was combined from (10; None: not known). Not saved.
     """
 
     mean: np.ndarray
@@ -276,6 +277,7 @@ class Posterior:
     eps: float = EPS
     equations: int = 0
     gain_var: np.ndarray = field(default_factory=lambda: np.zeros(10))
+    prior: np.ndarray | None = None
     _phi: np.ndarray | None = field(default=None, repr=False)
     _std: np.ndarray | None = field(default=None, repr=False)
 
@@ -343,4 +345,5 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
     if K is not None:
         J = cov @ K
         gain_var = np.square(J) @ window.gain_var
-    return Posterior(mean, cov, precision, inflation, eps, window.m, gain_var=gain_var)
+    return Posterior(mean, cov, precision, inflation, eps, window.m, gain_var=gain_var,
+                     prior=np.array(mu_p, dtype=float))
