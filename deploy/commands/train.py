@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from deploy.config import MODEL_KINDS
-from deploy.model.training import NOISE_SOURCES, train_initial_model
+from deploy.model.training import NOISE_CHOICES, noise_for, train_initial_model
 from deploy.options import (
     add_arm_model,
     add_block_frames,
@@ -49,11 +49,13 @@ def configure(parser) -> None:
                         "the nominal arm)")
     add_end_effector(parser)
     add_arm_model(parser)
-    parser.add_argument("--noise", choices=NOISE_SOURCES, default="arm",
-                        help="IEM+phys's equation error: 'arm' (default), the arm file's "
-                             "measured noise, or a conservative default for an uncalibrated "
-                             "arm; 'sensor', the sensor's white noise alone (a simulated arm "
-                             "whose model is exact)")
+    parser.add_argument("--noise", choices=NOISE_CHOICES, default="auto",
+                        help="IEM+phys's equation error: 'arm', the arm file's measured "
+                             "noise, or a conservative default for an uncalibrated arm; "
+                             "'sensor', the sensor's white noise alone (a simulated arm whose "
+                             "model is exact; on a real arm the model's data test then holds "
+                             "the gate's writes); 'auto' (default): 'arm' with --arm, else "
+                             "'sensor'")
 
 def run(args) -> int:
     from iem.signals.rate import block_frames_for, rate_line
@@ -62,7 +64,8 @@ def run(args) -> int:
     print(rate_line(args.rate, frames, detected=False, what="joint states"))
     model = train_initial_model(args.kind, args.family, args.excitation, args.seed,
                                 rate_hz=args.rate, arm_file=args.arm,
-                                end_effector=args.end_effector, noise=args.noise,
+                                end_effector=args.end_effector,
+                                noise=noise_for(args.noise, args.arm),
                                 block_frames=frames, description=arm_description_of(args))
     save_model(model, args.out)
     print(f"wrote {args.out}")

@@ -107,10 +107,9 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                                                  else set())
         retired = sorted(set(table) & set(RETIRED_GATE_KEYS)) if section == "gate" else []
         if retired:
-            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate, "
-                              "which writes when a write makes the controller's model better "
-                              "by its joint-torque error (write_margin, min_torque_error_nm; "
-                              "docs/configuration.md); remove them")
+            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate: "
+                              f"{RETIRED_GATE_KEYS[retired[0]]}; remove "
+                              f"{'it' if len(retired) == 1 else 'them'}")
         bad = sorted(set(table) - names)
         if bad:
             raise ConfigError(f"{where}: unknown key(s) {bad} in [{section}]; valid keys are "

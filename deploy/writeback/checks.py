@@ -365,18 +365,21 @@ def with_prior_inertia(phi: np.ndarray, reading: Reading) -> np.ndarray:
     return Payload("estimate", mass, com, inertia).to_phi()
 
 
-def mass_band(phi, sigma) -> tuple[float, float]:
-    """The mass's 2-sigma band ``(low, high)``, kg (infinite without a band)."""
-    m = float(phi[0])
-    s = math.inf if sigma is None else float(sigma[0])
+def mass_band(mass: float, mass_std) -> tuple[float, float]:
+    """The mass's 2-sigma band ``(low, high)``, kg, of a mass and its standard deviation
+    (None: no band, the mass alone; NaN or inf: nothing known, the whole line)."""
+    m = float(mass)
+    s = 0.0 if mass_std is None else float(mass_std)
     if math.isnan(s):
         s = math.inf
     return m - 2.0 * s, m + 2.0 * s
 
 
-def upper_mass(phi, sigma) -> float:
-    """The mass's upper 2-sigma bound, kg (inf without a band)."""
-    return mass_band(phi, sigma)[1]
+def excludes_zero(mass: float, mass_std) -> bool:
+    """Whether the mass's 2-sigma band excludes a zero mass (lies above it): the estimate
+    is a body whose CoM and inertia mean something; otherwise it is not told from the empty
+    load (the status line shows no CoM then, and the gate judges the empty load)."""
+    return mass_band(mass, mass_std)[0] > 0.0
 
 
 def _worst(std: np.ndarray) -> str:

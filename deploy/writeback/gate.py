@@ -7,20 +7,21 @@ smoothed estimate, the raw estimate it came from (its time and its one uncertain
 point's pose; every ``decision_period_s`` (default 50 ms) the step decides whether writing the
 estimate makes the controller's model better. In order, it holds:
 
-1. ``malformed``: the estimate breaks its contract (:func:`deploy.writeback.checks.read`: types,
-   shapes, a negative or NaN ``std``, a covariance that is not one or disagrees with
-   ``std``, a negative ``nis``, flags of the wrong type); ``stale``: it has not advanced
-   for ``max_age_s``;
-2. ``not_finite``, ``inconsistent`` (not a possible rigid body, or more inertia than a body
-   of its mass within the arm's reach can have), ``over_rated`` (the payload and the
-   declared end effector beyond the arm's rated payload), ``com_too_far``,
-   ``out_of_wire_range`` (:func:`deploy.writeback.checks.check_estimate`; the rating, the CoM and
-   the inertia at the 2-sigma band's worst). Not for the empty load: when the mass's upper
-   2-sigma bound stays below ``empty_mass_kg`` over the stability window, the candidate is
-   the empty load (mass 0, as libfranka's ``setLoad`` takes it), so a removed tool is
-   cleared;
-3. ``controller_silent``: no joint state for the source's silence timeout;
-4. ``ack_missing``: a command awaits its answer; ``lost``: a command went unanswered for
+1. ``controller_silent``: no joint state for the source's silence timeout (a silence's steps
+   bring no estimate); ``malformed``: the estimate breaks its contract
+   (:func:`deploy.writeback.checks.read`: types, shapes, a negative or NaN ``std``, a
+   covariance that is not one or disagrees with ``std``, a negative ``nis``, flags of the
+   wrong type); ``stale``: it has not advanced for ``max_age_s``;
+2. the candidate: the empty load (mass 0, as libfranka's ``setLoad`` takes it) while the
+   mass's 2-sigma band has reached zero over the whole stability window (a removed tool;
+   no CoM or inertia of such a mass is judged), else the estimate (an inertia the data do
+   not determine taken from its prior), which must pass: ``not_finite``, ``inconsistent``
+   (not a possible rigid body, or more inertia than a body of its mass within the arm's
+   reach can have), ``over_rated`` (the payload and the declared end effector beyond the
+   arm's rated payload), ``com_too_far``, ``out_of_wire_range``
+   (:func:`deploy.writeback.checks.check_estimate`; the rating, the CoM and the inertia at
+   the 2-sigma band's worst);
+3. ``ack_missing``: a command awaits its answer; ``lost``: a command went unanswered for
    ``ack_timeout_s``: the load in force stays as it was and the write is retried after a
    back-off (``ack_retry_s`` doubling up to ``ack_retry_max_s``); ``refused``: the
    controller refused the last command (a Franka does while a controller runs): retried
@@ -28,18 +29,18 @@ estimate makes the controller's model better. In order, it holds:
    ``controller_disagrees``: the controller's own report contradicted a load it had
    confirmed: retried after the refusal's back-off, and not at all after
    ``max_disagreements`` in a row until it reports another load;
-5. ``unreported``, ``out_of_distribution``, ``unverified`` (from a payload file or a restart,
+4. ``unreported``, ``out_of_distribution``, ``unverified`` (from a payload file or a restart,
    not yet tested by live data), ``uncertain`` (no band, the inertia's band too wide, or an
    undetermined inertia without a prior), ``data_disagree``
    (:func:`deploy.writeback.checks.model_doubt`);
-6. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
+5. ``unstable``: the estimate moved more than the stability band within ``stable_window_s``
    (hysteresis: stable below the band, unstable again only above twice it);
-7. ``no_change``: the load in force lies within the estimate's band, or outside it by less
-   than ``min_torque_error_nm`` of joint torque (:mod:`deploy.writeback.write_rule`): holding
-   is fine;
-   ``uncertain``: a write's worst case, in joint torque along the recent motion, is more than
-   ``write_margin`` of the least error the load in force has: the write is not sure to help;
-8. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
+6. ``no_change``: the load in force lies within the estimate's band, or outside it by less
+   than ``min_torque_error_nm`` of joint torque (:mod:`deploy.writeback.write_rule`), or the
+   candidate is what is in force: holding is fine; ``uncertain``: a write's worst case, in
+   joint torque along the recent motion, is more than ``write_margin`` of the least error the
+   load in force has: the write is not sure to help;
+7. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
 
 Otherwise ``send``; its detail names the groups the data do not determine: an inertia the
 data do not determine is written as the estimate's prior has it. Every decision is counted by
@@ -70,9 +71,9 @@ from .checks import (
     Reading,
     WireCheck,
     check_estimate,
+    mass_band,
     model_doubt,
     read,
-    upper_mass,
     with_prior_inertia,
 )
 from .load_state import UNKNOWN, LoadInForce, describe, load_record
@@ -163,9 +164,8 @@ class SafetyGate:
         """The gate's own time, from the caller's (:meth:`GateClock.__call__`)."""
         self.motion = RecentMotion(regressor)
         self.counts: Counter[str] = Counter()
-        self._history = TimeWindow(c.stable_window_s, 5)  # m, m·c, the mass's upper bound
+        self._history = TimeWindow(c.stable_window_s, 5)  # m, m·c, the mass's lower bound
         self._stable = False
-        self._last_input = None  # (phi, raw, reading, broken) of the last step's estimate
         self._newest = (-math.inf, -math.inf)  # (estimate time, gate time) of the newest
         self.clock_jumps = 0
         """Restarts and jumps of the controller's clock (or the caller's) the gate re-based
@@ -204,27 +204,28 @@ class SafetyGate:
         from (for its time and its uncertainty) and the point's joint ``state`` (its pose,
         for the torque bound) join the gate's view; then, every ``decision_period_s``, the
         decision (None when none is due; deferred up to :data:`DEFER_POINTS` steps while the
-        model is ``busy`` with heavy work). A step without an estimate (a silence) decides
-        on the last one. Never raises for what it is given: a malformed estimate is refused
-        with its reason."""
+        model is ``busy`` with heavy work). A step without an estimate is a silence's: while
+        the controller is silent (:meth:`controller_silent`) it holds with
+        ``controller_silent``, else it decides nothing. Never raises for what it is given: a
+        malformed estimate is refused with its reason."""
         now = self.clock(t)
         if self.clock.jumps != self._clock_jumps_seen:
             self._clock_jumps_seen = self.clock.jumps
             self._jumped(self.clock.last_jump, "the run's clock")
-        if smoothed is not None:
-            phi = _vector(smoothed)
-            reading, broken = read(raw)
-            self._observe(now, phi, reading, state)
-            self._last_input = (phi, raw, reading, broken)
-        elif self._last_input is None:
-            return None
+        if smoothed is None:  # no estimate: a silence
+            if not self._silent or now - self._last_decision_t < self.config.decision_period_s:
+                return None
+            return self._decision(t, now, None, None, None, None)
+        phi = _vector(smoothed)
+        reading, broken = read(raw)
+        self._observe(now, phi, reading, state)
         if now - self._last_decision_t < self.config.decision_period_s:
             return None
         if busy and self._deferred < DEFER_POINTS:
             self._deferred += 1
             return None
         self._deferred = 0
-        return self._decision(t, now, *self._last_input)
+        return self._decision(t, now, phi, raw, reading, broken)
 
     def _observe(self, now: float, phi: np.ndarray, reading: Reading | None, state) -> None:
         """Add one block point to the stability window, its pose to the recent motion and
@@ -241,8 +242,8 @@ class SafetyGate:
         if state is not None:
             self.motion.observe(now, state.q, state.dq)
         if phi.shape == (10,) and np.isfinite(phi).all():
-            up = upper_mass(phi, None if reading is None else reading.sigma)
-            self._history.push(now, (*phi[:4], up if not math.isnan(up) else math.inf))
+            sigma = None if reading is None or reading.sigma is None else reading.sigma[0]
+            self._history.push(now, (*phi[:4], mass_band(phi[0], sigma)[0]))
         else:
             self._history.expire(now)
 
@@ -273,9 +274,11 @@ class SafetyGate:
             self._log_hold(decision, now)
         return decision
 
-    def _decide(self, t: float, now: float, phi: np.ndarray, raw, reading: Reading | None,
-                broken) -> Decision:
+    def _decide(self, t: float, now: float, phi: np.ndarray | None, raw,
+                reading: Reading | None, broken) -> Decision:
         c = self.config
+        if self._silent:
+            return Decision(t, "controller_silent", None, "no joint state from the controller")
         if broken:
             return Decision(t, broken[0], None, broken[1])
         if reading is not None:
@@ -293,9 +296,6 @@ class SafetyGate:
             if reason:
                 return Decision(t, reason, candidate if reason != "malformed" else None,
                                 detail)
-        if self._silent:
-            return Decision(t, "controller_silent", candidate,
-                            "no joint state from the controller")
         hold = self.commands.hold(now)
         if hold is not None:
             return Decision(t, hold[0], candidate, hold[1])
@@ -313,8 +313,8 @@ class SafetyGate:
 
     def _send(self, t: float, phi: np.ndarray | None, reading: Reading | None) -> Decision:
         if phi is None:
-            return Decision(t, "send", None, "the empty load: the mass's upper 2-sigma bound "
-                                             f"stayed below {self.config.empty_mass_kg:g} kg")
+            return Decision(t, "send", None, "the empty load: the mass's 2-sigma band has "
+                                             f"reached zero for {self.config.stable_window_s:g} s")
         determined = None if reading is None else reading.determined
         prior = () if determined is None else tuple(g for g in ("mass", "com", "inertia")
                                                     if g not in determined)
@@ -325,12 +325,14 @@ class SafetyGate:
 
     # -- helpers -------------------------------------------------------------------------
     def _empty(self) -> bool:
-        """The mass's upper 2-sigma bound stayed below ``empty_mass_kg`` for the whole
-        stability window."""
+        """The mass's 2-sigma band reached zero (its lower bound not above it) all over the
+        stability window: the estimate is not told from the empty load, which is then the
+        candidate, judged by the write rule as any other (and no CoM or inertia of such a
+        mass is judged)."""
         w = self._history
         if not w.n or w.last_t - w.first_t < 0.9 * self.config.stable_window_s:
             return False
-        return w.column_max(4) < self.config.empty_mass_kg
+        return w.column_max(4) <= 0.0
 
     def _helps(self, phi, reading: Reading | None, candidate) -> tuple[str, str] | None:
         """``("no_change" | "uncertain", detail)`` unless writing ``candidate`` (paper
@@ -340,9 +342,11 @@ class SafetyGate:
         band = np.zeros(10) if reading is None else reading.band()
         band = np.where(np.isfinite(band), band, 0.0)  # an unseen inertia: the prior's
         cov = None if reading is None else reading.cov
-        candidate = np.zeros(10) if candidate is None else candidate
         if in_force == UNKNOWN:
             return None  # nothing to keep: what the controller holds is not known
+        if candidate is None and in_force is None:
+            return "no_change", "the empty load is in force, and the estimate is not told from it"
+        candidate = np.zeros(10) if candidate is None else candidate
         have = np.zeros(10) if in_force is None else in_force.to_phi()
         hold, write = torque_errors(self.motion, have, candidate, phi, band, c.reach_m, cov)
         if not hold >= c.min_torque_error_nm:

@@ -17,7 +17,6 @@ RANGES: dict[str, tuple[float, float]] = {
     "stable_com_m": (0.0, 1.0),
     "write_margin": (0.01, 1.0),
     "min_torque_error_nm": (0.0, 100.0),
-    "empty_mass_kg": (0.0, 3.0),
     "max_inertia_2sigma_kgm2": (1e-6, 10.0),
     "max_age_s": (0.001, 60.0),
     "reach_m": (0.05, 5.0),
@@ -50,8 +49,6 @@ class GateConfig:
             this share of the least error the load in force has.
         min_torque_error_nm: a load in force that errs by less than this (N·m, at the worst
             joint and pose of the recent motion, beyond the estimate's band) is kept.
-        empty_mass_kg: the candidate is the empty load while the mass's upper 2-sigma bound
-            stays below this for the stability window.
         max_inertia_2sigma_kgm2: no write while the data determine the inertia and its
             2-sigma band is wider than this.
         max_age_s: no write of an estimate older than this at the decision.
@@ -78,7 +75,6 @@ class GateConfig:
     stable_com_m: float = 0.004
     write_margin: float = 1.0
     min_torque_error_nm: float = 0.015
-    empty_mass_kg: float = 0.2
     max_inertia_2sigma_kgm2: float = 0.05
     max_age_s: float = 1.0
     reach_m: float = 0.855
