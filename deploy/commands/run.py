@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import sys
 
+from deploy.options import add_duration
 from deploy.service.loop import Service
 
 log = logging.getLogger("iem.service")
@@ -14,7 +15,7 @@ log = logging.getLogger("iem.service")
 
 def configure(parser) -> None:
     parser.add_argument("--config", required=True, metavar="FILE", help="cell.toml")
-    parser.add_argument("--duration", type=float, help="stop after this many s")
+    add_duration(parser)
 
 
 def run(args) -> int:

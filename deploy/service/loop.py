@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deploy.config import CellConfig
+from deploy.config import CellConfig, ConfigError
 from deploy.model.setup import block_frames_of, checked_model, link_rate
 from deploy.writeback.gate import SafetyGate
 from deploy.writeback.writer import LoadWriter
@@ -130,7 +130,8 @@ class Service:
         self._next_diagnostics = 0.0
         self.arm_watch = ArmWatch()
         """Says once when the mass stays clearly below zero (a wrong arm model)."""
-        self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s)
+        self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s,
+                                         saves=not link_kind(config.link.kind).recorded)
         self.writer: LoadWriter | None = None
         self._publish = None  # the link's publish_estimate, if it has one (set by run)
         self.on_cycle: list[Callable[[CycleRecord], None]] = []
@@ -184,12 +185,17 @@ class Service:
         self.model.go_live(self.threaded_reader,
                            background=self.config.estimate.background_learning)
         if self.link is None:
+            from firmware_bridge.errors import LogFileError
             from firmware_bridge.links import open_link
 
             lc = self.config.link
-            self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
-                                  silence_timeout=lc.silence_timeout_s,
-                                  **self.config.link_options())  # [ros2] for kind ros2
+            try:
+                self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
+                                      silence_timeout=lc.silence_timeout_s,
+                                      **self.config.link_options())  # [ros2] for kind ros2
+            except LogFileError as exc:  # a recording cell.toml names: a restart cannot fix
+                raise ConfigError(f"{self.config.source}: [link] channel = {lc.channel!r}: "
+                                  f"{exc}") from exc
         self.rate_hz = self._rate_hz or link_rate(self.config)
         self.block_frames = block_frames_of(self.config, self.rate_hz)
         self.point_rate_hz = self.rate_hz / self.block_frames

@@ -1,16 +1,14 @@
 """The simulated cell: the simulated controller (:class:`SimController`, :mod:`.controller`:
 the MuJoCo plant at 1 kHz behind a bus or link), the path it plays (:mod:`.path_player`),
 the payloads it mounts on a schedule (:mod:`.payload_schedule`), its ROS 2 side in a process
-of its own (:mod:`.ros2_controller`), a cell in one process with the service beside it
-(:mod:`.inprocess`), and the configuration of a cell that runs against it
-(:func:`cell_sections`, :mod:`.cell`).
+of its own (:mod:`.ros2_controller`), and a cell in one process with the service beside it
+on the virtual bus (:mod:`.inprocess`; its configuration: :func:`deploy.config.cell_config`).
 """
 
-from .cell import cell_sections
 from .controller import SimController
-from .inprocess import simulated_cell, virtual_channel
+from .inprocess import simulated_cell, virtual_channel, virtual_link
 from .path_player import PathPlayer
 from .payload_schedule import PayloadSchedule, parse_schedule
 
-__all__ = ["PathPlayer", "PayloadSchedule", "SimController", "cell_sections",
-           "parse_schedule", "simulated_cell", "virtual_channel"]
+__all__ = ["PathPlayer", "PayloadSchedule", "SimController", "parse_schedule",
+           "simulated_cell", "virtual_channel", "virtual_link"]

@@ -321,8 +321,11 @@ def model_doubt(estimate, config: GateConfig, reading: Reading | None = None
     determined = r.determined
     if determined is not None and not {"mass", "com"} <= set(determined):
         missing = " and ".join(g for g in ("mass", "com") if g not in determined)
+        settle = r.extra.get("settle")  # what motion would (the model's words)
+        settle = settle if isinstance(settle, str) else ""
         return ("uncertain", f"the data do not determine the {missing} yet: it is the "
-                             "prior's guess, not a measurement")
+                             "prior's guess, not a measurement"
+                             + (f"; {settle}" if settle else ""))
     if determined is not None and "inertia" not in determined and r.prior is None:
         return ("uncertain", "the data do not determine the inertia and the model reports no "
                              "prior to write in its place")

@@ -25,6 +25,7 @@ def test_the_default_configuration_and_iem_train_choose_auto():
     assert config_from_dict({}).arm.noise == "auto" and "auto" in NOISE_CHOICES
     parser = argparse.ArgumentParser()
     train.configure(parser)
-    assert parser.parse_args(["--out", "m.msgpack"]).noise == "auto"
+    assert parser.parse_args(["--out", "m.msgpack"]).noise is None  # auto, as run() reads it
+    assert parser.parse_args(["--out", "m.msgpack", "--noise", "auto"]).noise == "auto"
     with pytest.raises(ConfigError, match="noise"):
         config_from_dict({"arm": {"noise": "white"}})

@@ -354,9 +354,24 @@ def test_silence_stops_writes():
 
 # -- stability, rate, settings ------------------------------------------------------------------
 def test_stability_has_hysteresis():
-    gate = SafetyGate(GateConfig(stable_mass_kg=0.02))
-    wobble = lambda t: phi_of(dm=0.015 * math.sin(40 * t))  # noqa: E731 spread 0.03 kg
-    assert "send" not in reasons(feed(gate, wobble, 0.0, 2.0))
+    """Stable once the spread is within the band; unstable again only beyond twice it. A
+    wobble of 1.5 bands keeps a stable estimate stable and a fresh one unstable; 2.5 bands
+    is unstable."""
+    band = 0.02
+
+    def wobble(bands: float):
+        return lambda t: phi_of(dm=bands * band / 2 * math.sin(40 * t))  # spread: bands x band
+
+    gate = SafetyGate(GateConfig(stable_mass_kg=band))
+    ctl = Controller(gate)
+    steady = reasons(feed(gate, phi_of(), 0.0, 1.0, ctl))
+    assert steady[0] == "unstable" and "send" in steady and steady[-1] == "no_change"
+    within = reasons(feed(gate, wobble(1.5), 1.0, 3.0, ctl))
+    assert within and "unstable" not in within
+    beyond = reasons(feed(gate, wobble(2.5), 3.0, 5.0, ctl))
+    assert "unstable" in beyond and beyond[-1] == "unstable"
+    fresh = SafetyGate(GateConfig(stable_mass_kg=band))
+    assert set(reasons(feed(fresh, wobble(1.5), 0.0, 2.0, Controller(fresh)))) == {"unstable"}
 
 
 def test_a_due_decision_waits_up_to_three_busy_steps():
