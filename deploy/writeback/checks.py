@@ -189,9 +189,11 @@ def _one_uncertainty(std, cov) -> tuple[np.ndarray | None, np.ndarray | None]:
 
 
 def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | None = None,
-                   sigma: np.ndarray | None = None) -> tuple[str, str]:
+                   sigma: np.ndarray | None = None, cov: np.ndarray | None = None
+                   ) -> tuple[str, str]:
     """``(reason, detail)`` of the estimate ``phi`` (paper order) with standard deviations
-    ``sigma`` (None: the values alone, as of a file): ``reason`` is ``""`` when it may be
+    ``sigma`` and covariance ``cov`` (None: the values alone, as of a file; the covariance
+    unknown): ``reason`` is ``""`` when it may be
     written as far as its values go, else ``not_finite``, ``inconsistent`` (not a possible
     rigid body: a mass not > 0, an inertia about the CoM that is not positive definite or
     breaks the triangle inequality, or more than a body of that mass within the arm's reach
@@ -217,7 +219,7 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
             f"mass {payload.mass:.3f}{_pm(band[0])} kg + end effector "
             f"{c.end_effector_mass_kg:.3f} kg > rated {c.rated_mass_kg:g} kg")
     radius = float(np.linalg.norm(payload.com))
-    worst_radius = radius + _com_band(phi, band)
+    worst_radius = radius + _com_band(phi, band, cov)
     if worst_radius > c.max_com_radius_m:
         return "com_too_far", (f"CoM {radius:.3f}{_pm(worst_radius - radius)} m from the "
                                f"flange > {c.max_com_radius_m:g} m")
@@ -235,17 +237,23 @@ def _pm(band: float) -> str:
     return f" (+{band:.3f} at 2 sigma)" if band > 0 else ""
 
 
-def _com_band(phi: np.ndarray, band: np.ndarray) -> float:
-    """How far the CoM's distance from the flange may be from its mean at the band's worst
-    (first order: ``c = h / m``, each of ``m`` and ``h`` at its band's edge)."""
-    m, h = float(phi[0]), phi[1:4]
+def _com_band(phi: np.ndarray, band: np.ndarray, cov: np.ndarray | None = None) -> float:
+    """The 2-sigma band of the CoM's distance from the flange, m, to first order in the
+    mass and the first moment (``c = h / m``: ``J = [-c / m, I / m]``, the CoM's covariance
+    ``J C J^T`` with ``C`` the estimate's covariance of ``m`` and ``h``, or their variances
+    from ``band`` without one): twice the root of its largest eigenvalue, the band's edge
+    in any direction. Infinite when the mass's band reaches zero (the CoM of a mass that may
+    be none is not determined)."""
+    m = float(phi[0])
     if not band[:4].any():
         return 0.0
-    low = m - band[0]
-    if not low > 0.0:
-        return math.inf  # the band reaches a zero mass: the CoM is not determined
-    return float((np.linalg.norm(h) + np.linalg.norm(band[1:4])) / low
-                 - np.linalg.norm(h) / m)
+    if not m - band[0] > 0.0:
+        return math.inf
+    c = phi[1:4] / m
+    jac = np.hstack([-c[:, None] / m, np.eye(3) / m])
+    c4 = np.diag((band[:4] / 2.0) ** 2) if cov is None else cov[:4, :4]
+    cov_c = jac @ c4 @ jac.T
+    return 2.0 * math.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov_c + cov_c.T))[-1]), 0.0))
 
 
 def inertia_bound(phi: np.ndarray, band: np.ndarray, reach_m: float) -> str | None:

@@ -288,11 +288,12 @@ class SafetyGate:
                                                   f"{age:.3g} s at t = {_when(t)} s > "
                                                   f"{c.max_age_s:g} s")
         sigma = None if reading is None else reading.sigma
+        cov = None if reading is None else reading.cov
         empty = self._empty()
         candidate = None
         if not empty:
             candidate = phi if reading is None else with_prior_inertia(phi, reading)
-            reason, detail = check_estimate(candidate, c, self.wire_check, sigma)
+            reason, detail = check_estimate(candidate, c, self.wire_check, sigma, cov)
             if reason:
                 return Decision(t, reason, candidate if reason != "malformed" else None,
                                 detail)

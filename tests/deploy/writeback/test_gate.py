@@ -124,12 +124,10 @@ def test_a_wide_band_is_written_when_the_write_still_halves_the_error():
     ctl = Controller(gate)
     feed(gate, phi_of(), 0.0, 3.0, ctl, std=wide)
     assert len(ctl.applied) == 1
-    # a band as wide as the payload itself: not sure to help (a CoM near the flange, which
-    # even the band's lightest mass keeps within the CoM radius)
+    # a band as wide as the payload itself: not sure to help
     gate = SafetyGate()
-    huge = np.r_[0.6, np.full(3, 0.004), np.full(6, 0.002)]
-    near = phi_of(dcom=(-P.com[0], -P.com[1], 0.01 - P.com[2]))
-    decisions = feed(gate, near, 0.0, 3.0, Controller(gate), std=huge)
+    huge = np.r_[0.6, np.full(3, 0.05), np.full(6, 0.002)]
+    decisions = feed(gate, phi_of(), 0.0, 3.0, Controller(gate), std=huge)
     assert "send" not in reasons(decisions) and decisions[-1].reason == "uncertain"
     assert "could err by" in decisions[-1].detail
 
@@ -415,10 +413,9 @@ def test_the_rating_counts_the_end_effector():
 # -- what a user sees ----------------------------------------------------------------------------
 def test_holding_is_logged_at_info_at_most_once_per_ten_seconds(caplog):
     gate = SafetyGate()
-    huge = np.r_[0.6, np.full(3, 0.004), np.full(6, 0.002)]
-    near = phi_of(dcom=(-P.com[0], -P.com[1], 0.01 - P.com[2]))  # the CoM within the radius
+    huge = np.r_[0.6, np.full(3, 0.05), np.full(6, 0.002)]
     with caplog.at_level(logging.INFO, logger="iem.gate"):
-        feed(gate, near, 0.0, 25.0, std=huge)
+        feed(gate, phi_of(), 0.0, 25.0, std=huge)
     infos = [r for r in caplog.records if r.levelno == logging.INFO]
     assert 2 <= len(infos) <= 3
     assert any("holding: uncertain" in r.getMessage() and "2-sigma mass 1.200 kg"
