@@ -20,7 +20,7 @@ def add_replay_figures(summary: dict, service, link, estimates,
     wall = summary["wall_s"]
     # the replay's threads' CPU (the loop, the learning inline in it, the reader): on a
     # shared machine the wall time counts the others' work too, this does not
-    cpu = service.cpu_parts["cycle"] + service.cpu_parts["reader"]
+    cpu = summary["cpu_parts"]["cycle"] + summary["cpu_parts"]["reader"]
     summary.update({
         **source,
         "truncated": bool(getattr(link, "truncated", False)),  # the link warned (iem.bridge)

@@ -26,7 +26,7 @@ from sim.plant import ArmPlant
 from tests.can_logs import write_log
 from tests.firmware_bridge.test_recordings import FR3, PANDA, write_bag, write_csv
 
-from .conftest import cell_config, write_toml
+from .conftest import cell_config, stopped_summary, write_toml
 
 SECONDS = 1.0
 
@@ -313,9 +313,8 @@ def test_iem_run_replays_a_recording_link(files, model_file, tmp_path, capsys):
                       cell_config(model_file, {"kind": "recording",
                                                "channel": str(files["csv"])}))
     assert main(["run", "--config", str(cell)]) == 0
-    err = capsys.readouterr().err
-    assert int(err.split("iem run: ")[1].split(" block points")[0]) == -(-(int(SECONDS * 1000) + 1)
-                                                                    // 10)  # block points
+    cycles = stopped_summary(capsys.readouterr().err)["cycles"]
+    assert cycles == -(-(int(SECONDS * 1000) + 1) // 10)  # block points
 
 
 def test_iem_run_over_a_recording_never_writes_the_model(files, model_file, tmp_path, capsys):

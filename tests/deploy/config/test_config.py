@@ -261,6 +261,7 @@ def test_systemd_unit_parses_and_is_a_notify_service_with_a_watchdog():
     assert env["OPENBLAS_NUM_THREADS"] == "1"  # small solves: BLAS threads only contend
     assert svc["ReadWritePaths"] == "/var/lib/iem" and svc["ProtectSystem"] == "strict"
     assert "MemoryDenyWriteExecute" not in svc  # libffi closures need executable pages
+    assert svc["StandardOutput"] == "null"  # the journal: JSON logs only, no summary in words
 
 
 def test_setup_vcan_script_is_valid_bash_and_has_help():
