@@ -328,6 +328,11 @@ class ArmDynamics:
         jac[_ROWS, _FRICTION_COLS] = self._friction.jacobian(np.asarray(dq, dtype=float))
         return jac @ self._factor
 
+    def payload_mass_matrix(self, q, phi) -> np.ndarray:
+        """The payload ``phi``'s share of the mass matrix at ``q``, ``J^T I_p J`` (7x7):
+        one Jacobian instead of seven regressors."""
+        return self.model.payload_mass_matrix(q, phi)
+
 
 _ROWS = np.repeat(np.arange(7), len(FRICTION_COLUMNS)).reshape(7, -1)
 _FRICTION_COLS = 70 + np.arange(7 * len(FRICTION_COLUMNS)).reshape(7, -1)
@@ -369,9 +374,6 @@ class _FrictionPoint:
         out[:, 7] = out[:, 5] * fsp * 2.0 * dq ** 2 / self.vsp ** 3
         out[:, 8] = out[:, 6] * fsn * 2.0 * dq ** 2 / self.vsn ** 3
         return out
-
-    def payload_mass_matrix(self, q, phi) -> np.ndarray:
-        return self.model.payload_mass_matrix(q, phi)
 
 
 NOMINAL_DYNAMICS = "sim.arm:arm_dynamics"

@@ -133,6 +133,38 @@ def test_payload_mass_matrix_is_pinocchios():
             np.testing.assert_allclose(Mp, M_with - M, atol=1e-9)
 
 
+def test_the_arm_dynamics_give_the_payload_mass_matrix_without_the_regressor():
+    """The arm's dynamics (nominal or a calibrated arm) give ``M_p`` from one Jacobian: the
+    regression never calls them seven times more (each an RNEA, the friction and a CRBA)."""
+    from sim.arm import ArmDynamics, ArmParams
+
+    class Counted(ArmDynamics):
+        calls = 0
+
+        def __call__(self, q, dq, ddq):
+            self.calls += 1
+            return super().__call__(q, dq, ddq)
+
+    rng = np.random.default_rng(5)
+    nominal = ArmParams.nominal(None)
+    calibrated = ArmParams(nominal.link_params, rng.uniform(0.1, 1.0, (7, 3)),
+                           rng.normal(0.0, 0.1, 7), {})
+    model = ArmModel()
+    for arm in (None, calibrated):
+        reg = PayloadRegression(NOMINAL_DYNAMICS)
+        reg._f = dynamics = Counted(arm)
+        q, dq, ddq = model.random_state(rng, margin=0.1)
+        _, Y, _ = dynamics(q, dq, ddq)
+        dynamics.calls = 0
+        Mp = reg.payload_mass_matrix(q, dq, ddq, Y, PHI)
+        assert dynamics.calls == 0
+        model.rnea_with_payload(q, dq, ddq, PHI)  # the nominal links: M_p is the same
+        M_with = pin.crba(model._pl_model, model._pl_data, q)
+        M_nominal = pin.crba(model.model, model.data, q)
+        np.testing.assert_allclose(Mp, np.triu(M_with - M_nominal)
+                                   + np.triu(M_with - M_nominal, 1).T, atol=1e-9)
+
+
 def test_settle_is_where_the_first_samples_noise_has_decayed():
     for fc in (4.0, 20.0):
         n = settle_samples(fc, 1000.0, tol=0.1)
