@@ -19,6 +19,28 @@ def add_arm_model(parser) -> None:
                         "(a named arm model has its maker's)")
 
 
+def seconds(text: str) -> float:
+    """An ``argparse`` type: a finite number of seconds > 0 (``nan`` ran for ever, ``-5``
+    stopped at once)."""
+    import argparse
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: valid is a number of seconds > 0")
+    return value
+
+
+def add_duration(parser) -> None:
+    """``--duration S``: stop after this many seconds (a number > 0; default: until
+    stopped)."""
+    parser.add_argument("--duration", type=seconds, metavar="S",
+                        help="stop after this many s (a number > 0; default: until stopped)")
+
+
 def add_rated_mass(parser) -> None:
     """``--rated-mass-kg KG``, for the commands whose safety gate checks the rated payload."""
     parser.add_argument("--rated-mass-kg", metavar="KG", type=float, default=None,

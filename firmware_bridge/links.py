@@ -282,10 +282,16 @@ class LinkKind:
         controller: the simulated controller can serve a link of this kind.
         pty: the simulated controller can also serve it on a new pty (``<kind>-pty``).
         sink: the link also writes loads (a :class:`PayloadSink`).
+        recorded: the link plays a recording back (its channel is a file): the service
+            never writes the model over one (a replay learns in memory only), and a channel
+            it cannot read is an error of the configuration.
         fixed_rate_hz: joint states per second the link delivers whatever the profile; None:
             the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
         load_report: what a sink's ``load_report`` carries (one of :data:`LOAD_REPORTS`):
             ``"seq"``, ``"values"``, or ``""`` (it stays None).
+        load_range: the range of the values its load command can carry
+            (:mod:`firmware_bridge.load_range`): ``"dbc"`` (the CAN wire profile's signals),
+            ``"float64"`` (any finite double), or ``""`` (a kind that carries no loads).
     """
 
     module: str
@@ -296,41 +302,46 @@ class LinkKind:
     controller: bool = False
     pty: bool = False
     sink: bool = True
+    recorded: bool = False
     fixed_rate_hz: float | None = None
     load_report: str = ""
+    load_range: str = ""
 
 
 LINKS: dict[str, LinkKind] = {
     "virtual": LinkKind("firmware_bridge.can_link", "open_can_link",
                         "python-can's in-process virtual bus (tests, the in-process demo)",
-                        bus="virtual", controller=True, load_report="seq"),
+                        bus="virtual", controller=True, load_report="seq",
+                        load_range="dbc"),
     "socketcan": LinkKind("firmware_bridge.can_link", "open_can_link",
                           "Linux SocketCAN: can0 on a robot-cell PC, vcan0 for tests",
-                          bus="socketcan", controller=True, load_report="seq"),
+                          bus="socketcan", controller=True, load_report="seq",
+                          load_range="dbc"),
     "slcan": LinkKind("firmware_bridge.can_link", "open_can_link",
                       "a serial-line CAN adapter (slcan/LAWICEL; CANable 2.0 for CAN FD): any "
                       "pyserial URL or device",
                       bus="slcan", bus_class="firmware_bridge.slcan_buffered:BufferedSlcanBus",
-                      controller=True, pty=True, load_report="seq"),
+                      controller=True, pty=True, load_report="seq", load_range="dbc"),
     "serial": LinkKind("firmware_bridge.serial_link", "open_serial_link",
                        "msgpack messages over a serial line (COBS + CRC32 framing): any "
                        "pyserial URL", controller=True, pty=True, fixed_rate_hz=NOMINAL_RATE_HZ,
-                       load_report="seq"),
+                       load_report="seq", load_range="float64"),
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
                        "0.10; exclusive FCI); channel: the robot's IP",
-                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values"),
+                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values",
+                       load_range="float64"),
     "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
                      "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
                      "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ,
-                     load_report="values"),
+                     load_report="values", load_range="float64"),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
-                       sink=False),
+                       sink=False, recorded=True, load_range="dbc"),
     "recording": LinkKind("firmware_bridge.recordings", "open_recording_link",
                           "a recorded rosbag2 bag (directory, .db3, .mcap; JointState topic "
                           "/franka/joint_states) or joint-state CSV (t,q1..q7,dq1..dq7,"
-                          "tau1..tau7); channel: the path", sink=False,
+                          "tau1..tau7); channel: the path", sink=False, recorded=True,
                           fixed_rate_hz=NOMINAL_RATE_HZ),
 }
 """The one table of link kinds: the configuration, the service, the simulated controller and

@@ -154,6 +154,14 @@ class ArmModel:
             tau += self._extra(dq)
         return tau, (jac.T @ body)[:, PAPER_TO_PIN]
 
+    def joint_torque_regressor(self, q, dq, ddq) -> np.ndarray:
+        """The joint torques' regressor in the seven bodies' parameters (7x70, Pinocchio
+        order, bodies in their joint frames): ``rnea = W theta`` without friction and
+        offsets."""
+        return pin.computeJointTorqueRegressor(self.model, self.data, np.asarray(q, float),
+                                               np.asarray(dq, float),
+                                               np.asarray(ddq, float)).copy()
+
     def rnea_regressor_mass(self, q, dq, ddq):
         """:meth:`rnea_and_regressor` plus the arm's mass matrix ``M(q)`` (7x7, CRBA)."""
         tau, y = self.rnea_and_regressor(q, dq, ddq)

@@ -202,7 +202,7 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
     # block of the stream holds block_frames frames (no gap can come before its first)
     # ... and the frames of the block still open when the run ended came after its last
     first = cycles[0][4] - (service.block_frames - 1) if cycles else 0
-    seen = (first, cycles[-1][4] + service.reader_former.pending) if cycles else (0, -1)
+    seen = (first, cycles[-1][4] + service.tally.former.pending) if cycles else (0, -1)
     failures = [tuple(f) for f in controller.get("send_failures", [])]
     out["adapter_dropped"] = len(failures)
     out["expected"] = expected_counters(controller.get("fault_events", []), *seen, failures)
@@ -210,7 +210,7 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
                          if k not in ("faults_by_message", "fault_events")}
     # the reader's block former bridges lost frames and skips stale ones; the point-rate
     # rule restarts the filters after a longer gap
-    former, points = service.reader_former, service.online.state_filter.gaps
+    former, points = service.tally.former, service.online.state_filter.gaps
     out["gaps"] = {"bridged": former.bridged, "skipped": former.skipped,
                    "restarts": points.restarts}
     return out

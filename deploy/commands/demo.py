@@ -164,26 +164,19 @@ def _figures_of_the_run(t, est, truth, phases, wall: float, summary: dict,
 
 
 def _print_summary(s: dict, out, log) -> None:
+    """The service's summary in words (:func:`deploy.service.report.summary_lines`, as
+    ``iem run`` prints it), with the errors against the truth and the controller's load."""
+    from deploy.service.report import summary_lines
+
     g = s["mae_groups"]
+    errors = [f"  MAE over the run: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
+              f"inertia {g['inertia']:.5f} kg·m²"]
+    errors += [f"    {name:10s} mass {pg['mass']:.4f} kg, com {pg['com']:.4f} kg·m, "
+               f"inertia {pg['inertia']:.5f} kg·m²"
+               for name, pg in s["mae_groups_by_phase"].items()]
     log("")
-    log(f"summary ({s['model']}, payload {s['payload']}):")
-    log(f"  MAE over the run: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
-        f"inertia {g['inertia']:.5f} kg·m²")
-    for name, pg in s["mae_groups_by_phase"].items():
-        log(f"    {name:10s} mass {pg['mass']:.4f} kg, com {pg['com']:.4f} kg·m, "
-            f"inertia {pg['inertia']:.5f} kg·m²")
-    lat = s["latency_us"]
-    log(f"  bags {s['bags']}; {s['estimates']} estimates, one per block point "
-        f"({s['estimates_per_s']:.0f} per s); block to estimate p50 {lat['p50']:.0f} µs, "
-        f"p99 {lat['p99']:.0f} µs")
-    w = s["writes"]
-    log(f"  writes: {w['sent']} sent, {w['acked']} acknowledged, {w['rejected']} rejected by "
-        f"the gate, {w['refused_by_controller']} refused by the controller")
-    f = s["frames"]
-    drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
-    log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}; "
-        f"{s['unlearnt']} block points estimated without learning to stay current, "
-        f"{f['skipped']} skipped")
+    for line in summary_lines(s, f"payload {s['payload']}", errors):
+        log(line)
     if s["controller_load"]:
         cl = s["controller_load"]
         log(f"  the controller's load now: {cl['mass']:.4f} kg, CoM "

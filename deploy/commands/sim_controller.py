@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import sys
 
-from deploy.options import add_arm_model, arm_description_of, refuse_unused
+from deploy.options import add_arm_model, add_duration, arm_description_of, refuse_unused
 from deploy.simcell.controller import SimController
 from deploy.simcell.payload_schedule import SPEC_HELP, parse_schedule
 from firmware_bridge.controller_port import fault_spec, open_port
@@ -38,7 +38,7 @@ def configure(parser) -> None:
                              "acknowledged (default 0)")
     parser.add_argument("--once", action="store_true",
                         help="play the path once, then hold its end at rest")
-    parser.add_argument("--duration", type=float, help="stop after this many s")
+    add_duration(parser)
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
     parser.add_argument("--drop", type=float, default=0.0, help="fraction of frames dropped")
     parser.add_argument("--corrupt", type=float, default=0.0,
@@ -60,7 +60,8 @@ def configure(parser) -> None:
     parser.add_argument("--stats-json", metavar="FILE",
                         help="at exit, write the controller's counts (cycles, overruns, "
                              "commands, dropped_commands, faults injected per message) and "
-                             "its own record (load_in_force, applied, mounted) as JSON")
+                             "its own record (load_in_force, the true payload, applied, "
+                             "mounted) as JSON")
     add_arm_model(parser)
 
 def _schedule_arg(text: str):
@@ -113,12 +114,13 @@ def run(args) -> int:
     from iem.extras import require
     from sim.paths import load_path_csv
     from sim.payload import load_payload
+    from sim.robot import arm_model
 
     require("mujoco", "iem sim-controller (the simulated arm)")  # before a port opens
 
     refuse_unused_options(args)
     description = arm_description_of(args)
-    path = load_path_csv(args.path) if args.path else None
+    path = (load_path_csv(args.path, model=arm_model(description)) if args.path else None)
     payload = load_payload(args.payload) if args.payload else None
     profile = args.profile or "fd"
     port, announce = open_port(args.interface, args.channel, profile, fault_spec(args))
@@ -152,7 +154,7 @@ def run(args) -> int:
         print("sim-controller: " + ", ".join(f"{k} {v}" for k, v in stats.items()
                                              if k not in ("faults_by_message", "fault_events",
                                                           "send_failures", "load_in_force",
-                                                          "applied", "mounted")),
+                                                          "payload", "applied", "mounted")),
               file=sys.stderr, flush=True)
         if args.stats_json:
             import json

@@ -4,19 +4,27 @@
 
 Every key is documented in ``deploy/cell.toml`` (the example a cell starts from). Any error
 names the key, the value found and what would be valid; unknown keys are errors too, so a
-typo never silently falls back to a default.
+typo never silently falls back to a default. The file is read within bounds, as every TOML
+file a user hands over (:func:`iem.user_files.read_toml`: a regular file of UTF-8 text, at
+most 1 MB, nested at most 32 deep), so no file named here can hang or crash the start.
 """
 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import fields, replace
 from pathlib import Path as FsPath
 
 from iem.errors import InvalidInputError
+from iem.user_files import read_toml
 
-from .arm import arm_model_of, with_description, with_end_effector, with_rated_payload
+from .arm import (
+    arm_model_of,
+    check_rating,
+    with_description,
+    with_end_effector,
+    with_rated_payload,
+)
 from .sections import (
     CHOICES,
     DERIVED_GATE_KEYS,
@@ -101,10 +109,9 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                                                  else set())
         retired = sorted(set(table) & set(RETIRED_GATE_KEYS)) if section == "gate" else []
         if retired:
-            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate, "
-                              "which writes when a write makes the controller's model better "
-                              "by its joint-torque error (write_margin, min_torque_error_nm; "
-                              "docs/configuration.md); remove them")
+            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate: "
+                              f"{RETIRED_GATE_KEYS[retired[0]]}; remove "
+                              f"{'it' if len(retired) == 1 else 'them'}")
         bad = sorted(set(table) - names)
         if bad:
             raise ConfigError(f"{where}: unknown key(s) {bad} in [{section}]; valid keys are "
@@ -134,6 +141,8 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
     cfg = CellConfig(**built, source=where)
     if "rated_mass_kg" not in doc.get("gate", {}):
         cfg = with_rated_payload(cfg)
+    else:
+        check_rating(cfg)
     if not FsPath(cfg.arm.model).suffix or FsPath(cfg.arm.model).is_absolute():
         cfg = with_description(cfg)  # a relative description file: once load_config found it
     return cfg
@@ -141,20 +150,7 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
 def load_config(path) -> CellConfig:
     """Read and check ``cell.toml``; relative model paths are taken from the file's folder."""
     path = FsPath(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the configuration: "
-                          f"{exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        line = exc.object.count(b"\n", 0, exc.start) + 1
-        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} on "
-                          f"line {line}, offset {exc.start}); a cell.toml must be UTF-8, as "
-                          "TOML requires") from exc
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    doc = read_toml(path, "configuration file", ConfigError)
     cfg = config_from_dict(doc, where=str(path))
     model_path = FsPath(cfg.model.path)
     arm_path = FsPath(cfg.model.arm)

@@ -18,6 +18,7 @@ from .excitation import (
     regressors,
 )
 from .fit import fit_map, joint_rms, never_worse
+from .posterior import posterior_covariance
 from .prior import (
     DEFAULT_SETTINGS,
     CalibrationError,
@@ -50,14 +51,16 @@ def calibrate(t, q, dq, tau, settings: CalibrationSettings = DEFAULT_SETTINGS,
 
 def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        source: str = "traffic", end_effector=None,
-                       refuse: bool = True, description=None) -> ArmParams:
+                       refuse: bool = True, description=None,
+                       posterior: bool = True) -> ArmParams:
     """:func:`calibrate` on several recordings ``[(t, q, dq, tau), ...]``, each filtered on
     its own and split at its gaps (:func:`.signals.calibration_signals`).
     ``end_effector`` (a spec or :class:`sim.end_effector.EndEffector`; None: the arm
     model's default) is the prior's body 7 and the nominal model the result is compared with, on the
     arm model ``description`` (:mod:`sim.description`; None: the default).
     ``refuse=False`` fits too little excitation instead of refusing it (the prior holds the
-    directions it lacks): the cross-validation's folds (:mod:`sim.calibration_noise`)."""
+    directions it lacks): the cross-validation's folds (:mod:`sim.calibration_noise`), which
+    need no ``posterior`` either (:mod:`.posterior`: the result's covariance, step 8)."""
     s = settings
     if not parts:
         raise CalibrationError("no traffic to calibrate from (no segment of at least 3 s)")
@@ -90,6 +93,8 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     params, moved = consistent(theta if fixed is None else fixed, theta0.reshape(7, 10))
     params, phi, off, warnings, fallback = never_worse(W, dq, tau, theta0, params, phi, off)
     warnings += _payload_warning(params, theta0, sd_theta)
+    cov = (posterior_covariance(W, dq, tau, params, phi, off, sd_theta, sd_phi, sd_off,
+                                s.rate_hz) if posterior else None)
     if MAX_CONDITION < cond < float("inf"):  # accepted: only negligible directions are weak
         warnings.append(f"condition number {cond:.0f} above {MAX_CONDITION:g} only in "
                         f"directions that move the torques by less than "
@@ -113,7 +118,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},
     }
     return ArmParams(params, phi, off, report, end_effector=ee.label,
-                     description=kinematics.description)
+                     description=kinematics.description, posterior=cov)
 
 
 def _payload_warning(params: np.ndarray, theta0: np.ndarray, sd_theta: np.ndarray) -> list:

@@ -29,6 +29,7 @@ from iem.migrations import (
     current_path,
     equations_per_point,
     fill_version_1,
+    learner_named,
     migrate,
     with_current_paths,
 )
@@ -110,10 +111,13 @@ def test_an_old_file_loads_to_the_model_it_held_and_is_saved_at_the_newest_versi
 def test_the_1khz_physics_file_takes_100hz_points_after_loading():
     model = load_model(DATA / "v1_iem_phys.iem")
     assert (model.rate_hz, model.update_every, model.point_frames) == (100.0, 1, 10)
-    moved = ("rate_hz", "update_every", "point_frames")
+    moved = ("rate_hz", "update_every", "point_frames", "ensemble")
     params = {k: v for k, v in model.params().items() if k not in moved}
     assert params == {k: v for k, v in with_current_paths(PHYS_V1["params"]).items()
                       if k not in moved}
+    # its ensemble learnt by SGD, and says so now (the default is the fast learner)
+    assert model.params()["ensemble"] == {**PHYS_V1["params"]["ensemble"], "learner": "sgd"}
+    assert model._ens.learner_kind == "sgd"
 
 
 def test_the_oldest_version_1_state_loads_as_its_branches_read_it():
@@ -166,8 +170,9 @@ def test_a_state_no_step_can_bring_up_is_a_model_file_error():
 def test_the_steps_run_in_order_from_the_files_version():
     assert sorted(STEPS) == list(range(1, VERSION))
     assert migrate("IEM+phys", PHYS_V1, VERSION) is PHYS_V1
-    two = migrate("IEM+phys", PHYS_V1, 1)
-    assert two == equations_per_point("IEM+phys", fill_version_1("IEM+phys", PHYS_V1))
+    newest = migrate("IEM+phys", PHYS_V1, 1)
+    assert newest == learner_named("IEM+phys", equations_per_point(
+        "IEM+phys", fill_version_1("IEM+phys", PHYS_V1)))  # 3 -> 4 has nothing to do here
     for bad in (0, VERSION + 1, "1", 1.0, True):
         with pytest.raises(InvalidInputError, match=rf"not one of 1 to {VERSION}"):
             migrate("LS", LS_V1, bad)
@@ -180,6 +185,16 @@ def test_a_step_leaves_its_argument_as_it_was(step, kind, state):
     before = copy.deepcopy(state)
     step(kind, state)
     assert state == before
+
+
+def test_learner_named_says_every_version_4_ensemble_learnt_by_sgd():
+    phys = learner_named("IEM+phys", PHYS_V1)
+    assert phys["params"]["ensemble"] == {**PHYS_V1["params"]["ensemble"], "learner": "sgd"}
+    assert phys["ensemble"]["params"] == {**PHYS_V1["ensemble"]["params"], "learner": "sgd"}
+    ens = PHYS_V1["ensemble"]
+    for kind in ("IEM", "old_IEM"):
+        assert learner_named(kind, ens)["params"] == {**ens["params"], "learner": "sgd"}
+    assert learner_named("LS", LS_V1) is LS_V1
 
 
 def test_fill_version_1_leaves_a_full_version_1_state_as_it_is():
