@@ -168,7 +168,8 @@ def test_ctrl_c_stops_the_children(fleet, tmp_path):
             time.sleep(0.05)
         assert len(children) == 2
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 130
+        code = proc.wait(timeout=60)
+        assert code == 130, proc.stderr.read().decode()[-3000:]
     finally:
         proc.kill()
         proc.wait()
