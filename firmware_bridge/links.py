@@ -256,6 +256,9 @@ class LinkKind:
             the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
         load_report: what a sink's ``load_report`` carries (one of :data:`LOAD_REPORTS`):
             ``"seq"``, ``"values"``, or ``""`` (it stays None).
+        arm_model: the one arm model the kind serves (libfranka >= 0.10 serves the FR3
+            only: ``"fr3"``), which ``[arm] model`` defaults to and may not differ from;
+            None: any.
     """
 
     module: str
@@ -268,6 +271,7 @@ class LinkKind:
     sink: bool = True
     fixed_rate_hz: float | None = None
     load_report: str = ""
+    arm_model: str | None = None
 
 
 LINKS: dict[str, LinkKind] = {
@@ -289,7 +293,12 @@ LINKS: dict[str, LinkKind] = {
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
                        "0.10; exclusive FCI); channel: the robot's IP",
-                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values"),
+                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3"),
+    "program": LinkKind("firmware_bridge.program_link", "open_program_link",
+                        "the plug-in inside your own franky-control or pylibfranka program: "
+                        "states fed from its motion callback, loads through its robot's "
+                        "set_load between motions (deploy.service.PayloadPlugin; not iem run)",
+                        fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3"),
     "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
                      "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
                      "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ,

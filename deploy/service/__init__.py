@@ -5,16 +5,19 @@ points (:mod:`.reader`), learning paced to keep up (:mod:`.pacing`), latency win
 (:mod:`.checkpointer`), what the link must declare for its kind (:mod:`.capabilities`), the
 run's report (:mod:`.report`), the terminal status line (:mod:`.status`), logs
 (:mod:`.logs`), systemd's notification (:mod:`.sdnotify`) and what it asks of the host
-(:mod:`.host`).
+(:mod:`.host`); and the same service inside a user's own franky or pylibfranka program
+(:class:`PayloadPlugin`, :mod:`.plugin`).
 """
 
 from .capabilities import check_sink, wire_check_for
 from .host import hold_cpu_latency
 from .logs import setup_logging
 from .loop import CycleRecord, Service
+from .plugin import PayloadPlugin, Reading
 from .reader import BatchReader, LinkReader
 from .sdnotify import Notifier
 from .status import StatusLine
 
-__all__ = ["BatchReader", "CycleRecord", "LinkReader", "Notifier", "Service", "StatusLine",
+__all__ = ["BatchReader", "CycleRecord", "LinkReader", "Notifier", "PayloadPlugin", "Reading",
+           "Service", "StatusLine",
            "check_sink", "hold_cpu_latency", "setup_logging", "wire_check_for"]
