@@ -8,13 +8,13 @@ an exit status that tells a service manager whether to try again:
 - :data:`EX_CONFIG` (78, sysexits.h's ``EX_CONFIG``), only from the service (``iem run``, which
   systemd restarts): a configuration error, which a restart cannot fix
   (:func:`is_config_error`): a bad ``cell.toml`` (unreadable, not UTF-8, not TOML, an unknown
-  key, a value out of range, a model file made for another link rate), a bad payload or path
-  file, an unknown link kind, profile or option, a link's missing extra; ``deploy/iem.service``
-  has ``RestartPreventExitStatus=78``;
+  key, a value out of range, a model file made for another link rate), any file it names
+  that is missing or cannot be read (the model, the arm file, the arm's description, the
+  end effector, the initial payload, the excitation path, the recording a replay link
+  plays), a bad payload or path file, an unknown link kind, profile or option, a link's
+  missing extra; ``deploy/iem.service`` has ``RestartPreventExitStatus=78``;
 - :data:`EX_ERROR` (2): any error of the other commands, and any other error of the service,
-  e.g. a link failure (an adapter
-  unplugged, a bus error), a model file or traffic log that cannot be read: systemd
-  restarts the service.
+  e.g. a link failure (an adapter unplugged, a bus error): systemd restarts the service.
 
 A missing optional extra (MuJoCo for the simulator, matplotlib for the plots:
 :mod:`iem.extras`) is such an error too, naming the ``pip install`` to run, even where a module
@@ -59,6 +59,8 @@ BENCHES: Table = {
              "part, payloads identified on the rest"),
     "writeback": ("deploy.bench.writeback.command",
                   "the write-back, scenario by scenario, simulated"),
+    "excite": ("deploy.bench.excite", "what the motion of 'iem excite' determines, on the "
+               "realistic plant"),
 }
 
 COMMANDS: Table = {
@@ -72,6 +74,8 @@ COMMANDS: Table = {
                "bag, joint-state CSV), as fast as possible"),
     "identify": ("deploy.commands.identify",
                  "identify a payload offline from a loaded and a bare log"),
+    "excite": ("deploy.commands.excite", "design a short motion that determines a payload: a "
+               "path CSV"),
     "set-load": ("deploy.commands.set_load", "write a payload file (or --clear: no load) to the "
                  "controller through the gate's checks"),
     "bench": (BENCHES, "benchmarks that print the project's speed and accuracy figures"),

@@ -26,9 +26,10 @@ def fault_spec(args):
         except ValueError:
             raise BridgeConfigError(f"--silence {args.silence!r}: expected START:LENGTH in s, "
                                     "e.g. 2.0:0.5") from None
+    given = {"delay_cycles": args.delay_cycles, "seed": args.fault_seed}  # None: the default
     return FaultSpec(drop=args.drop, corrupt=args.corrupt, duplicate=args.duplicate,
-                     delay=args.delay, delay_cycles=args.delay_cycles, silence_at=silence_at,
-                     silence_for=silence_for, seed=args.fault_seed)
+                     delay=args.delay, silence_at=silence_at, silence_for=silence_for,
+                     **{k: v for k, v in given.items() if v is not None})
 
 
 def open_port(interface: str, channel: str, profile: str, faults=None,

@@ -13,6 +13,10 @@ pylibfranka robot, a replayed log):
   (processed while ``read`` runs) or is awaited with ``wait_ack(seq, timeout)``; the load in
   force, as the controller reports it, is ``load_report``.
 
+A source that ends, a recording read back (a CAN log, a rosbag2 bag, a joint-state CSV),
+inherits :class:`RecordedSource`: iteration until its end, ``close`` and ``with``, written
+once over its ``read``, as python-can's ``BusABC`` writes them over ``recv``.
+
 Three more declare what some links do beyond that, so that a caller asks ``isinstance``
 rather than probing for a method: :class:`DiagnosticsSink` and :class:`EstimatePublisher`
 (the ``ros2`` link's status and estimate topics) and :class:`WireProfiled` (a link whose
@@ -35,7 +39,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from iem.types import NOMINAL_RATE_HZ, JointState
 
-from .errors import BridgeConfigError
+from .errors import BridgeConfigError, EndOfStream
 
 if TYPE_CHECKING:
     from .protocol import WireProfile
@@ -153,6 +157,32 @@ class JointStateSource(Protocol):
     def close(self) -> None: ...
 
 
+class RecordedSource:
+    """The base of a :class:`JointStateSource` over a recording: a subclass implements
+    ``read``, which raises :class:`~firmware_bridge.errors.EndOfStream` after the last joint
+    state, and ``close`` if it holds something to release; iterating gives every joint state
+    up to the end, and ``with`` closes it."""
+
+    def read(self, timeout: float | None = None) -> JointState:
+        raise NotImplementedError
+
+    def __iter__(self):
+        while True:
+            try:
+                yield self.read()
+            except EndOfStream:
+                return
+
+    def close(self) -> None:
+        """Release what the source holds (nothing by default)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 @runtime_checkable
 class PayloadSink(Protocol):
     """A sink for payload parameters, with libfranka ``setLoad`` semantics.
@@ -252,6 +282,9 @@ class LinkKind:
         controller: the simulated controller can serve a link of this kind.
         pty: the simulated controller can also serve it on a new pty (``<kind>-pty``).
         sink: the link also writes loads (a :class:`PayloadSink`).
+        recorded: the link plays a recording back (its channel is a file): the service
+            never writes the model over one (a replay learns in memory only), and a channel
+            it cannot read is an error of the configuration.
         fixed_rate_hz: joint states per second the link delivers whatever the profile; None:
             the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
         load_report: what a sink's ``load_report`` carries (one of :data:`LOAD_REPORTS`):
@@ -269,6 +302,7 @@ class LinkKind:
     controller: bool = False
     pty: bool = False
     sink: bool = True
+    recorded: bool = False
     fixed_rate_hz: float | None = None
     load_report: str = ""
     arm_model: str | None = None
@@ -305,11 +339,11 @@ LINKS: dict[str, LinkKind] = {
                      load_report="values"),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
-                       sink=False),
+                       sink=False, recorded=True),
     "recording": LinkKind("firmware_bridge.recordings", "open_recording_link",
                           "a recorded rosbag2 bag (directory, .db3, .mcap; JointState topic "
                           "/franka/joint_states) or joint-state CSV (t,q1..q7,dq1..dq7,"
-                          "tau1..tau7); channel: the path", sink=False,
+                          "tau1..tau7); channel: the path", sink=False, recorded=True,
                           fixed_rate_hz=NOMINAL_RATE_HZ),
 }
 """The one table of link kinds: the configuration, the service, the simulated controller and

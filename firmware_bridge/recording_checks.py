@@ -1,7 +1,7 @@
 """The checks every joint-state recording passes, whatever its format (:mod:`firmware_bridge.
-recordings`): at least two joint states, time stamps that increase strictly, every value
-finite; a rate outside the range the commands take (:data:`iem.signals.rate.RATE_RANGE_HZ`)
-is logged.
+recordings`): at least :data:`MIN_JOINT_STATES` joint states, time stamps that increase
+strictly and lie within :data:`MAX_TIME_S` of 0, every value finite; a rate outside the range
+the commands take (:data:`iem.signals.rate.RATE_RANGE_HZ`) is logged.
 """
 
 from __future__ import annotations
@@ -17,17 +17,32 @@ from iem.signals.recording import Recording
 
 from .errors import LogFileError
 
-__all__ = ["checked_recording", "refuse_nonfinite"]
+__all__ = ["MAX_TIME_S", "MIN_JOINT_STATES", "checked_recording", "refuse_nonfinite"]
 
 log = logging.getLogger("iem.bridge")
+
+MIN_JOINT_STATES = 10
+"""Fewest joint states a recording holds: its rate is the median of its steps, and one block
+point takes 10 of them at 1 kHz."""
+MAX_TIME_S = 1e10
+"""Largest time stamp a recording holds, in magnitude, s: a Unix time until the year 2286,
+and far beyond any controller's time since its start."""
 
 
 def checked_recording(path, t, q, dq, tau, what: Callable[[int], str]) -> Recording:
     """The arrays as a read-only Recording, after the checks every format shares; ``what(k)``
     names joint state ``k`` in the file (a line, a message)."""
     n = t.shape[0]
-    if n < 2:
-        raise LogFileError(f"{path}: {n} joint state(s); a recording needs at least 2")
+    if n < MIN_JOINT_STATES:
+        raise LogFileError(f"{path}: {n} joint state(s); a recording needs at least "
+                           f"{MIN_JOINT_STATES} (its rate is the median of its steps, and one "
+                           "block point takes 10 at 1 kHz)")
+    far = np.flatnonzero(np.abs(t) > MAX_TIME_S)
+    if far.size:
+        k = int(far[0])
+        raise LogFileError(f"{path}: {what(k)}: t = {float(t[k])!r} s is beyond any "
+                           f"recording's time stamps; valid are |t| <= {MAX_TIME_S:g} s (a Unix "
+                           "time until the year 2286, or a controller's time since its start)")
     steps = np.diff(t)
     if np.any(steps <= 0.0):
         k = int(np.flatnonzero(steps <= 0.0)[0]) + 1

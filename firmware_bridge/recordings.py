@@ -36,6 +36,7 @@ at 1 kHz).
 from __future__ import annotations
 
 import csv
+import io
 import time
 from pathlib import Path as FsPath
 
@@ -44,12 +45,13 @@ import numpy as np
 from iem.signals.rate import detect_rate
 from iem.signals.recording import Recording
 from iem.types import N_JOINTS, JointState
+from iem.user_files import open_regular
 
 from .errors import BridgeConfigError, EndOfStream, LogFileError
-from .links import LinkCounters, open_link
+from .links import LinkCounters, RecordedSource, open_link
 from .reassembly import CYCLE_MOD
 from .record import FORMATS as CAN_SUFFIXES
-from .recording_checks import checked_recording, refuse_nonfinite
+from .recording_checks import MIN_JOINT_STATES, checked_recording, refuse_nonfinite
 from .ros2_link import DEFAULT_TOPIC
 from .rosbag2_reader import BAG_SUFFIXES, read_rosbag2
 
@@ -130,11 +132,12 @@ def read_csv(path) -> Recording:
     """A joint-state CSV (see the module docstring) as arrays; LogFileError naming the line and
     column of anything wrong."""
     path = FsPath(path)
+    if not path.exists():
+        raise LogFileError(f"{path}: no such file")
     try:
-        with open(path, encoding="utf-8-sig", newline="") as f:
+        with io.TextIOWrapper(open_regular(path, "recording", LogFileError),
+                              encoding="utf-8-sig", newline="") as f:
             rows = list(csv.reader(f))
-    except FileNotFoundError:
-        raise LogFileError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise LogFileError(f"{path}: cannot read as a joint-state CSV: {exc}") from exc
     if not rows:
@@ -206,7 +209,7 @@ def read_recording(path, format: str | None = None, *, topic: str = DEFAULT_TOPI
 
 
 # -- the source --------------------------------------------------------------------------------
-class RecordingSource:
+class RecordingSource(RecordedSource):
     """A :class:`~firmware_bridge.links.JointStateSource` over a :class:`Recording`.
 
     ``read`` returns the recorded joint states in order, with their time stamps as recorded
@@ -268,21 +271,6 @@ class RecordingSource:
         c.delivered += 1
         return JointState(t=t, q=r.q[k], dq=r.dq[k], tau_J=r.tau[k], cycle=k % CYCLE_MOD)
 
-    def __iter__(self):
-        while True:
-            try:
-                yield self.read()
-            except EndOfStream:
-                return
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> RecordingSource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def open_recording_link(kind: str, channel: str, *, profile: str = "fd",
@@ -336,13 +324,14 @@ def can_log_rate(path, profile: str = "fd", states: int = RATE_PEEK) -> float:
     complete cycles of ``profile``."""
     from .replay import ReplaySource
 
-    with ReplaySource(path, profile, pace="fast") as source:
-        t = []
+    with ReplaySource(path, profile, pace="fast", quiet=True) as source:  # a peek: the
+        t = []  # replay itself reports what the file holds
         for state in source:
             t.append(state.t)
             if len(t) >= states:
                 break
-    if len(t) < 2:
+    if len(t) < MIN_JOINT_STATES:
         raise LogFileError(f"{path}: {len(t)} complete joint-state cycle(s) of the {profile} "
-                           f"profile ({source.counters.summary()}); a rate needs two")
+                           f"profile ({source.counters.summary()}); a recording needs at "
+                           f"least {MIN_JOINT_STATES}")
     return detect_rate(t)

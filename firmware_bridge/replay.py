@@ -1,16 +1,17 @@
-"""A joint-state source over a recorded CAN log (python-can's readers).
+"""A joint-state source over a recorded CAN log.
 
-``ReplaySource(path, profile, pace)`` reads a ``.blf``, ``.log``, ``.asc`` or ``.trc`` file
-with ``can.LogReader`` and decodes it exactly as the live link does (same E2E checks,
-reassembly and counters). ``pace="recorded"`` paces the frames with ``can.MessageSync`` as
-they were recorded (gaps longer than ``skip`` s are shortened to it); ``pace="fast"`` reads
-as fast as it can. Decoding depends only on the frames, so replaying a file twice gives
-identical joint states, at either pace. ``read`` raises
-:class:`~firmware_bridge.errors.EndOfStream` at the end of the file; iterating yields the
-states until then. The ``timeout`` of ``read`` is not used: a replay has the recorded timing.
-Where the recording holds ``silence_timeout`` s (recorded time) without a complete cycle, the
-source does what the live link did there: it counts a silence and accepts a controller
-restart after it, so a restart in the log never makes the rest of the file stale.
+``ReplaySource(path, profile, pace)`` reads a ``.blf`` file with
+:class:`firmware_bridge.blf_reader.BlfReader` (python-can's format, read within bounds), a
+``.log``, ``.asc`` or ``.trc`` file with ``can.LogReader``, and decodes it exactly as the
+live link does (same E2E checks, reassembly and counters). ``pace="recorded"`` paces the
+frames with ``can.MessageSync`` as they were recorded (gaps longer than ``skip`` s are
+shortened to it); ``pace="fast"`` reads as fast as it can. Decoding depends only on the
+frames, so replaying a file twice gives identical joint states, at either pace. ``read``
+raises :class:`~firmware_bridge.errors.EndOfStream` at the end of the file; iterating yields
+the states until then. The ``timeout`` of ``read`` is not used: a replay has the recorded
+timing. Where the recording holds ``silence_timeout`` s (recorded time) without a complete
+cycle, the source does what the live link did there: it counts a silence and accepts a
+controller restart after it, so a restart in the log never makes the rest of the file stale.
 
 A damaged log loses only what is damaged:
 
@@ -19,24 +20,32 @@ A damaged log loses only what is damaged:
   with the same reader at the next line;
 - a truncated log (a ``.blf`` shorter than its header says, or holding fewer objects than
   it declares, or that stops inside a container; a text log whose last line has no end)
-  replays what it holds and sets ``truncated``.
+  replays what it holds and sets ``truncated``;
+- a ``.blf`` damaged after some frames (a container that does not inflate or breaks a
+  bound of :mod:`firmware_bridge.blf_reader`) replays the frames before the damage and sets
+  ``truncated``; ``damage`` says where and why. Damage before the first frame is a
+  :class:`~firmware_bridge.errors.LogFileError` saying so.
 
-Both are logged (``iem.bridge``) when the end is reached, and ``iem replay`` reports them.
+Both are logged (``iem.bridge``) when the end is reached (unless ``quiet``: a peek at the
+start, as :func:`firmware_bridge.recordings.can_log_rate` takes), and ``iem replay`` reports
+them.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import zlib
 from pathlib import Path as FsPath
 
 import can
 
 from iem.types import JointState
+from iem.user_files import open_regular
 
+from .blf_reader import BlfError, BlfReader
 from .can_link import CanDecoder
 from .errors import BridgeConfigError, EndOfStream, LogFileError
+from .links import RecordedSource
 from .record import check_format
 
 PACES = ("recorded", "fast")
@@ -47,26 +56,33 @@ MAX_BAD_LINES_IN_A_ROW = 1000
 log = logging.getLogger("iem.bridge")
 
 
-class ReplaySource:
+class ReplaySource(RecordedSource):
     """A :class:`~firmware_bridge.links.JointStateSource` over a CAN log file."""
 
     def __init__(self, path, profile: str = "fd", pace: str = "fast", skip: float = 60.0,
-                 window: int = 16, silence_timeout: float = 0.1) -> None:
+                 window: int = 16, silence_timeout: float = 0.1, quiet: bool = False) -> None:
         if pace not in PACES:
             raise BridgeConfigError(f"unknown replay pace {pace!r}; valid are {', '.join(PACES)}")
         self.path = FsPath(path)
         suffix = check_format(self.path)
-        if not self.path.is_file():
+        if not self.path.exists():
             raise LogFileError(f"{self.path}: no such log file")
+        open_regular(self.path, "log file", LogFileError).close()  # not a FIFO: never waits
         kwargs = {"relative_timestamp": False} if suffix == ".asc" else {}
         try:
-            self._reader = can.LogReader(str(self.path), **kwargs)
+            self._reader = (BlfReader(self.path) if suffix == ".blf"
+                            else can.LogReader(str(self.path), **kwargs))
+        except BlfError as exc:
+            raise LogFileError(f"{self.path}: {exc}") from exc
         except Exception as exc:  # any parser failure is a bad file
             raise LogFileError(f"{self.path}: cannot read as {suffix}: {exc}") from exc
         self._suffix = suffix
         self._pace, self._skip = pace, skip
         self._it = self._messages()
         self.truncated = False
+        self.damage = ""
+        """Where and why a ``.blf`` stopped before its end ("" if it did not)."""
+        self.quiet = quiet
         self.bad_lines = 0
         self.last_bad_line = ""
         self._bad_in_a_row = 0
@@ -127,10 +143,13 @@ class ReplaySource:
         if not self._ended:
             self._ended = True
             self._check_complete()
-            if self.truncated:
+            if self.damage and not self.quiet:
+                log.warning("%s is damaged (%s): replayed the %d frames before it", self.path,
+                            self.damage, self.frames, extra={"event": "log_truncated"})
+            elif self.truncated and not self.quiet:
                 log.warning("%s is truncated: replayed the %d frames it holds",
                             self.path, self.frames, extra={"event": "log_truncated"})
-            if self.bad_lines:
+            if self.bad_lines and not self.quiet:
                 log.warning("%s: skipped %d lines python-can could not read (last: %s)",
                             self.path, self.bad_lines, self.last_bad_line,
                             extra={"event": "log_bad_lines"})
@@ -145,9 +164,11 @@ class ReplaySource:
                 msg = next(self._it)
             except StopIteration:
                 raise self._end() from None
-            except (zlib.error, can.io.blf.BLFParseError) as exc:
-                self.truncated = True  # a damaged container: what came before stands
-                self.last_bad_line = f"{type(exc).__name__}: {exc}"
+            except BlfError as exc:  # a damaged container: what came before stands
+                if not self.frames:
+                    raise LogFileError(f"{self.path}: {exc}") from exc
+                self.truncated = True
+                self.damage = str(exc)
                 raise self._end() from exc
             except Exception as exc:  # python-can's parsers raise ValueError, IndexError ...
                 if self._suffix not in TEXT_FORMATS:
@@ -174,21 +195,8 @@ class ReplaySource:
             self.counters.silences += 1
             self.decoder.resync()
 
-    def __iter__(self):
-        while True:
-            try:
-                yield self.read()
-            except EndOfStream:
-                return
-
     def close(self) -> None:
         self._reader.stop()
-
-    def __enter__(self) -> ReplaySource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def open_replay(kind: str, channel: str, *, profile: str = "fd", silence_timeout: float = 0.1,

@@ -37,6 +37,9 @@ The steps:
         ``sim.arm:arm_dynamics@arm:CRC32`` too, that arm as the file records it (the record
         of a model trained with a tool is the nominal arm carrying it).
 
+4 -> 5  (:func:`learner_named`) an ensemble's hyper-parameters name the learner that trains
+        its bags (:mod:`iem.ensemble.learners`): a version-4 file's are ``"sgd"``.
+
 A file names its kind's class (:data:`iem.model_kinds.MODELS`, ``"module:Class"``) and the
 factories in its state (``coverage``, ``reversal``, ``dynamics``: names of
 :data:`iem.factories.FACTORIES`). These go through :data:`ALIASES` at load
@@ -282,7 +285,25 @@ def content_references(kind: str, state: dict, records: Mapping | None = None) -
     return walk(state)
 
 
-STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point, 3: content_references}
+# -- 4 -> 5 ------------------------------------------------------------------------------
+def learner_named(kind: str, state: dict, records: Mapping | None = None) -> dict:
+    """Version 4 -> 5: an ensemble's hyper-parameters name how its learners are trained
+    (``learner``); every version-4 ensemble trained them by SGD (``"sgd"``): the IEM's and
+    old IEM's, and the one IEM+phys holds (whose params keep only what was given: ``learner``
+    is added to its ``ensemble``)."""
+    if kind in ("IEM", "old_IEM"):
+        return {**state, "params": {**state["params"], "learner": "sgd"}}
+    if kind == "IEM+phys":
+        params = state["params"]
+        ens = state["ensemble"]
+        given = {**(params.get("ensemble") or {}), "learner": "sgd"}
+        return {**state, "params": {**params, "ensemble": given},
+                "ensemble": {**ens, "params": {**ens["params"], "learner": "sgd"}}}
+    return state
+
+
+STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point, 3: content_references,
+                          4: learner_named}
 """``version -> step`` to ``version + 1``."""
 
 VERSION = 1 + len(STEPS)

@@ -38,6 +38,17 @@ content (``...@arm:CRC32``, its ``arm`` record's CRC) and given at run time,
 ``load_model(path, resources={"arm": arm})``; without it, or with another, the file is refused
 naming both.
 
+A file is read within bounds, whoever made it: a regular file only (a FIFO or a device is
+refused without being read) of at most :data:`MAX_MODEL_BYTES` (a model is kilobytes to a
+few MB); the header's fields one by one (:func:`iem.bounded_msgpack.map_fields`: an unknown
+field is refused by its name before its value is read, the arm record's keys are checked
+too); the state unpacked within a budget of :data:`STATE_BUDGET` times its size and 4 MB
+(:func:`iem.bounded_msgpack.unpack`), so that no file of tiny containers fills the memory;
+every number of the state checked by its key's rule before the model is rebuilt
+(:mod:`iem.state_checks`: finite, in range, covariances positive semidefinite); and a key
+of the state (at any depth: a learner's, the detector's) that the model does not keep,
+which its ``to_state`` does not give back, is refused.
+
 A file is written atomically (:mod:`iem.atomic_file`: a crash or an error at any point leaves
 either the old file or the new one). Every problem with a file, on saving or on loading,
 raises :class:`iem.errors.ModelFileError` naming the file and what was wrong; nothing else
@@ -52,17 +63,32 @@ from pathlib import Path
 
 import msgpack
 
-from . import model_kinds
+from . import bounded_msgpack, model_kinds
 from .atomic_file import write_atomically
 from .errors import InvalidInputError, ModelFileError
 from .factories import parse, provide, referenced, specs_in
 from .migrations import VERSION, migrate, with_current_paths
+from .state_checks import StateError, check_state
+from .user_files import read_file
 
 SCHEMA = "iem-payload-model"
 """The ``schema`` field of every model file."""
 
 _FIELDS: dict[str, type | tuple[type, ...]] = {
     "schema": str, "version": int, "kind": str, "crc32": int, "state": bytes}
+_OPTIONAL = ("arm", "family")
+"""Header fields a file may hold besides :data:`_FIELDS`."""
+_ARM_KEYS = ("crc32", "source", "end_effector", "description")
+"""The keys of the arm record (:func:`arm_record_of`)."""
+
+MAX_MODEL_BYTES = 32 * 1024 * 1024
+"""Largest model (or arm) file read: a model is kilobytes to a few MB (2,000 bags, the
+budget's default, take about 10 MB)."""
+MAX_FIELD_BYTES = 64 * 1024
+"""Largest header field but the state."""
+STATE_BUDGET = 8
+"""The state unpacks to at most this many times its size (and 4 MB) of Python objects: a
+number takes 9 bytes in the file and 32 in Python."""
 
 
 # -- encoding ----------------------------------------------------------------------------
@@ -207,12 +233,45 @@ def _given_resources(state: dict, arm: dict | None, resources: Mapping, where: s
     return needed
 
 
-def _unpack(data: bytes, failure: str):
-    """msgpack-decode ``data``; any decoding failure is a ModelFileError saying ``failure``."""
+def _unpack_state(data: bytes, where: str):
+    """The state's bytes unpacked within :data:`STATE_BUDGET` (ModelFileError if not)."""
     try:
-        return msgpack.unpackb(data, raw=False, strict_map_key=False)
-    except (ValueError, TypeError, msgpack.UnpackException) as exc:
-        raise ModelFileError(f"{failure}: {type(exc).__name__}: {exc}") from exc
+        return bounded_msgpack.unpack(data, STATE_BUDGET * len(data) + 4 * 2**20)
+    except bounded_msgpack.NotMsgpack as exc:
+        raise ModelFileError(f"{where}: the state is not valid msgpack: {exc}") from exc
+    except bounded_msgpack.BoundsError as exc:
+        raise ModelFileError(f"{where}: the state {exc}") from exc
+
+
+def keys_not_kept(given, kept, path: str = "") -> list[str]:
+    """The keys of the plain data ``given`` (at any depth, paths like
+    ``ensemble.learners[1].zzz``) that ``kept`` lacks where ``given`` has them: what a model
+    rebuilt from ``given`` does not give back in its ``to_state``."""
+    out = []
+    if isinstance(given, dict) and isinstance(kept, dict):
+        for key, value in given.items():
+            where = f"{path}.{key}" if path else str(key)
+            if key not in kept:
+                out.append(where)
+            else:
+                out += keys_not_kept(value, kept[key], where)
+    elif isinstance(given, list) and isinstance(kept, list) and len(given) == len(kept):
+        for i, (a, b) in enumerate(zip(given, kept, strict=True)):
+            out += keys_not_kept(a, b, f"{path}[{i}]")
+    return out
+
+
+def _refuse_keys_not_kept(model, state: dict, where: str, kind: str, label: str) -> None:
+    """ModelFileError if ``state`` holds a key that ``model``, rebuilt from it, does not keep
+    (an unknown key: a typo, another program's, a planted one)."""
+    kept = msgpack.unpackb(msgpack.packb(model.to_state(), use_bin_type=True), raw=False,
+                           strict_map_key=False)
+    unknown = keys_not_kept(state, kept)
+    if unknown:
+        raise ModelFileError(f"{where}: the state holds the unknown key(s) "
+                             f"{', '.join(unknown[:10])}"
+                             f"{f' and {len(unknown) - 10} more' if len(unknown) > 10 else ''}"
+                             f"; a {kind} {label} keeps none of them")
 
 
 def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>",
@@ -236,7 +295,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
                              f"file records {head['crc32'] & 0xFFFFFFFF:#010x}")
     cls = model_kinds.model_class(head["kind"], model_kinds.MODELS if registry is None
                                    else registry, where)
-    state = _unpack(state_bytes, f"{where}: the state is not valid msgpack")
+    state = _unpack_state(state_bytes, where)
     if not isinstance(state, dict):
         raise ModelFileError(f"{where}: the state is a {type(state).__name__}, expected a map")
     try:
@@ -244,6 +303,10 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     except Exception as exc:  # any failure to bring the state up is a bad file
         raise ModelFileError(f"{where}: the state of version {version} cannot be brought to "
                              f"version {VERSION}: {type(exc).__name__}: {exc}") from exc
+    try:
+        check_state(state)
+    except StateError as exc:
+        raise ModelFileError(f"{where}: the state's {exc}") from None
     for kind, resource in _given_resources(state, arm, resources or {}, where).items():
         provide(kind, resource)
     try:
@@ -251,6 +314,7 @@ def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = 
     except Exception as exc:  # any failure to rebuild from the file is a bad file
         raise ModelFileError(f"{where}: the state does not describe a valid {head['kind']} "
                              f"{label}: {type(exc).__name__}: {exc}") from exc
+    _refuse_keys_not_kept(model, state, where, head["kind"], label)
     if arm is not None:
         model.trained_arm = arm_record_of(arm)
     if schema == SCHEMA:  # a model file without the record was trained on the paper's
@@ -267,10 +331,18 @@ def _checked_head(data: bytes, where: str, schema: str) -> dict:
     """
     if not data:
         raise ModelFileError(f"{where} is empty")
-    head = _unpack(data, f"{where} is not a msgpack model file (truncated or corrupt)")
-    if not isinstance(head, dict):
-        raise ModelFileError(f"{where} holds a {type(head).__name__}, not the map of a "
-                             f"model file (keys {sorted(_FIELDS)})")
+    bounds = {key: len(data) if key == "state" else MAX_FIELD_BYTES
+              for key in (*_FIELDS, *_OPTIONAL)}
+    try:
+        head = bounded_msgpack.map_fields(data, bounds)
+    except bounded_msgpack.NotAMap as exc:
+        raise ModelFileError(f"{where} holds a {exc.type_name}, not the map of a model file "
+                             f"(keys {sorted(_FIELDS)})") from exc
+    except bounded_msgpack.NotMsgpack as exc:
+        raise ModelFileError(f"{where} is not a msgpack model file (truncated or corrupt): "
+                             f"{exc}") from exc
+    except bounded_msgpack.BoundsError as exc:
+        raise ModelFileError(f"{where} {exc}") from exc
     for key in ("schema", "version"):
         if key not in head:
             raise ModelFileError(f"{where} lacks the field {key!r}, so it is not a model "
@@ -297,6 +369,10 @@ def _checked_head(data: bytes, where: str, schema: str) -> dict:
                                 and isinstance(arm.get("source"), str)):
         raise ModelFileError(f"{where}: field 'arm' is {arm!r}, expected "
                              "{'crc32': int, 'source': str}")
+    unknown = sorted(map(str, set(arm or {}) - set(_ARM_KEYS)))
+    if unknown:
+        raise ModelFileError(f"{where}: field 'arm' holds the unknown key(s) {unknown}; "
+                             f"valid are {list(_ARM_KEYS)}")
     family = head.get("family")
     if family is not None and not isinstance(family, str):
         raise ModelFileError(f"{where}: field 'family' is {family!r}, expected a family name")
@@ -336,17 +412,11 @@ def load_model(path, registry: Mapping[str, str] | None = None, schema: str = SC
             then provided to the factories (:mod:`iem.factories` says why so).
 
     Raises:
-        ModelFileError: the file is missing, unreadable, empty, truncated, corrupt, of an
-            unknown schema, version or kind, its state does not rebuild a model, or as
-            :func:`loads` says.
+        ModelFileError: the file is missing, unreadable, not a regular file, larger than
+            :data:`MAX_MODEL_BYTES`, empty, truncated, corrupt, of an unknown schema, version
+            or kind, its state does not rebuild a model, or as :func:`loads` says.
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError as exc:
-        raise ModelFileError(f"{label} file {path} does not exist") from exc
-    except OSError as exc:
-        raise ModelFileError(f"{label} file {path} cannot be read: "
-                             f"{exc.strerror or exc}") from exc
+    data = read_file(path, MAX_MODEL_BYTES, f"{label} file", ModelFileError)
     return loads(data, registry=registry, source=str(path), schema=schema, label=label,
                  resources=resources)

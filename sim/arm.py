@@ -82,6 +82,36 @@ def _friction_array(value) -> np.ndarray:
     a.flags.writeable = False
     return a
 
+POSTERIOR_PARAMS = 70 + 7 * len(FRICTION_COLUMNS)
+"""The parameters :attr:`ArmParams.posterior` covers: the bodies' 70 and the friction's 63."""
+
+
+def _posterior_array(value, friction: np.ndarray) -> np.ndarray:
+    n = POSTERIOR_PARAMS
+    a = _array("posterior", value, (n, n))
+    if friction.shape[1] != len(FRICTION_COLUMNS):
+        raise InvalidInputError(f"an arm posterior covers a (7, {len(FRICTION_COLUMNS)}) "
+                                f"friction array, the arm has {friction.shape}")
+    if not np.allclose(a, a.T, rtol=1e-9, atol=1e-15) or np.any(np.diag(a) < 0.0):
+        raise InvalidInputError("arm posterior must be a symmetric covariance matrix with a "
+                                "diagonal >= 0")
+    return a
+
+
+def _unpacked(packed) -> np.ndarray | None:
+    """The covariance of :meth:`ArmParams.to_state`'s packed lower triangle (None: none)."""
+    if packed is None:
+        return None
+    n = POSTERIOR_PARAMS
+    flat = np.array(packed, dtype=float).reshape(-1)
+    if flat.shape != (n * (n + 1) // 2,):
+        raise InvalidInputError(f"arm posterior must be the {n * (n + 1) // 2} values of a "
+                                f"{n}x{n} lower triangle, got {flat.shape[0]}")
+    out = np.zeros((n, n))
+    out[np.tril_indices(n)] = flat
+    return out + np.tril(out, -1).T
+
+
 @dataclass(frozen=True, eq=False)
 class ArmParams:
     """One arm: its joint bodies, joint friction and torque-sensor offsets.
@@ -107,6 +137,11 @@ class ArmParams:
         description: the arm model it is an instance of (:mod:`sim.description`; None: the
             default). Its state records it by content (name and digest), but for the default
             arm model: a file that records none was made for it.
+        posterior: how sure the calibration that made it is: the posterior covariance
+            (133x133) of ``link_params`` (raveled, 70) and ``friction`` (a ``(7, 9)`` one,
+            raveled, 63), offsets marginalised (:mod:`sim.calibration.posterior`); None: not
+            known (a nominal arm, a file from before it). An estimator carries it along
+            its own poses (:class:`ArmDynamics`).
     """
 
     link_params: np.ndarray
@@ -117,6 +152,7 @@ class ArmParams:
     noise: dict | None = None
     source: str | None = field(default=None, repr=False)
     description: ArmDescription | None = field(default=None, repr=False)
+    posterior: np.ndarray | None = field(default=None, repr=False)
 
     name: ClassVar[str] = "arm"
     """The kind recorded in the arm file."""
@@ -131,6 +167,9 @@ class ArmParams:
         if np.any(self.link_params[:, 0] <= 0.0):
             raise InvalidInputError(f"arm link masses must be > 0 kg, got "
                                     f"{self.link_params[:, 0]}")
+        if self.posterior is not None:
+            object.__setattr__(self, "posterior", _posterior_array(self.posterior,
+                                                                   self.friction))
 
     @classmethod
     def nominal(cls, end_effector=None, description=None) -> ArmParams:
@@ -138,13 +177,11 @@ class ArmParams:
         :class:`~sim.description.ArmDescription`; None: the default): its file's bodies with
         ``end_effector`` on body 7 (a spec or :class:`sim.end_effector.EndEffector`; None:
         the description's default), no friction, no offsets."""
-        from .end_effector import EndEffector
-        from .end_effector import end_effector as resolve
+        from .end_effector import end_effector_of
         from .robot import nominal_link_params
 
         desc = described(description)
-        ee = end_effector if isinstance(end_effector, EndEffector) else \
-            resolve(end_effector or desc.default_end_effector)
+        ee = end_effector_of(end_effector, desc)
         return cls(nominal_link_params(ee, desc), np.zeros((7, 3)), np.zeros(7),
                    {"source": "nominal"}, end_effector=ee.label, description=desc)
 
@@ -164,6 +201,8 @@ class ArmParams:
             state["noise"] = self.noise
         if self.description.name != DEFAULT_ARM_MODEL:
             state["description"] = self.description.record()
+        if self.posterior is not None:  # its lower triangle, row by row
+            state["posterior"] = self.posterior[np.tril_indices(POSTERIOR_PARAMS)].tolist()
         return state
 
     @classmethod
@@ -173,7 +212,8 @@ class ArmParams:
         return cls(state["link_params"], state["friction"], state["offset"],
                    dict(state.get("report") or {}),
                    end_effector=str(state.get("end_effector") or "franka_hand"),
-                   noise=state.get("noise"), description=described_by(state.get("description")))
+                   noise=state.get("noise"), description=described_by(state.get("description")),
+                   posterior=_unpacked(state.get("posterior")))
 
     @property
     def crc32(self) -> int:
@@ -258,9 +298,77 @@ class ArmDynamics:
 
         self.arm = arm
         self.model = ArmModel(arm=arm)
+        self._factor = self._friction = None
+        if arm is not None and arm.posterior is not None:
+            ev, U = np.linalg.eigh(arm.posterior)
+            keep = ev > 1e-12 * max(float(ev.max()), 1e-300)
+            self._factor = U[:, keep] * np.sqrt(ev[keep])  # posterior = F F^T
+            self._friction = _FrictionPoint(arm.friction)
+            self._jac = np.zeros((7, POSTERIOR_PARAMS))  # [regressor | friction, per joint]
+        self.considered = 0 if self._factor is None else int(self._factor.shape[1])
+        """How many considered parameters :meth:`sensitivity` gives columns for (0: the arm
+        carries no posterior)."""
 
     def __call__(self, q, dq, ddq):
         return self.model.rnea_regressor_mass(q, dq, ddq)
+
+    @property
+    def q_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """The arm model's joint position limits ``(q_min, q_max)``, rad."""
+        return self.model.q_min, self.model.q_max
+
+    def sensitivity(self, q, dq, ddq) -> np.ndarray:
+        """How the arm's torques at ``(q, dq, ddq)`` move per unit of its whitened
+        calibration uncertainty: ``A F`` (7 x :attr:`considered`), ``A`` the Jacobian of the
+        torques in the bodies' parameters and the friction, ``F F^T`` the arm's
+        :attr:`ArmParams.posterior`. Unit-variance, uncorrelated parameters ``z`` then move
+        the torques by ``A F z``, as the calibration's own uncertainty would."""
+        jac = self._jac
+        jac[:, :70] = self.model.joint_torque_regressor(q, dq, ddq)
+        jac[_ROWS, _FRICTION_COLS] = self._friction.jacobian(np.asarray(dq, dtype=float))
+        return jac @ self._factor
+
+
+_ROWS = np.repeat(np.arange(7), len(FRICTION_COLUMNS)).reshape(7, -1)
+_FRICTION_COLS = 70 + np.arange(7 * len(FRICTION_COLUMNS)).reshape(7, -1)
+"""Where joint ``j``'s friction Jacobian goes in :meth:`ArmDynamics.sensitivity`'s rows."""
+
+
+class _FrictionPoint:
+    """:func:`sim.friction.friction_jacobian` of one arm at one state, its columns taken
+    once (a sample's Jacobian in a quarter of the time; the same values)."""
+
+    def __init__(self, friction) -> None:
+        f = np.asarray(friction, dtype=float)
+        self.p1, self.p2, self.p3, self.fvp, self.fvn, self.fsp, self.fsn, self.vsp, \
+            self.vsn = (f[:, c].copy() for c in range(len(FRICTION_COLUMNS)))
+        s0 = 0.5 * (1.0 + np.tanh(0.5 * self.p2 * self.p3))
+        self.s0, self.ds0 = s0, s0 * (1.0 - s0)
+        self._out = np.empty((7, len(FRICTION_COLUMNS)))
+
+    def jacobian(self, dq: np.ndarray) -> np.ndarray:
+        """``d tau_f / d friction`` at ``dq`` (7,): (7, 9)."""
+        p1, p2, p3 = self.p1, self.p2, self.p3
+        s = 0.5 * (1.0 + np.tanh(0.5 * p2 * (dq + p3)))
+        ds = s * (1.0 - s)
+        w = 0.5 * (1.0 + np.tanh(0.5 * p2 * dq))
+        dw = w * (1.0 - w) * dq
+        sw = 2.0 * w - 1.0
+        ep, en = np.exp(-(dq / self.vsp) ** 2), np.exp(-(dq / self.vsn) ** 2)
+        fsp, fsn = self.fsp, self.fsn
+        out = self._out
+        out[:, 0] = s - self.s0
+        stribeck = 2.0 * (fsp * w * ep + fsn * (1.0 - w) * en) + sw * (fsp * ep - fsn * en)
+        out[:, 1] = (p1 * (ds * (dq + p3) - self.ds0 * p3)
+                     + dw * (dq * (self.fvp - self.fvn) + stribeck))
+        out[:, 2] = p1 * p2 * (ds - self.ds0)
+        out[:, 3] = dq * w
+        out[:, 4] = dq * (1.0 - w)
+        out[:, 5] = sw * w * ep
+        out[:, 6] = sw * (1.0 - w) * en
+        out[:, 7] = out[:, 5] * fsp * 2.0 * dq ** 2 / self.vsp ** 3
+        out[:, 8] = out[:, 6] * fsn * 2.0 * dq ** 2 / self.vsn ** 3
+        return out
 
     def payload_mass_matrix(self, q, phi) -> np.ndarray:
         return self.model.payload_mass_matrix(q, phi)
@@ -280,7 +388,7 @@ def nominal_spec(end_effector, description=None) -> str:
     from .end_effector import NAMED
 
     desc = described(description)
-    spec = str(end_effector or desc.default_end_effector)
+    spec = desc.end_effector_spec(end_effector)
     if spec in NAMED and desc.name == DEFAULT_ARM_MODEL:
         return f"sim.arm:nominal_dynamics@{spec}"
     return arm_spec(ArmParams.nominal(spec, desc))

@@ -105,7 +105,7 @@ def calibrate_with_noise(parts, settings: CalibrationSettings | None = None,
         shortest = 4.0 * settings.trim_s + 2.0 + 0.01  # what a fit filters (prepare)
         fit = [s for p in fit for s in segments(*p, min_s=shortest)]
         partial = calibrate_segments(fit, settings, source, end_effector, refuse=False,
-                                     description=description)
+                                     description=description, posterior=False)
         held_residuals.append((partial, held))
     from iem.signals.rate import detect_rate
 

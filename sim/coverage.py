@@ -71,7 +71,12 @@ class ReversedVelocities:
         dq = X[:, 7:14]
         out[:, 7:14] = -dq
         if self.arm is not None:
-            out[:, 14:] += self.arm.joint_torque(-dq) - self.arm.joint_torque(dq)
+            # the samples of one state share their velocities (the tandem simulators'): one
+            # row's friction then serves all, the same numbers elementwise
+            one = dq.shape[0] > 1 and bool((dq == dq[0]).all())
+            v = dq[:1] if one else dq
+            both = self.arm.joint_torque(np.concatenate((-v, v)))
+            out[:, 14:] += both[:len(v)] - both[len(v):]
         return out
 
 

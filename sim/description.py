@@ -39,8 +39,13 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.errors import InvalidInputError
+from iem.user_files import read_text
 
 from .urdf_chain import arm_error, joint_limit, parse, read_urdf
+
+MAX_URDF_BYTES = 16 * 1024 * 1024
+"""Largest arm description file read (a URDF is kilobytes; its meshes are files of their
+own)."""
 
 DEFAULT_ARM_MODEL = "panda"
 """The arm model of a configuration that names none."""
@@ -154,11 +159,15 @@ class ArmDescription:
         """What arm files and model files record of it."""
         return {"name": self.name, "digest": self.digest}
 
+    def end_effector_spec(self, end_effector: str | None) -> str:
+        """The end effector ``end_effector`` declares on this arm model: itself, or None and
+        "" its default (:attr:`default_end_effector`)."""
+        return str(end_effector or self.default_end_effector)
+
     def carries_own(self, end_effector: str | None) -> bool:
         """Whether the end effector ``end_effector`` (a spec; None: the default) is the one
         this description's own file carries beyond the flange (the Panda's Franka Hand)."""
-        spec = end_effector or self.default_end_effector
-        return self.own_end_effector is not None and spec == self.own_end_effector
+        return self.end_effector_spec(end_effector) == self.own_end_effector
 
     def __repr__(self) -> str:
         return f"ArmDescription({self.name!r}, {self.digest})"
@@ -301,10 +310,10 @@ def read_description(spec: str | None = None, flange: str | None = None) -> ArmD
             raise InvalidInputError(f"arm model {spec!r} is not valid: give "
                                     f"{', '.join(map(repr, BUILTIN))}, or the path of a "
                                     ".urdf file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise arm_error(str(path), f"cannot be read: {exc}") from exc
+    try:  # a regular file, within bounds
+        text = read_text(path, MAX_URDF_BYTES, "URDF file", InvalidInputError)
+    except InvalidInputError as exc:  # "PATH: ...", as arm_error's messages read
+        raise InvalidInputError(f"arm model {exc}") from exc
     if parse(text, str(path)).tag == "mujoco":
         raise arm_error(str(path), "an MJCF file: the plug-in reads an arm's description from "
                         "a URDF only; give the arm's URDF")

@@ -123,6 +123,22 @@ def end_effector(spec: str | None) -> EndEffector:
     return EndEffector(str(path), f"{path.stem}:{crc:08x}", inertia)
 
 
+def end_effector_of(declared=None, description=None) -> EndEffector:
+    """The end effector on the arm model ``description`` (None: the default arm model) that
+    ``declared`` names: an :class:`EndEffector` as it is, else :func:`end_effector` of the
+    spec, None and "" meaning the arm model's default
+    (:meth:`~sim.description.ArmDescription.end_effector_spec`: the Franka Hand on panda and
+    fr3, none on a URDF file).
+
+    Raises:
+        iem.errors.InvalidInputError: as :func:`end_effector`."""
+    from .description import described
+
+    if isinstance(declared, EndEffector):
+        return declared
+    return end_effector(described(description).end_effector_spec(declared))
+
+
 def label_of(record_value) -> str:
     """The end-effector label a file records (files that record none: the default)."""
     return str(record_value) if record_value else DEFAULT_END_EFFECTOR

@@ -42,7 +42,7 @@ def build_mujoco_model(description=None, end_effector=None) -> mujoco.MjModel:
     the description's default); a fresh copy each call. Its arm bodies are
     ``description.link_bodies``; the end effector is the file's own (the Panda's hand, its
     fingers welded) or a body ``end_effector`` on the flange."""
-    from .end_effector import end_effector as resolve
+    from .end_effector import end_effector_of
     desc: ArmDescription = described(description)
     own = desc.carries_own(end_effector)
     spec = mujoco.MjSpec.from_string(desc.full_text if own else desc.text)
@@ -61,7 +61,7 @@ def build_mujoco_model(description=None, end_effector=None) -> mujoco.MjModel:
     spec.option.disableflags |= (mujoco.mjtDisableBit.mjDSBL_CONTACT
                                  | mujoco.mjtDisableBit.mjDSBL_LIMIT)
     flange = spec.body(desc.flange)
-    ee = resolve(end_effector or desc.default_end_effector)
+    ee = end_effector_of(end_effector, desc)
     if not own and ee.mass > 0.0:
         moments, quat = _principal(ee.inertia.mass, ee.inertia.inertia)
         flange.add_body(name=END_EFFECTOR_BODY, pos=[0.0, 0.0, 0.0], mass=ee.mass,

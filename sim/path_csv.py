@@ -28,6 +28,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.errors import PathError
+from iem.user_files import read_text
 
 from .joint_path import RATE_HZ, TIME_TOL, Path
 
@@ -35,6 +36,8 @@ CSV_HEADER = ("t", "q1", "q2", "q3", "q4", "q5", "q6", "q7")
 MIN_CSV_RATE_HZ = 100.0
 """Lowest sample rate a path file may have, Hz."""
 MIN_CSV_ROWS = 4
+MAX_PATH_FILE_BYTES = 64 * 1024 * 1024
+"""Largest path file read (a planned path of minutes at 1 kHz is a few MB)."""
 
 
 def _read_text(file) -> tuple[str, str]:
@@ -51,13 +54,9 @@ def _read_text(file) -> tuple[str, str]:
             except UnicodeDecodeError as exc:
                 raise PathError(f"{where}: path file is not UTF-8 text: {exc}") from exc
         return text.removeprefix("\ufeff"), where
-    where = os.fspath(file)
-    try:
-        return FsPath(where).read_text(encoding="utf-8-sig"), str(where)
-    except UnicodeDecodeError as exc:
-        raise PathError(f"{where}: path file is not UTF-8 text: {exc}") from exc
-    except OSError as exc:
-        raise PathError(f"{where}: cannot read path file: {exc.strerror or exc}") from exc
+    where = os.fspath(file)  # a regular file, within bounds
+    return read_text(where, MAX_PATH_FILE_BYTES, "path file", PathError,
+                     encoding="utf-8-sig"), str(where)
 
 
 def _parse_csv(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -114,8 +113,10 @@ def _parse_csv(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array(rows), np.array(numbers)
 
 
-def load_path_csv(file, name: str | None = None) -> Path:
-    """Read a path CSV file (see the module docstring), resample it to 1 kHz and check limits.
+def load_path_csv(file, name: str | None = None, model=None) -> Path:
+    """Read a path CSV file (see the module docstring), resample it to 1 kHz and check the
+    limits of the arm model ``model`` (a :class:`sim.robot.ArmModel`; None: the default
+    arm model's).
 
     ``file`` is a file system path or an open text file. The path is named ``name`` or the
     file's stem. Raises :class:`PathError` naming the file, line and column of any problem.
@@ -129,7 +130,7 @@ def load_path_csv(file, name: str | None = None) -> Path:
     t = np.arange(math.floor(t_file[-1] * RATE_HZ + 1e-6) + 1) / RATE_HZ
     path = Path(name=name if name is not None else FsPath(where).stem, t=t, q=spline(t),
                 dq=spline(t, 1), ddq=spline(t, 2))
-    found = path.first_violation()
+    found = path.first_violation(model)
     if found is not None:
         k, message = found
         line = int(line_numbers[int(np.argmin(np.abs(t_file - t[k])))])

@@ -23,13 +23,14 @@ uses it as the prior's spread when it starts from the file (``[estimate] initial
 from __future__ import annotations
 
 import math
-import tomllib
+from difflib import get_close_matches
 from pathlib import Path as FsPath
 
 import numpy as np
 
 from iem.errors import PayloadError
 from iem.payload import Payload
+from iem.user_files import read_toml
 
 MAX_FILE_MASS = 10.0
 """Largest mass a payload file may declare, in kg (far above the Panda's 3 kg rating)."""
@@ -72,13 +73,16 @@ OPTIONAL_KEYS = ("phi_std",)
 def payload_from_dict(doc: dict, where: str = "payload") -> Payload:
     """Build and check a payload from a parsed TOML table (see the module docstring)."""
     required = ("name", "mass", "com", "inertia")
+    valid = [*required, *OPTIONAL_KEYS]
+    unknown = sorted(set(doc) - set(valid))
+    if unknown:  # first: a misspelt key is also a missing one, and its name says which
+        guesses = [f"{k!r} (did you mean {close[0]!r}?)" if (close := get_close_matches(
+            k, valid, n=1)) else repr(k) for k in unknown]
+        raise PayloadError(f"{where}: unknown key(s) {', '.join(guesses)}; valid keys are "
+                           f"{valid}")
     missing = [k for k in required if k not in doc]
     if missing:
         raise PayloadError(f"{where}: missing key(s) {missing}; a payload needs {list(required)}")
-    unknown = sorted(set(doc) - set(required) - set(OPTIONAL_KEYS))
-    if unknown:
-        raise PayloadError(f"{where}: unknown key(s) {unknown}; valid keys are "
-                           f"{[*required, *OPTIONAL_KEYS]}")
     if not isinstance(doc["name"], str) or not doc["name"].strip():
         raise PayloadError(f"{where}: key 'name' must be a non-empty string, got {doc['name']!r}")
     mass = _number(doc, "mass", where, 0.0, MAX_FILE_MASS)
@@ -122,20 +126,9 @@ def load_payload(path) -> Payload:
 
 
 def _read_toml(path) -> dict:
-    path = FsPath(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise PayloadError(f"{path}: cannot read payload file: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        line = exc.object.count(b"\n", 0, exc.start) + 1
-        raise PayloadError(f"{path}: payload file is not UTF-8 text (byte "
-                           f"0x{exc.object[exc.start]:02x} on line {line}, offset "
-                           f"{exc.start}); a payload file must be UTF-8 TOML") from exc
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise PayloadError(f"{path}: not valid TOML: {exc}") from exc
+    """The TOML of a payload file, read as ``cell.toml`` is (:func:`iem.user_files.read_toml`:
+    a regular file, within bounds)."""
+    return read_toml(FsPath(path), "payload file", PayloadError)
 
 
 def payload_to_toml(payload: Payload, phi_std=None) -> str:

@@ -220,6 +220,7 @@ class RealityGap:
         as the arm model uses it (Pinocchio joint bodies: the nominal ones with each link's
         perturbation added; body 7 keeps ``end_effector``, None: the arm model's default);
         ``model``: the plant's MuJoCo model of it (None: a fresh one)."""
+        from .end_effector import end_effector_of
         from .robot import nominal_link_params
 
         desc = described(description)
@@ -237,11 +238,5 @@ class RealityGap:
             params[j] += real.toDynamicParameters() - nominal.toDynamicParameters()
         friction, offset = self.joints()
         return ArmParams(params, friction, offset, {"source": f"reality gap {self}"},
-                         end_effector=_ee_label(end_effector or desc.default_end_effector),
+                         end_effector=end_effector_of(end_effector, desc).label,
                          description=desc)
-
-
-def _ee_label(spec: str) -> str:
-    from .end_effector import end_effector
-
-    return end_effector(spec).label

@@ -39,14 +39,12 @@ def nominal_link_params(end_effector=None, description=None) -> np.ndarray:
     """``(7, 10)`` Pinocchio dynamic parameters of the nominal joint bodies 1..7 of the arm
     ``description`` (None: the default arm model), body 7 carrying ``end_effector`` (a
     :class:`sim.end_effector.EndEffector` or its spec; None: the description's default)."""
-    from .end_effector import EndEffector
-    from .end_effector import end_effector as resolve
+    from .end_effector import end_effector_of
 
     desc = described(description)
     model = nominal_model(desc)
     out = np.array([model.inertias[j].toDynamicParameters() for j in range(1, 8)])
-    ee = end_effector if isinstance(end_effector, EndEffector) else \
-        resolve(end_effector or desc.default_end_effector)
+    ee = end_effector_of(end_effector, desc)
     if not desc.carries_own(ee.spec):
         out[6] = ee.body7(desc)
     return out
@@ -155,6 +153,14 @@ class ArmModel:
         if self._extra is not None:
             tau += self._extra(dq)
         return tau, (jac.T @ body)[:, PAPER_TO_PIN]
+
+    def joint_torque_regressor(self, q, dq, ddq) -> np.ndarray:
+        """The joint torques' regressor in the seven bodies' parameters (7x70, Pinocchio
+        order, bodies in their joint frames): ``rnea = W theta`` without friction and
+        offsets."""
+        return pin.computeJointTorqueRegressor(self.model, self.data, np.asarray(q, float),
+                                               np.asarray(dq, float),
+                                               np.asarray(ddq, float)).copy()
 
     def rnea_regressor_mass(self, q, dq, ddq):
         """:meth:`rnea_and_regressor` plus the arm's mass matrix ``M(q)`` (7x7, CRBA)."""

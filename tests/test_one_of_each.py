@@ -4,7 +4,11 @@
 
 The source check reads every module of the packages (ast) for a model kind written as a
 default: a parameter's default, a ``default=`` keyword, a class field's default, a module
-constant, or the fallback of ``or`` and of ``x if c else y``."""
+constant, or the fallback of ``or`` and of ``x if c else y``.
+
+A cell's configuration made in code (the demo, a replay, the benchmarks) has one builder,
+:func:`deploy.config.cell_config`: no other module makes a configuration of a dict. A
+declared end effector has one resolution, :func:`sim.end_effector.end_effector_of`."""
 
 import ast
 import inspect
@@ -119,3 +123,84 @@ def test_every_default_of_a_kind_is_the_one_constant(tmp_path, monkeypatch):
         assert asked.args == (DEFAULT_MODEL, 1000.0, 5)  # at the recording's point rate
     else:
         raise AssertionError("the replay trained no fresh model")
+
+
+# -- a cell's configuration built in code: one builder ----------------------------------------
+THE_BUILDER = "deploy/config/"
+"""Where a configuration is made from a dict: :func:`deploy.config.cell_config` (a cell
+built in code) over :func:`deploy.config.config_from_dict` (a parsed file)."""
+
+
+def config_dicts(root: Path) -> list[tuple[str, int]]:
+    """``(file, line)`` of every call of ``config_from_dict`` in the packages under ``root``
+    outside :data:`THE_BUILDER`: a cell's sections written out again."""
+    found = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            if rel.startswith(THE_BUILDER):
+                continue
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Call) and "config_from_dict" in (
+                        getattr(node.func, "id", None), getattr(node.func, "attr", None)):
+                    found.append((rel, node.lineno))
+    return found
+
+
+def test_a_cell_configuration_in_code_has_one_builder():
+    assert config_dicts(REPO) == []
+
+
+def test_the_check_sees_a_second_builder(tmp_path):
+    """The test above can fail: a dict made a configuration elsewhere is found."""
+    for package in PACKAGES:
+        (tmp_path / package).mkdir()
+    (tmp_path / "deploy" / "config").mkdir()
+    (tmp_path / "deploy" / "config" / "build.py").write_text("config_from_dict({})\n")
+    (tmp_path / "deploy" / "bench.py").write_text(
+        "import deploy.config\nfrom deploy.config import config_from_dict\n"
+        "config_from_dict({'arm': {}})\ndeploy.config.config_from_dict({})\n")
+    assert config_dicts(tmp_path) == [("deploy/bench.py", 3), ("deploy/bench.py", 4)]
+
+
+# -- an end effector: one resolution ----------------------------------------------------------
+THE_RESOLUTION = ("sim/description.py", "sim/end_effector.py")
+"""Where a declared end effector is resolved: ``ArmDescription.end_effector_spec`` (None and ""
+the arm model's default) and :func:`sim.end_effector.end_effector_of` (an ``EndEffector`` as
+it is)."""
+
+
+def end_effector_resolutions(root: Path) -> list[tuple[str, int, str]]:
+    """``(file, line, what)`` of every end-effector resolution written out in the packages
+    under ``root`` outside :data:`THE_RESOLUTION`: a fallback ``x or d.default_end_effector``,
+    or an ``isinstance(x, EndEffector)``."""
+    found = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            rel = path.relative_to(root).as_posix()
+            if rel in THE_RESOLUTION:
+                continue
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.BoolOp) and isinstance(node.op, ast.Or) and \
+                        getattr(node.values[-1], "attr", None) == "default_end_effector":
+                    found.append((rel, node.lineno, "default fallback"))
+                elif isinstance(node, ast.Call) and getattr(node.func, "id", None) == \
+                        "isinstance" and getattr(node.args[1], "id", None) == "EndEffector":
+                    found.append((rel, node.lineno, "isinstance"))
+    return found
+
+
+def test_an_end_effector_is_resolved_in_one_place():
+    assert end_effector_resolutions(REPO) == []
+
+
+def test_the_check_sees_a_second_resolution(tmp_path):
+    """The test above can fail: each way of resolving one again is found."""
+    for package in PACKAGES:
+        (tmp_path / package).mkdir()
+    (tmp_path / "sim" / "description.py").write_text("s = ee or self.default_end_effector\n")
+    (tmp_path / "sim" / "plant.py").write_text(
+        "from sim.end_effector import EndEffector, end_effector\n"
+        "ee = x if isinstance(x, EndEffector) else end_effector(x or d.default_end_effector)\n")
+    assert sorted(end_effector_resolutions(tmp_path)) == [
+        ("sim/plant.py", 2, "default fallback"), ("sim/plant.py", 2, "isinstance")]

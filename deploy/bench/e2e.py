@@ -24,7 +24,10 @@ block-to-estimate p99 ≤ 2 ms, at most 0.10 of one core (0.12 with ``--link slc
 ``--json FILE`` writes ``{"cycles", "lost", "latency_us": {"p50", "p99"}, "age_us": {"p50",
 "p99"}, "cpu_share", "cpu_share_parts", "peak_rss_mb", "cpu_dma_latency_us", "step_cpu_us": {"live",
 "back_to_back", "points"}, ...}`` (``cycles``: block points; ``step_cpu_us``: µs of CPU a
-point).
+point; ``machine_us``: :func:`deploy.bench.timing.machine_speed` just before and just after
+the run, ``{"before": {"cpu_us", "wall_us"}, "after": ...}``, µs a round of a fixed work:
+the host's own speed, printed beside the share; ``cpu_share_rounds``: the share in such
+rounds a second, which a slower host leaves as it was and slower code raises).
 ``--cpu-dma-latency-us US`` holds a CPU wake-up latency limit during the run, as ``[host]
 cpu_dma_latency_us`` does for the service (:mod:`deploy.service.host`; the JSON's
 ``cpu_dma_latency_us`` is the limit held, null for none): the idle cores then poll, and
@@ -49,6 +52,8 @@ import sys
 import tempfile
 from pathlib import Path as FsPath
 
+from iem.model_kinds import DEFAULT_MODEL
+
 REPO = FsPath(__file__).resolve().parents[2]
 
 
@@ -58,61 +63,57 @@ def measure(seconds: float = 60.0, kind: str | None = None, seed: int = 0, log=p
     """The figures on the arm model ``description`` (None: the default), the gate rated for
     ``rated_mass_kg`` (None: the arm model's rated payload), from ``model`` (a trained
     model of that arm; None: trained first, as the service does)."""
-    from deploy.config import config_from_dict
-    from deploy.model.training import best_model_kind
-    from deploy.simcell.cell import cell_sections
+    from deploy.config import cell_config
 
-    kind = model.name if model is not None else kind or best_model_kind()
-    host = {"cpu_dma_latency_us": cpu_dma_latency_us}
-    cell = cell_sections(description, rated_mass_kg)
+    from .timing import machine_speed
+
+    kind = model.name if model is not None else kind or DEFAULT_MODEL
+    cell = {"description": description, "rated_mass_kg": rated_mass_kg, "where": "bench e2e",
+            "host": {"cpu_dma_latency_us": cpu_dma_latency_us}}
     # a bad limit or an end effector beyond the rated payload fails before training
-    # (cell_sections refused an arm model without one)
-    config_from_dict({"host": host, "arm": cell["arm"], "gate": cell["gate"]},
-                     where="bench e2e")
+    cell_config(**cell)
     if link == "slcan-pty":
-        return _measure_slcan_pty(seconds, kind, seed, log, host, description, cell, model)
-    from deploy.simcell.inprocess import simulated_cell, virtual_channel
+        return _measure_slcan_pty(seconds, kind, seed, log, cell, model)
+    from deploy.simcell.inprocess import simulated_cell, virtual_link
 
     with tempfile.TemporaryDirectory() as tmp:
-        config = config_from_dict({
-            "link": {"kind": "virtual", "channel": virtual_channel("bench-e2e"),
-                     "profile": "fd"},
-            "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
-            "arm": cell["arm"],
-            "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
-                      "seed": seed, "checkpoint_period_s": 30.0},
-            "log": {"status_line": "off"}, "host": host,
-        }, where="bench e2e")
+        config = cell_config(**cell, link=virtual_link("bench-e2e"),
+                             model={"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
+                                    "seed": seed, "checkpoint_period_s": 30.0})
         # the controller plays the excitation path back and forth
         with simulated_cell(config, seed=seed, description=description,
                             model=model) as (controller, service):
             log(f"bench e2e: {kind} with {service.model.n_bags} bags; {seconds:g} s at 1 kHz "
                 "on the virtual bus")
             states, before = _recorded(service)
+            speed = [machine_speed()]  # the host, just before and just after the run
             controller.start()
             summary = service.run(duration=seconds)
+            speed.append(machine_speed())
     # the controller stopped: the same points again, nothing beside them
     return _figures(summary, controller.stats(), link="virtual",
-                    again=_back_to_back(service, before, states))
+                    again=_back_to_back(service, before, states), machine=speed)
 
 
-def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
-                       description=None, cell: dict | None = None, model=None) -> dict:
-    """The controller in its own process, an slcan adapter on a pty; the plug-in here."""
-    from deploy.config import config_from_dict
+def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, cell: dict,
+                       model=None) -> dict:
+    """The controller in its own process, an slcan adapter on a pty; the plug-in here, in
+    the cell of :func:`deploy.config.cell_config`'s arguments ``cell``."""
+    from deploy.config import cell_config
     from deploy.model.training import train_initial_model
+    from deploy.options import arm_model_options
     from deploy.service.loop import Service
     from deploy.service.status import StatusLine
+
+    from .timing import machine_speed
 
     if model is None:
         model = train_initial_model(kind, seed=seed, log=lambda *a: None,
                                     noise="sensor",  # the simulated arm is its model
-                                    description=description)
-    cell = cell or {"arm": {}, "gate": {}}
+                                    description=cell["description"])
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
-           "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30)]
-    if cell["arm"]:
-        cmd += ["--arm-model", cell["arm"]["model"], "--arm-flange", cell["arm"]["flange"]]
+           "--profile", "fd", "--seed", str(seed), "--duration", str(seconds + 30),
+           *arm_model_options(cell["description"])]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
@@ -120,21 +121,18 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
         if not pty.startswith("/dev/"):
             raise RuntimeError(f"sim-controller did not announce its pty: {pty!r}")
         with tempfile.TemporaryDirectory() as tmp:
-            config = config_from_dict({
-                "link": {"kind": "slcan", "channel": pty, "profile": "fd"},
-                "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
-                "arm": cell["arm"],
-                "model": {"path": str(FsPath(tmp) / "model.msgpack"), "kind": kind,
-                          "checkpoint_period_s": 30.0},
-                "log": {"status_line": "off"}, "host": host,
-            }, where="bench e2e")
+            config = cell_config(**cell, link={"kind": "slcan", "channel": pty, "profile": "fd"},
+                                 model={"path": str(FsPath(tmp) / "model.msgpack"),
+                                        "kind": kind, "checkpoint_period_s": 30.0})
             service = Service(config, model=model, status=StatusLine(False))
             try:
                 service.open()
                 log(f"bench e2e: {kind} with {model.n_bags} bags; {seconds:g} s at 1 kHz, "
                     f"the controller in process {proc.pid} behind slcan on {pty}")
                 states, before = _recorded(service)
+                speed = [machine_speed()]
                 summary = service.run(duration=seconds)
+                speed.append(machine_speed())
             finally:
                 service.close()
     finally:
@@ -149,7 +147,7 @@ def _measure_slcan_pty(seconds: float, kind: str, seed: int, log, host: dict,
                 key, _, value = part.partition(" ")
                 stats[key] = int(value) if value.isdigit() else value
     return _figures(summary, {"cycles": stats.get("cycles"), "overruns": stats.get("overruns")},
-                    link="slcan-pty", again=again)
+                    link="slcan-pty", again=again, machine=speed)
 
 
 def _recorded(service) -> tuple[list, object]:
@@ -176,7 +174,7 @@ def _back_to_back(service, model, states: list) -> dict:
         model.stop()
 
 
-def _figures(summary: dict, stats: dict, link: str, again: dict) -> dict:
+def _figures(summary: dict, stats: dict, link: str, again: dict, machine: list) -> dict:
     cycles = summary["cycles"]
     return {
         "cycles": cycles,
@@ -201,7 +199,16 @@ def _figures(summary: dict, stats: dict, link: str, again: dict) -> dict:
         "cpu_dma_latency_us": summary["cpu_dma_latency_us"],
         "step_cpu_us": {"live": summary["step_cpu_s"] / cycles * 1e6 if cycles else None,
                         "back_to_back": again["cpu_mean"], "points": again["points"]},
+        "machine_us": {"before": machine[0], "after": machine[1]},
+        "cpu_share_rounds": (summary["cpu_s"] / summary["wall_s"] / _round_s(machine)
+                             if summary["wall_s"] else None),
     }
+
+
+def _round_s(machine: list) -> float:
+    """CPU s of one round of :func:`~deploy.bench.timing.machine_speed`'s work on the host as
+    it was around the run (the mean of before and after)."""
+    return (machine[0]["cpu_us"] + machine[1]["cpu_us"]) / 2.0 * 1e-6
 
 
 def configure(parser) -> None:
@@ -215,9 +222,10 @@ def configure(parser) -> None:
     from deploy.service.host import add_cpu_latency_option
 
     add_cpu_latency_option(parser)
-    from deploy.options import add_arm_model
+    from deploy.options import add_arm_model, add_rated_mass
 
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:
@@ -247,6 +255,13 @@ def run(args) -> int:
               "live step adds is each point starting after a sleep, with cold caches, and what "
               "runs beside it")
     print(f"writes {f['writes']}; bags {f['bags']} ({f['model']})")
+    m = f["machine_us"]
+    print(f"the machine's own speed beside it: a fixed round of small NumPy calls and Python "
+          f"arithmetic took {m['before']['cpu_us']:.1f} µs of CPU ({m['before']['wall_us']:.1f} "
+          f"wall) just before the run, {m['after']['cpu_us']:.1f} ({m['after']['wall_us']:.1f}) "
+          f"just after; the share {f['cpu_share']:.3f} is the CPU of "
+          f"{f['cpu_share_rounds']:.0f} such rounds a second (a host twice as slow doubles "
+          "the share and the round, not their ratio)")
     if f["cpu_dma_latency_us"] is not None:
         print(f"held a CPU wake-up latency limit of {f['cpu_dma_latency_us']} µs: idle cores "
               "polled instead of sleeping; their CPU is not in the share above")

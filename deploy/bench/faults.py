@@ -57,6 +57,8 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from iem.model_kinds import DEFAULT_MODEL
+
 REPO = FsPath(__file__).resolve().parents[2]
 
 FAULTS = {"drop": 0.05, "corrupt": 0.01, "duplicate": 0.02, "delay": 0.02}
@@ -69,12 +71,12 @@ JOINT_STATE = "JointStateFD"
 
 
 def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
-                    faults: dict | None, fault_seed: int, arm: dict | None = None) -> list[str]:
+                    faults: dict | None, fault_seed: int, description=None) -> list[str]:
+    from deploy.options import arm_model_options
+
     cmd = [sys.executable, "-m", "deploy.cli", "sim-controller", "--interface", "slcan-pty",
            "--profile", "fd", "--seed", str(seed), "--duration", f"{seconds:g}",
-           "--payload", payload_file, "--stats-json", stats]
-    if arm:
-        cmd += ["--arm-model", arm["model"], "--arm-flange", arm["flange"]]
+           "--payload", payload_file, "--stats-json", stats, *arm_model_options(description)]
     if faults:
         for name, value in faults.items():
             cmd += [f"--{name}", f"{value:g}"]
@@ -86,15 +88,16 @@ def _controller_cmd(seconds: float, seed: int, payload_file: str, stats: str,
 
 def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dict | None,
          fault_seed: int, log, cell: dict | None = None) -> dict:
-    """One run: the controller process, the service here; what it estimated and wrote."""
+    """One run: the controller process, the service here, in the cell of
+    :func:`deploy.config.cell_config`'s arguments ``cell``; what it estimated and wrote."""
     from deploy.service.loop import Service
     from deploy.service.status import StatusLine
 
-    cell = cell or {"arm": {}, "gate": {}}
+    cell = cell or {"where": "bench faults"}
     with tempfile.TemporaryDirectory() as tmp:
         stats_file = str(FsPath(tmp) / "controller.json")
         cmd = _controller_cmd(seconds, seed, payload_file, stats_file, faults, fault_seed,
-                              cell["arm"])
+                              cell.get("description"))
         proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
         try:
@@ -123,22 +126,16 @@ def _run(model, seconds: float, seed: int, payload_file: str, truth, faults: dic
                     faults is not None)
 
 
-def _cell_config(pty: str, model, tmp: str, cell: dict | None = None):
-    """The cell of a run: slcan on the controller's pty, the model checkpointed in ``tmp``,
-    the arm model and the gate's rating of ``cell``
-    (:func:`deploy.simcell.cell.cell_sections`)."""
-    from deploy.config import config_from_dict
+def _cell_config(pty: str, model, tmp: str, cell: dict):
+    """The cell of a run: slcan on the controller's pty, ``model`` checkpointed in ``tmp``,
+    the arm model and the gate's rating of ``cell`` (:func:`deploy.config.cell_config`'s
+    arguments)."""
+    from deploy.config import cell_config
 
-    cell = cell or {"arm": {}, "gate": {}}
-    return config_from_dict({
-        "arm": cell["arm"],
-        "link": {"kind": "slcan", "channel": pty, "profile": "fd",
-                 "silence_timeout_s": 0.2},
-        "gate": {**cell["gate"], "allow_without_uncertainty": model.name == "IEM"},
-        "model": {"path": str(FsPath(tmp) / "model.msgpack"),
-                  "checkpoint_period_s": 3600.0},
-        "log": {"status_line": "off"},
-    }, where="bench faults")
+    return cell_config(**cell, link={"kind": "slcan", "channel": pty, "profile": "fd",
+                                     "silence_timeout_s": 0.2},
+                       model={"path": str(FsPath(tmp) / "model.msgpack"), "kind": model.name,
+                              "checkpoint_period_s": 3600.0})
 
 
 def _serve(service, proc, cycles: list, writes: list, announce) -> dict:
@@ -205,7 +202,7 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
     # block of the stream holds block_frames frames (no gap can come before its first)
     # ... and the frames of the block still open when the run ended came after its last
     first = cycles[0][4] - (service.block_frames - 1) if cycles else 0
-    seen = (first, cycles[-1][4] + service.reader_former.pending) if cycles else (0, -1)
+    seen = (first, cycles[-1][4] + service.tally.former.pending) if cycles else (0, -1)
     failures = [tuple(f) for f in controller.get("send_failures", [])]
     out["adapter_dropped"] = len(failures)
     out["expected"] = expected_counters(controller.get("fault_events", []), *seen, failures)
@@ -213,7 +210,7 @@ def _figures(cycles, writes, summary, service, controller, truth, seconds, fault
                          if k not in ("faults_by_message", "fault_events")}
     # the reader's block former bridges lost frames and skips stale ones; the point-rate
     # rule restarts the filters after a longer gap
-    former, points = service.reader_former, service.online.state_filter.gaps
+    former, points = service.tally.former, service.online.state_filter.gaps
     out["gaps"] = {"bridged": former.bridged, "skipped": former.skipped,
                    "restarts": points.restarts}
     return out
@@ -290,18 +287,15 @@ def measure(seconds: float = 30.0, seed: int = 1, fault_seed: int = 2, kind: str
             log=print, description=None, rated_mass_kg: float | None = None) -> dict:
     """Both runs on the arm model ``description`` (None: the default), the gate rated for
     ``rated_mass_kg`` (None: the arm model's rated payload)."""
-    from deploy.config import config_from_dict
-    from deploy.model.training import best_model_kind, train_initial_model
-    from deploy.simcell.cell import cell_sections
+    from deploy.config import cell_config
+    from deploy.model.training import train_initial_model
     from sim.family import test_payloads
 
-    kind = kind or best_model_kind()
+    kind = kind or DEFAULT_MODEL
     payload_file = str(REPO / "sim" / "payloads" / "test-3w.toml")
     truth = test_payloads()["test-3w"]
-    cell = cell_sections(description, rated_mass_kg)
-    # an end effector beyond the rated payload fails before training (cell_sections
-    # refused an arm model without one)
-    config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench faults")
+    cell = {"description": description, "rated_mass_kg": rated_mass_kg, "where": "bench faults"}
+    cell_config(**cell)  # an end effector beyond the rated payload fails before training
     model = train_initial_model(kind, seed=0, log=lambda *a: None,
                                 noise="sensor",  # the simulated arm is its model
                                 description=description)
@@ -338,9 +332,10 @@ def configure(parser) -> None:
     parser.add_argument("--model", choices=["IEM", "IEM+phys"], default=None,
                         help="model kind (default: the best available)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    from deploy.options import add_arm_model
+    from deploy.options import add_arm_model, add_rated_mass
 
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:

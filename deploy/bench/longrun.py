@@ -53,7 +53,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from deploy.options import add_arm_model, arm_description_of
+from deploy.options import add_arm_model, arm_description_of, refuse_unused
 from iem.ensemble.budget import DEFAULT_BUDGET_BAGS
 from iem.metrics import groups_of, mae
 from iem.online import OnlineIdentifier
@@ -294,10 +294,11 @@ def _fmt_window(w: dict) -> str:
 
 
 def configure(parser) -> None:
-    parser.add_argument("--minutes", type=float, default=10.0, help="length of the motion")
+    parser.add_argument("--minutes", type=float, default=None,
+                        help="length of the motion (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of motion, noise, learners")
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
-    parser.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="BAGS",
+    parser.add_argument("--budget", type=int, default=None, metavar="BAGS",
                         help=f"bag budget of the ensemble (default {DEFAULT_BUDGET}; its newest "
                              "10 %% are on probation, iem/ensemble/budget.py)")
     parser.add_argument("--background", action="store_true",
@@ -328,10 +329,17 @@ def parse_sizes(text: str) -> tuple[int, ...]:
 def run(args) -> int:
     from iem.errors import InvalidInputError
 
-    if not args.minutes > 0:
-        raise InvalidInputError(f"--minutes must be > 0, got {args.minutes}")
-    if args.budget < 2:
-        raise InvalidInputError(f"--budget must be >= 2 bags, got {args.budget}")
+    if args.routing_only:
+        refuse_unused(args, ["--minutes", "--budget", "--background", "--plain"],
+                      "with --routing-only: they are the motion's")
+    if args.plain:
+        refuse_unused(args, ["--budget"], "with --plain: the paper's rule has no budget")
+    minutes = 10.0 if args.minutes is None else args.minutes
+    budget = DEFAULT_BUDGET if args.budget is None else args.budget
+    if not minutes > 0:
+        raise InvalidInputError(f"--minutes must be > 0, got {minutes}")
+    if budget < 2:
+        raise InvalidInputError(f"--budget must be >= 2 bags, got {budget}")
     sizes = parse_sizes(args.sizes)
     description = arm_description_of(args)
     if args.routing_only:
@@ -341,10 +349,10 @@ def run(args) -> int:
                                               args.seed)}
     else:
         params = (dict(PLAIN_PARAMS) if args.plain
-                  else {**LONGRUN_PARAMS, "budget_bags": args.budget})
+                  else {**LONGRUN_PARAMS, "budget_bags": budget})
         if args.background:
             params["background"] = True
-        results = run_longrun(args.minutes, args.seed, params=params, sizes=sizes,
+        results = run_longrun(minutes, args.seed, params=params, sizes=sizes,
                               description=description)
     if args.json:
         FsPath(args.json).write_text(json.dumps(results, indent=2) + "\n")

@@ -16,8 +16,10 @@ and never part of this project. The steps are the commands a user runs, through 
    bare arm's recording).
 
 Per case it prints the MAE of the smoothed estimates and of the raw ones (mass kg, m·r kg·m,
-inertia kg·m²), the final mass, the 2-sigma coverage per group, and the loads the safety
-gate would have written (count, the largest mass and CoM errors); each line says whether
+inertia kg·m²), the final mass, the 2-sigma coverage per group, the loads the safety
+gate would have written (count, the largest mass and CoM errors), and the replay's speed:
+recorded s over wall s (``speed``) and over the replay's CPU s (``cpu_speed``, with the
+learning's share, ``learning_cpu_s``); each line says whether
 it is real (the bare arm) or semi-synthetic (a payload's torque added). ``--json FILE`` writes
 it all. Nothing was tuned on the recording.
 """
@@ -137,8 +139,11 @@ def case_figures(summary: dict, estimates, truth_phi) -> dict:
         "gate": summary["gate"],
         "arm_mismatch": summary.get("arm_mismatch"),
         "speed": summary["speed"],
+        "cpu_speed": summary["cpu_speed"],
+        "learning_cpu_s": summary["cpu_parts"]["learning"],
         "false_alarms": summary["payload_changes"],
     }
+
 
 
 def run_real(out_dir, directory=None, split: float = SPLIT, cases=None, log=print) -> dict:
@@ -216,7 +221,8 @@ def _line(name: str, mass: float, c: dict) -> str:
             f"com {g['com']:.4f} inertia {g['inertia']:.5f} | raw {r['mass']:.4f} {r['com']:.4f} "
             f"{r['inertia']:.5f} | final mass {c['final_mass']:+.4f} | 2σ coverage "
             f"m/com/I {cov_text} | {writes} | false alarms {c['false_alarms']} | "
-            f"{c['speed']:.1f}x real time")
+            f"{c['speed']:.1f}x real time, {c['cpu_speed']:.1f}x per CPU s (learning "
+            f"{c['learning_cpu_s']:.2f} s)")
 
 
 def configure(parser) -> None:

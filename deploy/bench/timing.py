@@ -1,5 +1,6 @@
-"""The paper benchmark's timing: bag routing among many bags, and IEM+phys's cycle as the
-plug-in runs it on a live link (back to back, and paced as a 1 kHz cell's blocks come).
+"""The benchmarks' timing: bag routing among many bags, IEM+phys's cycle as the plug-in runs
+it on a live link (back to back, and paced as a 1 kHz cell's blocks come), and the machine's
+own speed (:func:`machine_speed`), which a timing is read beside.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from iem.types import NOMINAL_POINT_RATE_HZ
 
 from .harness import Bench, rollout_blocks
 
-__all__ = ["PACED_RATE_HZ", "ROUTE_SIZES", "cycle_timing", "route_timing", "step_timing"]
+__all__ = ["MACHINE_LOOP", "PACED_RATE_HZ", "ROUTE_SIZES", "cycle_timing", "machine_speed",
+           "route_timing", "step_timing"]
 
 ROUTE_SIZES = (1, 10, 100, 1000, 10000)
 PACED_RATE_HZ = NOMINAL_POINT_RATE_HZ
@@ -88,3 +90,47 @@ def route_timing(kin, sizes=ROUTE_SIZES, queries: int = 2000, seed: int = 0) -> 
             times[i] = time.perf_counter() - t0
         out[str(n)] = float(np.median(times) * 1e6)
     return out
+
+
+MACHINE_LOOP = (2000, 5)
+"""The fixed work :func:`machine_speed` times: ``(rounds, repeats)``. A round is what an
+estimate is made of: a few dozen small NumPy calls (products, a solve, a Cholesky factor, on
+7 to 22 values) and the Python arithmetic between them."""
+
+
+def _machine_round(a: np.ndarray, b: np.ndarray, v: np.ndarray) -> float:
+    """One round of :data:`MACHINE_LOOP`'s fixed work; its result (so nothing is skipped)."""
+    m = a @ a.T
+    m += b @ b.T
+    m += np.eye(22)
+    c = np.linalg.cholesky(m)
+    x = np.linalg.solve(m, v)
+    y = np.maximum(a[:10] @ x, 0.0)
+    acc = 0.0
+    for k in range(40):  # the interpreter's share: scalar arithmetic and branches
+        acc += (k * 0.5 + float(y[k % 10])) / (1.0 + k)
+    return acc + float(c[-1, -1]) + float(np.abs(x).max())
+
+
+def machine_speed(rounds: int | None = None, repeats: int | None = None) -> dict:
+    """The machine's own speed now: :data:`MACHINE_LOOP`'s fixed work (the same numbers every
+    time), ``repeats`` times, each timed by this thread's CPU clock and by the wall clock:
+    ``{"cpu_us", "wall_us"}``, the medians, µs per round. On the same machine and build a
+    change of it is the host (its load, its clock, another process on the core's sibling),
+    not the code: a share read beside it tells the two apart."""
+    rounds = MACHINE_LOOP[0] if rounds is None else int(rounds)
+    repeats = MACHINE_LOOP[1] if repeats is None else int(repeats)
+    if rounds < 1 or repeats < 1:
+        raise ValueError(f"machine_speed needs rounds and repeats >= 1, got {rounds}, "
+                         f"{repeats}")
+    rng = np.random.default_rng(0)
+    a, b, v = rng.standard_normal((22, 22)), rng.standard_normal((22, 22)), rng.standard_normal(22)
+    cpu, wall = [], []
+    for _ in range(repeats):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        for _ in range(rounds):
+            _machine_round(a, b, v)
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return {"cpu_us": float(np.median(cpu)) / rounds * 1e6,
+            "wall_us": float(np.median(wall)) / rounds * 1e6}

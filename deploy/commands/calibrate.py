@@ -33,6 +33,8 @@ from deploy.options import (
     add_rate,
     add_recording_options,
     arm_description_of,
+    recording_options,
+    refuse_unused,
 )
 from firmware_bridge.recordings import DEFAULT_TOPIC
 from iem.errors import InvalidInputError
@@ -193,6 +195,9 @@ def run(args) -> int:
     from sim.arm import save_arm
 
     if args.write_motion:
+        refuse_unused(args, [("REC", "logs"), "--out", "--interface", "--channel", "--duration",
+                             "--format", "--topic", "--profile", "--end-effector", "--rate"],
+                      "with --write-motion: it writes the motion for the arm model and stops")
         from sim.paths import calibration_path, save_path_csv
         from sim.robot import ArmModel
 
@@ -202,11 +207,17 @@ def run(args) -> int:
         return 0
     if not args.out:
         raise InvalidInputError("--out ARM is required: the arm file to write")
+    if args.interface is None:
+        refuse_unused(args, ["--channel", "--duration"], "without --interface: they are the "
+                      "live link's")
+    if not args.logs:
+        refuse_unused(args, ["--format", "--topic"], "without a REC: they are the "
+                      "recordings'")
     t0 = time.perf_counter()
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
-                            duration=args.duration, profile=args.profile, format=args.format,
-                            topic=args.topic, end_effector=args.end_effector,
-                            rate_hz=args.rate, description=arm_description_of(args))
+                            duration=args.duration, **recording_options(args),
+                            end_effector=args.end_effector, rate_hz=args.rate,
+                            description=arm_description_of(args))
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

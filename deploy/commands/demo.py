@@ -26,7 +26,8 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from deploy.options import add_arm_model, arm_description_of
+from deploy.options import add_arm_model, add_rated_mass, arm_description_of
+from iem.model_kinds import DEFAULT_MODEL
 
 TRANSFER_S = 4.0
 HOLD_S = 1.0
@@ -65,7 +66,6 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
 
     require("mujoco", "iem demo (the simulated arm)")
     require("matplotlib", "iem demo (its figures)")
-    from deploy.model.training import best_model_kind
     from deploy.service.status import StatusLine
     from deploy.simcell.inprocess import simulated_cell
     from sim.description import described
@@ -73,7 +73,7 @@ def run_demo(out_dir, seed: int = 0, kind: str | None = None, json_path=None,
 
     out = FsPath(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    kind = kind or best_model_kind()
+    kind = kind or DEFAULT_MODEL
     payload = default_test_payload()
     truth = payload.to_phi()
     description = described(description)
@@ -130,23 +130,17 @@ def _demo_config(model_file, kind: str, seed: int, arm_file, status: bool,
 
     Raises:
         iem.errors.InvalidInputError: an arm model from a file without ``rated_mass_kg``."""
-    from deploy.config import config_from_dict
-    from deploy.simcell.cell import cell_sections
-    from deploy.simcell.inprocess import virtual_channel
+    from deploy.config import cell_config
+    from deploy.simcell.inprocess import virtual_link
 
-    cell = cell_sections(description, rated_mass_kg)
-    return config_from_dict({
-        "link": {"kind": "virtual", "channel": virtual_channel("demo"), "profile": "fd"},
-        "model": {"path": str(model_file), "kind": kind, "seed": seed,
-                  "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
+    return cell_config(
+        description, rated_mass_kg, where="demo", status=status, link=virtual_link("demo"),
+        model={"path": str(model_file), "kind": kind, "seed": seed,
+               "checkpoint_period_s": 10.0, "arm": str(arm_file or "")},
         # the demo's plant without an arm file is the nominal model itself: the sensor's
         # noise is all its equations carry; with one, the arm's measured noise
-        "arm": {**cell["arm"], "noise": "arm" if arm_file else "sensor"},
-        # the paper's IEM reports no uncertainty: the demo lets it write, as a cell must
-        "gate": {**cell["gate"], "allow_without_uncertainty": kind == "IEM"},
-        "log": {"status_line": "on" if status else "off"},
-        "host": {"cpu_dma_latency_us": cpu_dma_latency_us},
-    }, where="demo")
+        arm={"noise": "arm" if arm_file else "sensor"},
+        host={"cpu_dma_latency_us": cpu_dma_latency_us})
 
 
 def _figures_of_the_run(t, est, truth, phases, wall: float, summary: dict,
@@ -170,26 +164,19 @@ def _figures_of_the_run(t, est, truth, phases, wall: float, summary: dict,
 
 
 def _print_summary(s: dict, out, log) -> None:
+    """The service's summary in words (:func:`deploy.service.report.summary_lines`, as
+    ``iem run`` prints it), with the errors against the truth and the controller's load."""
+    from deploy.service.report import summary_lines
+
     g = s["mae_groups"]
+    errors = [f"  MAE over the run: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
+              f"inertia {g['inertia']:.5f} kg·m²"]
+    errors += [f"    {name:10s} mass {pg['mass']:.4f} kg, com {pg['com']:.4f} kg·m, "
+               f"inertia {pg['inertia']:.5f} kg·m²"
+               for name, pg in s["mae_groups_by_phase"].items()]
     log("")
-    log(f"summary ({s['model']}, payload {s['payload']}):")
-    log(f"  MAE over the run: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "
-        f"inertia {g['inertia']:.5f} kg·m²")
-    for name, pg in s["mae_groups_by_phase"].items():
-        log(f"    {name:10s} mass {pg['mass']:.4f} kg, com {pg['com']:.4f} kg·m, "
-            f"inertia {pg['inertia']:.5f} kg·m²")
-    lat = s["latency_us"]
-    log(f"  bags {s['bags']}; {s['estimates']} estimates, one per block point "
-        f"({s['estimates_per_s']:.0f} per s); block to estimate p50 {lat['p50']:.0f} µs, "
-        f"p99 {lat['p99']:.0f} µs")
-    w = s["writes"]
-    log(f"  writes: {w['sent']} sent, {w['acked']} acknowledged, {w['rejected']} rejected by "
-        f"the gate, {w['refused_by_controller']} refused by the controller")
-    f = s["frames"]
-    drops = ", ".join(f"{k} {v}" for k, v in f["dropped"].items()) or "none"
-    log(f"  frames: {f['received']} received, dropped: {drops}, lost cycles {f['lost']}; "
-        f"{s['unlearnt']} block points estimated without learning to stay current, "
-        f"{f['skipped']} skipped")
+    for line in summary_lines(s, f"payload {s['payload']}", errors):
+        log(line)
     if s["controller_load"]:
         cl = s["controller_load"]
         log(f"  the controller's load now: {cl['mass']:.4f} kg, CoM "
@@ -251,6 +238,7 @@ def configure(parser) -> None:
 
     add_cpu_latency_option(parser)
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:

@@ -35,6 +35,8 @@ from deploy.options import (
     add_rate,
     add_recording_options,
     arm_description_of,
+    recording_options,
+    refuse_unused,
 )
 from firmware_bridge.protocol import PROFILES
 from firmware_bridge.recordings import DEFAULT_TOPIC
@@ -135,11 +137,15 @@ def run(args) -> int:
     from deploy.model.training import load_arm_file
     from sim.robot import ArmModel
 
+    if args.bare is not None:
+        refuse_unused(args, ["--end-effector"], "with --bare: the bare recording carries the "
+                      "arm and its end effector; it says what an --arm file is for")
     description = arm_description_of(args)
     joints = description.joint_names
+    read = recording_options(args)
     start = time.perf_counter()
-    loaded = read_log(args.loaded, args.profile, args.format, args.topic, joints)
-    bare = (read_log(args.bare, args.profile, args.format, args.topic, joints)
+    loaded = read_log(args.loaded, read["profile"], read["format"], read["topic"], joints)
+    bare = (read_log(args.bare, read["profile"], read["format"], read["topic"], joints)
             if args.bare is not None else None)
     decoded = time.perf_counter()
     for name, rec in (("loaded", loaded), ("bare", bare)):
@@ -154,7 +160,7 @@ def run(args) -> int:
     name = args.name or FsPath(args.out).stem or "identified"
     summary = result.summary(name)
     summary["files"] = {"loaded": str(args.loaded), "bare": args.bare, "arm": args.arm,
-                        "profile": args.profile}
+                        "profile": read["profile"]}
     summary["time_s"] = {"decode": decoded - start, "identify": done - decoded}
     payload = result.payload(name).check()
     _write(args.out, payload_to_toml(payload, phi_std=result.std))

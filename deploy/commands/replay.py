@@ -13,7 +13,9 @@ from deploy.options import (
     add_block_frames,
     add_end_effector,
     add_rate,
+    add_rated_mass,
     add_recording_options,
+    refuse_unused,
 )
 from iem.model_kinds import DEFAULT_MODEL
 
@@ -34,7 +36,7 @@ def jobs(text: str) -> int:
 
 def add_jobs(parser) -> None:
     """``--jobs N``: how many recordings replay at once, each in its own process."""
-    parser.add_argument("--jobs", type=jobs, default=1, metavar="N", help="with several "
+    parser.add_argument("--jobs", type=jobs, default=None, metavar="N", help="with several "
                         "recordings, replay N at once, each in its own process (default 1: "
                         "one after another)")
 
@@ -58,6 +60,7 @@ def configure(parser) -> None:
                         "'iem calibrate'; the model must have been trained for it)")
     add_end_effector(parser)
     add_arm_model(parser)
+    add_rated_mass(parser)
     add_rate(parser, help="joint states a second of the recording (default: detected from "
              "its time stamps, the median step)")
     add_block_frames(parser)
@@ -85,6 +88,8 @@ def run(args) -> int:
                   f"{', '.join(failed)}", file=sys.stderr)
             return EX_ERROR
         return 0
+    refuse_unused(args, ["--jobs"], "with one recording: it is how many of several replay at "
+                  "once")
     truth, model = replay_inputs(args)
 
     def log(msg: str) -> None:

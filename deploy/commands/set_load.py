@@ -64,7 +64,7 @@ def checked_load(path: str, gate, wire_check=None):
     from sim.payload import load_payload
 
     payload = load_payload(path)
-    _, reason, detail = check_estimate(payload.to_phi(), gate, wire_check)
+    reason, detail = check_estimate(payload.to_phi(), gate, wire_check)
     if reason:
         raise SetLoadError(f"{path}: not written, the gate refuses it ({reason}): {detail}")
     return payload  # the file's own values, not their round trip through phi

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import sys
 
-from deploy.options import add_arm_model, arm_description_of
+from deploy.options import add_arm_model, add_duration, arm_description_of, refuse_unused
 from deploy.simcell.controller import SimController
 from deploy.simcell.payload_schedule import SPEC_HELP, parse_schedule
 from firmware_bridge.controller_port import fault_spec, open_port
@@ -20,9 +20,10 @@ def configure(parser) -> None:
     parser.add_argument("--interface", required=True, choices=list(kinds),
                         help="; ".join(f"{k}: {v}" for k, v in kinds.items()))
     parser.add_argument("--channel", default="",
-                        help="bus channel, device or URL (not used by the *-pty interfaces)")
-    parser.add_argument("--profile", default="fd", choices=PROFILES,
-                        help="wire profile on CAN (default fd)")
+                        help="bus channel, device or URL (the *-pty interfaces open a new pty "
+                        "and take none)")
+    parser.add_argument("--profile", default=None, choices=PROFILES,
+                        help="wire profile on CAN (default fd; the serial link has none)")
     parser.add_argument("--path", metavar="FILE",
                         help="path CSV (default: the arm model's excitation path)")
     parser.add_argument("--payload", metavar="FILE",
@@ -37,7 +38,7 @@ def configure(parser) -> None:
                              "acknowledged (default 0)")
     parser.add_argument("--once", action="store_true",
                         help="play the path once, then hold its end at rest")
-    parser.add_argument("--duration", type=float, help="stop after this many s")
+    add_duration(parser)
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
     parser.add_argument("--drop", type=float, default=0.0, help="fraction of frames dropped")
     parser.add_argument("--corrupt", type=float, default=0.0,
@@ -46,17 +47,21 @@ def configure(parser) -> None:
                         help="fraction of frames sent twice")
     parser.add_argument("--delay", type=float, default=0.0,
                         help="fraction of frames held back --delay-cycles cycles")
-    parser.add_argument("--delay-cycles", type=int, default=3, help="cycles a delayed frame waits")
+    parser.add_argument("--delay-cycles", type=int, default=None,
+                        help="cycles a delayed frame waits (default 3; with --delay)")
     parser.add_argument("--silence", metavar="START:LENGTH",
                         help="say nothing for LENGTH s from controller time START s")
-    parser.add_argument("--fault-seed", type=int, default=0, help="seed of the fault draws")
+    parser.add_argument("--fault-seed", type=int, default=None,
+                        help="seed of the fault draws of --drop, --corrupt, --duplicate and "
+                        "--delay (default 0)")
     parser.add_argument("--refuse-while-moving", action="store_true",
                         help="refuse load commands while the arm moves (accept them at rest), "
                         "as a real Franka refuses setLoad while a controller runs")
     parser.add_argument("--stats-json", metavar="FILE",
                         help="at exit, write the controller's counts (cycles, overruns, "
                              "commands, dropped_commands, faults injected per message) and "
-                             "its own record (load_in_force, applied, mounted) as JSON")
+                             "its own record (load_in_force, the true payload, applied, "
+                             "mounted) as JSON")
     add_arm_model(parser)
 
 def _schedule_arg(text: str):
@@ -80,19 +85,45 @@ def _count_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r}: valid is an integer >= 0")
     return n
 
+def _is_can(interface: str) -> bool:
+    from firmware_bridge.links import LINKS
+
+    return LINKS[interface.removesuffix("-pty")].bus is not None
+
+
+def refuse_unused_options(args) -> None:
+    """Refuse an option this run would not use (:func:`deploy.options.refuse_unused`)."""
+    where = f"with --interface {args.interface}"
+    if args.interface.endswith("-pty"):
+        refuse_unused(args, ["--channel"], f"{where}: the controller opens a new pty and "
+                      "prints its path")
+    if not _is_can(args.interface):
+        refuse_unused(args, ["--profile"], f"{where}: a wire profile is CAN's; the serial "
+                      "link sends msgpack messages")
+    if not args.delay:
+        refuse_unused(args, ["--delay-cycles"], "without --delay: it is how long a delayed "
+                      "frame is held")
+    if not (args.drop or args.corrupt or args.duplicate or args.delay):
+        refuse_unused(args, ["--fault-seed"], "without --drop, --corrupt, --duplicate or "
+                      "--delay: it seeds their draws")
+
+
 def run(args) -> int:
     import signal
 
     from iem.extras import require
     from sim.paths import load_path_csv
     from sim.payload import load_payload
+    from sim.robot import arm_model
 
     require("mujoco", "iem sim-controller (the simulated arm)")  # before a port opens
 
+    refuse_unused_options(args)
     description = arm_description_of(args)
-    path = load_path_csv(args.path) if args.path else None
+    path = (load_path_csv(args.path, model=arm_model(description)) if args.path else None)
     payload = load_payload(args.payload) if args.payload else None
-    port, announce = open_port(args.interface, args.channel, args.profile, fault_spec(args))
+    profile = args.profile or "fd"
+    port, announce = open_port(args.interface, args.channel, profile, fault_spec(args))
     controller = SimController(port, path=path, payload=payload, once=args.once, seed=args.seed,
                                refuse_while_moving=args.refuse_while_moving,
                                drop_commands=args.drop_commands,
@@ -107,8 +138,9 @@ def run(args) -> int:
     if announce:
         print(announce, flush=True)
     print(f"sim-controller: {description.name}, {args.interface} "
-          f"{announce or args.channel!r}, profile "
-          f"{args.profile}, path {controller.path.name!r} "
+          f"{announce or args.channel!r}, "
+          + (f"profile {profile}, " if _is_can(args.interface) else "")
+          + f"path {controller.path.name!r} "
           f"({'once' if args.once else 'back and forth'}), payload "
           f"{getattr(controller.payload, 'name', None)!r}"
           + (f", {len(controller.schedule.entries)} payload changes scheduled"
@@ -122,7 +154,7 @@ def run(args) -> int:
         print("sim-controller: " + ", ".join(f"{k} {v}" for k, v in stats.items()
                                              if k not in ("faults_by_message", "fault_events",
                                                           "send_failures", "load_in_force",
-                                                          "applied", "mounted")),
+                                                          "payload", "applied", "mounted")),
               file=sys.stderr, flush=True)
         if args.stats_json:
             import json

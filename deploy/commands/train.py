@@ -11,7 +11,9 @@ from deploy.options import (
     add_end_effector,
     add_rate,
     arm_description_of,
+    refuse_unused,
 )
+from iem.ensemble.learners import LEARNERS
 from iem.model_kinds import DEFAULT_MODEL
 from iem.persistence import save_model
 from iem.types import NOMINAL_RATE_HZ
@@ -41,7 +43,7 @@ def configure(parser) -> None:
                         help="excitation path CSV (default: the built-in 20 s path)")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the learners (an integer from 0 to 2**63-1)")
-    add_rate(parser, NOMINAL_RATE_HZ, f"joint states a second the link or the recordings "
+    add_rate(parser, None, f"IEM+phys: joint states a second the link or the recordings "
              f"deliver (default {NOMINAL_RATE_HZ:g}: fd; classic 500; what 'iem replay' "
              "printed for a recording)")
     add_block_frames(parser)
@@ -49,7 +51,12 @@ def configure(parser) -> None:
                         "the nominal arm)")
     add_end_effector(parser)
     add_arm_model(parser)
-    parser.add_argument("--noise", choices=NOISE_SOURCES, default="arm",
+    parser.add_argument("--learner", choices=list(LEARNERS), default=None,
+                        help="how the bags' learners are trained: 'sgd', the paper's "
+                             "Algorithm 2, or 'expected', the same in expectation, exact "
+                             "(microseconds a point and a refit); default: the kind's "
+                             "(IEM sgd, IEM+phys expected)")
+    parser.add_argument("--noise", choices=NOISE_SOURCES, default=None,
                         help="IEM+phys's equation error: 'arm' (default), the arm file's "
                              "measured noise, or a conservative default for an uncalibrated "
                              "arm; 'sensor', the sensor's white noise alone (a simulated arm "
@@ -58,12 +65,19 @@ def configure(parser) -> None:
 def run(args) -> int:
     from iem.signals.rate import block_frames_for, rate_line
 
-    frames = args.block_frames or block_frames_for(args.rate)
-    print(rate_line(args.rate, frames, detected=False, what="joint states"))
+    rate, noise = args.rate or NOMINAL_RATE_HZ, args.noise or "arm"
+    frames = args.block_frames or block_frames_for(rate)
+    if args.kind == "IEM+phys":
+        print(rate_line(rate, frames, detected=False, what="joint states"))
+    else:
+        refuse_unused(args, ["--rate", "--block-frames", "--noise"], f"with --kind "
+                      f"{args.kind}: only IEM+phys works on block points at the link's rate "
+                      "and weighs its equations' error")
     model = train_initial_model(args.kind, args.family, args.excitation, args.seed,
-                                rate_hz=args.rate, arm_file=args.arm,
-                                end_effector=args.end_effector, noise=args.noise,
-                                block_frames=frames, description=arm_description_of(args))
+                                rate_hz=rate, arm_file=args.arm,
+                                end_effector=args.end_effector, noise=noise,
+                                block_frames=frames, description=arm_description_of(args),
+                                **({} if args.learner is None else {"learner": args.learner}))
     save_model(model, args.out)
     print(f"wrote {args.out}")
     return 0

@@ -4,17 +4,19 @@
 
 Every key is documented in ``deploy/cell.toml`` (the example a cell starts from). Any error
 names the key, the value found and what would be valid; unknown keys are errors too, so a
-typo never silently falls back to a default.
+typo never silently falls back to a default. The file is read within bounds, as every TOML
+file a user hands over (:func:`iem.user_files.read_toml`: a regular file of UTF-8 text, at
+most 1 MB, nested at most 32 deep), so no file named here can hang or crash the start.
 """
 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import fields, replace
 from pathlib import Path as FsPath
 
 from iem.errors import InvalidInputError
+from iem.user_files import read_toml
 
 from .arm import arm_model_of, with_description, with_end_effector, with_rated_payload
 from .sections import (
@@ -141,20 +143,7 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
 def load_config(path) -> CellConfig:
     """Read and check ``cell.toml``; relative model paths are taken from the file's folder."""
     path = FsPath(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the configuration: "
-                          f"{exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        line = exc.object.count(b"\n", 0, exc.start) + 1
-        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} on "
-                          f"line {line}, offset {exc.start}); a cell.toml must be UTF-8, as "
-                          "TOML requires") from exc
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    doc = read_toml(path, "configuration file", ConfigError)
     cfg = config_from_dict(doc, where=str(path))
     model_path = FsPath(cfg.model.path)
     arm_path = FsPath(cfg.model.arm)

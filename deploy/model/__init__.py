@@ -19,7 +19,6 @@ from .training import (
     DEPLOY_ENSEMBLE,
     NOISE_SOURCES,
     arm_torque_noise,
-    best_model_kind,
     check_model_arm,
     check_model_family,
     check_model_rate,
@@ -31,7 +30,7 @@ from .training import (
 )
 
 __all__ = ["DEPLOY_ENSEMBLE", "INITIAL_STD", "NOISE_SOURCES", "arm_torque_noise",
-           "best_model_kind", "block_frames_of", "check_model_arm", "check_model_family",
+           "block_frames_of", "check_model_arm", "check_model_family",
            "check_model_rate", "checked_model", "excitation", "link_rate", "load_arm_file",
            "load_or_train_model", "make_model", "model_resources", "point_rate",
            "start_from_file", "tandem_for", "train_initial_model"]

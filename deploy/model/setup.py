@@ -8,18 +8,26 @@ end_effector``: a model file names its arm by content and is loaded only with it
 :func:`iem.persistence.load_model`) and refuses a model of another kind than ``[model]
 kind``, or made for another point rate than the link's rate over ``[estimate]
 block_frames`` (:attr:`iem.base.Estimator.rate_hz`); without a file it trains one on the excitation
-path if ``train_if_missing``. :func:`start_from_file` makes IEM+phys start from ``[estimate]
-initial_payload``.
+path if ``train_if_missing`` (saved to ``[model] path``, but over a recorded link, whose
+replay learns in memory only). :func:`start_from_file` makes IEM+phys start from
+``[estimate] initial_payload``.
+
+Every file ``cell.toml`` names is the configuration's: one that is missing or cannot be read
+(``[model] path`` without ``train_if_missing``, ``[model] arm``, a model for another arm)
+is a :class:`deploy.config.ConfigError` naming the key (``iem run`` exits 78: a restart
+cannot fix it).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 from pathlib import Path as FsPath
 
-from deploy.config import CellConfig
+from deploy.config import CellConfig, ConfigError
 from iem.atomic_file import remove_stale_temporaries
+from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import load_model, save_model
 
 log = logging.getLogger("iem.service")
@@ -49,14 +57,27 @@ def block_frames_of(config: CellConfig, rate_hz: float | None = None) -> int:
     return config.estimate.block_frames or block_frames_for(rate)
 
 
+@contextlib.contextmanager
+def file_of(config: CellConfig, key: str, value: str):
+    """Errors of reading the file that ``key`` (``"[model] arm"``) names are configuration
+    errors naming the key and ``value``: a restart cannot fix a missing or unreadable file."""
+    try:
+        yield
+    except ConfigError:
+        raise
+    except (InvalidInputError, ModelFileError) as exc:  # a bad model, arm file, end effector
+        raise ConfigError(f"{config.source}: {key} = {value!r}: {exc}") from exc
+
+
 def model_resources(config: CellConfig) -> dict:
     """What the configured model runs on, for :func:`iem.persistence.load_model`:
     ``{"arm": ...}``, the arm of ``[model] arm`` or the nominal arm carrying ``[arm]
     end_effector`` (None: the nominal arm with the Franka Hand)."""
     from .training import load_arm_file
 
-    arm, _ = load_arm_file(config.model.arm or None, config.arm.end_effector,
-                           config.arm.description())
+    with file_of(config, "[model] arm", config.model.arm):
+        arm, _ = load_arm_file(config.model.arm or None, config.arm.end_effector,
+                               config.arm.description())
     return {"arm": arm}
 
 
@@ -70,10 +91,9 @@ def load_or_train_model(config: CellConfig, resources: dict | None = None):
                  extra={"event": "stale_temporary_removed", "path": str(stale)})
     rate, frames = link_rate(config), block_frames_of(config)
     if path.exists():
-        model = load_model(path, resources=model_resources(config) if resources is None
-                           else resources)
-        from deploy.config import ConfigError
-
+        resources = model_resources(config) if resources is None else resources
+        with file_of(config, "[model] path", mc.path):
+            model = load_model(path, resources=resources)
         if model.name != mc.kind:
             raise ConfigError(f"model file {path} holds a model of kind {model.name!r}, the "
                               f"configuration's [model] kind is {mc.kind!r}; set kind = "
@@ -91,11 +111,9 @@ def load_or_train_model(config: CellConfig, resources: dict | None = None):
                  extra={"event": "model_loaded", "path": str(path), "bags": model.n_bags})
         return model
     if not mc.train_if_missing:
-        from iem.errors import ModelFileError
-
-        raise ModelFileError(f"model file {path} does not exist and [model] train_if_missing "
-                             "is false; create one with 'iem train --out FILE' or set "
-                             "train_if_missing = true")
+        raise ConfigError(f"{config.source}: [model] path = {mc.path!r}: the model file does "
+                          "not exist and [model] train_if_missing is false; create one with "
+                          "'iem train --out FILE' or set train_if_missing = true")
     from .training import train_initial_model
 
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
@@ -103,6 +121,12 @@ def load_or_train_model(config: CellConfig, resources: dict | None = None):
                                 rate_hz=rate, block_frames=frames, arm_file=mc.arm or None,
                                 end_effector=config.arm.end_effector, noise=config.arm.noise,
                                 description=config.arm.description())
+    from firmware_bridge.links import link_kind
+
+    if link_kind(config.link.kind).recorded:  # a replay never writes the model
+        log.info("trained a model in memory: over a recorded link the model file %s is not "
+                 "written", path, extra={"event": "trained_in_memory"})
+        return model
     path.parent.mkdir(parents=True, exist_ok=True)
     save_model(model, path)
     log.info("saved the new model to %s", path, extra={"event": "model_saved"})
@@ -117,19 +141,21 @@ def checked_model(config: CellConfig, model=None):
     nominal one).
 
     Raises:
-        ModelFileError: the model was made for another arm.
-        ConfigError: it was trained on another payload family.
+        ConfigError: a file it names is missing or cannot be read, the model was made for
+            another arm or trained on another payload family.
     """
     from .training import check_model_arm, check_model_family, load_arm_file
 
-    arm, arm_record = load_arm_file(config.model.arm or None, config.arm.end_effector,
-                                    config.arm.description())
+    with file_of(config, "[model] arm", config.model.arm):
+        arm, arm_record = load_arm_file(config.model.arm or None, config.arm.end_effector,
+                                        config.arm.description())
     path = FsPath(config.model.path)
     restored = model is None and path.exists()  # a restart from the last checkpoint
     if model is None:
         model = load_or_train_model(config, {"arm": arm})
     where = f"the model {path}" if path.exists() else "the model"
-    check_model_arm(model, arm_record, where=where)
+    with file_of(config, "[model] path", config.model.path):
+        check_model_arm(model, arm_record, where=where)
     check_model_family(model, config.model.family, where=where)
     if config.estimate.initial_payload:
         start_from_file(model, config.estimate.initial_payload)

@@ -28,13 +28,6 @@ from iem.model_kinds import DEFAULT_MODEL, MODELS, new_model
 from iem.types import DEFAULT_BLOCK_FRAMES, NOMINAL_POINT_RATE_HZ, NOMINAL_RATE_HZ
 from sim.family import DEPLOY_FAMILY
 
-
-def best_model_kind() -> str:
-    """The kind ``iem train`` and the benchmarks make unless told otherwise:
-    :data:`iem.model_kinds.DEFAULT_MODEL`."""
-    return DEFAULT_MODEL
-
-
 DEPLOY_ENSEMBLE = {"reversal": "sim.coverage:reversed_velocities",
                    "budget_bags": DEFAULT_BUDGET_BAGS}
 """The ensemble settings of a model the plug-in trains (``iem train``, ``train_if_missing``),
@@ -151,20 +144,19 @@ def load_arm_file(arm_file, end_effector=None, description=None):
     model other than the arm file's is refused, naming both."""
     from sim.arm import ArmParams, arm_record, load_arm
     from sim.description import DEFAULT_ARM_MODEL, described
-    from sim.end_effector import check_same
-    from sim.end_effector import end_effector as resolve
+    from sim.end_effector import check_same, end_effector_of
 
     desc = described(description)
     if arm_file is None:
-        ee = resolve(end_effector or desc.default_end_effector)
+        ee = end_effector_of(end_effector, desc)
         if desc.name == DEFAULT_ARM_MODEL and ee.spec == desc.default_end_effector:
             return None, None
         arm = ArmParams.nominal(ee, desc)
         return arm, arm_record(arm)
     arm = load_arm(arm_file, desc)
     if end_effector:
-        check_same(arm.end_effector, resolve(end_effector).label, f"the arm file {arm_file}",
-                   "the configuration")
+        check_same(arm.end_effector, end_effector_of(end_effector, desc).label,
+                   f"the arm file {arm_file}", "the configuration")
     return arm, arm_record(arm, arm_file)
 
 
@@ -189,7 +181,7 @@ def excitation(spec: str = "builtin", model=None):
 
     if spec == "builtin":
         return excitation_path(model=model)
-    return load_path_csv(spec).check_limits(model)
+    return load_path_csv(spec, model=model)
 
 
 def tandem_for(family: str, arm=None):

@@ -257,28 +257,24 @@ def _replay_service(link, kind: str, channel: str, profile: str, model, save_mod
     """The service over an open recording ``link`` of ``rate_hz`` joint states a second in
     blocks of ``block_frames``, writes off, deciding on the recorded clock (a fast replay
     decides as the cell did)."""
-    from deploy.config import config_from_dict
+    from deploy.config import cell_config
     from deploy.service.loop import Service
     from deploy.service.sdnotify import Notifier
     from deploy.service.status import StatusLine
     from iem.persistence import DEFAULT_FAMILY
     from sim.description import described
 
-    desc = described(description)
-    gate = {} if rated_mass_kg is None else {"gate": {"rated_mass_kg": float(rated_mass_kg)}}
-    config = config_from_dict({
-        "link": {"kind": kind, "channel": channel, "profile": profile},
+    config = cell_config(
+        described(description), rated_mass_kg, where="iem replay", status=status,
+        link={"kind": kind, "channel": channel, "profile": profile},
         # the model path is only written by --save-model; no periodic checkpoints
-        "model": {"path": str(save_model_to or "replay-model.msgpack"),
-                  "train_if_missing": False, "checkpoint_period_s": 86400.0,
-                  "arm": str(arm_file or ""),
-                  # the model's own family: new bags learn from the simulators it knew
-                  "family": model.trained_family or DEFAULT_FAMILY},
-        "arm": {"end_effector": str(end_effector or ""), "model": desc.source_spec,
-                "flange": desc.flange},
-        **gate,
-        "estimate": {"block_frames": int(block_frames)},
-        "log": {"status_line": "on" if status else "off"}}, where="iem replay")
+        model={"path": str(save_model_to or "replay-model.msgpack"),
+               "train_if_missing": False, "checkpoint_period_s": 86400.0,
+               "arm": str(arm_file or ""),
+               # the model's own family: new bags learn from the simulators it knew
+               "family": model.trained_family or DEFAULT_FAMILY},
+        arm={"end_effector": str(end_effector or "")},
+        estimate={"block_frames": int(block_frames)})
     return Service(config, link=link, model=model, notifier=Notifier(environ={}),
                    status=StatusLine.from_config(config.log), write=False,
                    gate_clock="controller", rate_hz=rate_hz)

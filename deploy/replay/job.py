@@ -93,7 +93,8 @@ def replay_inputs(args) -> tuple:
 def replay_options(args) -> dict:
     """The keyword arguments of :func:`~deploy.replay.core.replay` that ``iem replay``'s options
     give about how to read and estimate a recording (not its model, truth or outputs)."""
-    return {"profile": args.profile, "arm_file": args.arm, "format": args.format,
-            "topic": args.topic, "end_effector": args.end_effector,
+    from deploy.options import recording_options
+
+    return {**recording_options(args), "arm_file": args.arm, "end_effector": args.end_effector,
             "block_frames": args.block_frames, "rate_hz": args.rate,
             "description": arm_description_of(args), "rated_mass_kg": args.rated_mass_kg}

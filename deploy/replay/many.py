@@ -128,7 +128,7 @@ def run_many(args, files: list[FsPath]) -> list[dict]:
     models = _outputs(args.save_model, files, ".msgpack", "--save-model")
     INPUTS.clear()  # read afresh: the files may have changed since this process last read
     inputs_of(args)  # a bad --truth, --model or --arm fails once, here
-    n_jobs = min(args.jobs, len(files))
+    n_jobs = min(args.jobs or 1, len(files))  # --jobs: 1 unless given
     print(f"replaying {len(files)} recordings, {n_jobs} at a time", file=sys.stderr,
           flush=True)
     tasks = [(args, str(f), c, m) for f, c, m in zip(files, csvs, models, strict=True)]

@@ -8,7 +8,9 @@ from __future__ import annotations
 def add_replay_figures(summary: dict, service, link, estimates,
                         source: dict) -> None:
     """What a replay's summary says beyond the service's: the recording (``source``), the
-    link's frame counts, the gate's would-be writes, the speed and the changes detected."""
+    link's frame counts, the gate's would-be writes, the speed (``speed``: recorded over wall
+    time; ``cpu_speed``: recorded over ``replay_cpu_s``, the CPU of the replay's threads) and
+    the changes detected."""
     decisions = service.gate.summary()
     for key in ("malformed", "implausible", "timing"):
         summary["frames"][key] = getattr(link.counters, key)
@@ -16,6 +18,9 @@ def add_replay_figures(summary: dict, service, link, estimates,
         summary.pop(key, None)
     recorded = estimates.t[-1] - estimates.t[0]
     wall = summary["wall_s"]
+    # the replay's threads' CPU (the loop, the learning inline in it, the reader): on a
+    # shared machine the wall time counts the others' work too, this does not
+    cpu = summary["cpu_parts"]["cycle"] + summary["cpu_parts"]["reader"]
     summary.update({
         **source,
         "truncated": bool(getattr(link, "truncated", False)),  # the link warned (iem.bridge)
@@ -26,6 +31,8 @@ def add_replay_figures(summary: dict, service, link, estimates,
                                         for t, load, prior in service.gate.sent_loads]},
         "estimates_per_s": summary["estimates"] / wall if wall > 0 else None,
         "speed": recorded / wall if wall > 0 else None,
+        "replay_cpu_s": cpu,
+        "cpu_speed": recorded / cpu if cpu > 0 else None,
         # payload changes the model detected (None: a model without a detector)
         "payload_changes": getattr(service.model, "changes", None),
     })
@@ -49,7 +56,9 @@ def print_summary(s: dict, log=print) -> None:
         + (", TRUNCATED: replayed what it holds" if s.get("truncated") else "") + ":")
     log(f"  {s['estimates']} estimates over {s['recorded_s']:.3f} s of recorded time, "
         f"{s['bags']} bags; {s['wall_s']:.2f} s wall"
-        + (f" ({s['estimates_per_s']:.0f} estimates per s)" if s["estimates_per_s"] else ""))
+        + (f" ({s['estimates_per_s']:.0f} estimates per s)" if s["estimates_per_s"] else "")
+        + f", {s['replay_cpu_s']:.2f} s CPU"
+        + (f" ({s['cpu_speed']:.1f} times real time per CPU s)" if s["cpu_speed"] else ""))
     g = s.get("mae_groups")
     if g:
         log(f"  MAE against {s['payload']}: mass {g['mass']:.4f} kg, com {g['com']:.4f} kg·m, "

@@ -21,11 +21,13 @@ log = logging.getLogger("iem.service")
 
 
 class Checkpointer:
-    """Saves ``model`` to ``path`` every ``period_s`` s of the caller's clock."""
+    """Saves ``model`` to ``path`` every ``period_s`` s of the caller's clock; with ``saves``
+    False (a replay: it never writes the model), never."""
 
-    def __init__(self, path: str, period_s: float) -> None:
+    def __init__(self, path: str, period_s: float, saves: bool = True) -> None:
         self.path = path
         self.period_s = float(period_s)
+        self.saves = bool(saves)
         self.count = 0
         """Saves completed."""
         self.cpu_s = 0.0
@@ -41,7 +43,7 @@ class Checkpointer:
         """Save a copy of ``model`` in the background if a save is due."""
         if self._next is None:
             self.start(now)
-        if now < self._next:
+        if now < self._next or not self.saves:
             return
         self._next = now + self.period_s
         if self._saver is not None and self._saver.is_alive():
@@ -65,7 +67,10 @@ class Checkpointer:
         self._saver.start()
 
     def save_now(self, model) -> None:
-        """Save ``model`` now (atomic), waiting for a background save first."""
+        """Save ``model`` now (atomic), waiting for a background save first (nothing if it
+        never saves)."""
+        if not self.saves:
+            return
         if self._saver is not None:
             self._saver.join()
         save_model(model, self.path)

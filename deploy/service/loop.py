@@ -21,12 +21,31 @@ A pipeline of small parts, in one loop:
    ``checkpoint_period_s`` (a copy, written in a background thread) and at exit, atomically:
    a failed save leaves the last good file.
 
-Around the loop: temporary files of an interrupted save are removed at start
-(:func:`iem.atomic_file.remove_stale_temporaries`); the model is loaded (or trained if there
-is none and ``train_if_missing``); a silent controller stops the writes until it returns;
-link failures end the run with the error (exit status 2: under systemd, the unit restarts
-it; configuration errors exit 78 and are not restarted, see :mod:`deploy.cli`).
+Its lifecycle, as ros2_control's hardware interfaces have it (each state says what is open):
+
+- ``unconfigured``: nothing open;
+- :meth:`Service.configure` -> ``inactive``: the CPU wake-up latency held (if configured),
+  the model loaded (or trained if there is none and ``train_if_missing``; temporary files of
+  an interrupted save removed first), its learning worker live, the link open, the gate
+  built; nothing read yet;
+- :meth:`Service.activate` -> ``active``: the reader reads, the checkpointer is due, systemd
+  is told READY; a fresh :class:`deploy.service.tally.RunTally` counts the run;
+  :meth:`Service.run` activates, loops until stopped and deactivates;
+- :meth:`Service.deactivate` -> ``inactive``: the reader stopped, the run's wall and CPU
+  time taken, systemd told STOPPING;
+- :meth:`Service.shutdown` -> ``finalized``: the last checkpoint saved, the learning worker
+  stopped, the link closed, the latency limit released.
+
+A silent controller stops the writes until it returns. A link failure ends the run with the
+error (exit status 2: under systemd, the unit restarts it; configuration errors exit 78 and
+are not restarted, see :mod:`deploy.cli`). Every failure is kept in order
+(:class:`deploy.service.failures.Failures`): the first is what the run ends with, and what fails
+after it (a vanished controller's link then fails to close) follows it, never replaces it.
 ``Service.stop()`` (SIGTERM, SIGINT) ends the loop after the current block.
+
+The gate decides on one clock for the whole run, whatever the link and whatever happens
+(points and silences alike): this PC's monotonic clock on a live link, the controller's own
+time stamps for a replay (``gate_clock``).
 """
 
 from __future__ import annotations
@@ -40,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deploy.config import CellConfig
+from deploy.config import CellConfig, ConfigError
 from deploy.model.setup import block_frames_of, checked_model, link_rate
 from deploy.writeback.gate import SafetyGate
 from deploy.writeback.writer import LoadWriter
@@ -53,11 +72,11 @@ from iem.signals.smoothing import ExponentialSmoother
 from .arm_watch import ArmWatch
 from .capabilities import check_sink, wire_check_for
 from .checkpointer import Checkpointer
-from .latency import LatencyWindow
-from .pacing import LearningPace
+from .failures import Failures
 from .report import log_rate, status_text, summary_of
 from .sdnotify import Notifier
 from .status import StatusLine
+from .tally import RunTally
 
 log = logging.getLogger("iem.service")
 
@@ -67,6 +86,9 @@ a second, as ROS diagnostics are."""
 SKIP_LAG_S = 2.0
 """A block point older than this when read is dropped (counted in ``skipped``): even
 estimating without learning has fallen hopelessly behind."""
+
+UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = "unconfigured", "inactive", "active", "finalized"
+"""The service's lifecycle states (see the module docstring)."""
 
 
 @dataclass
@@ -123,48 +145,57 @@ class Service:
         self.notifier = Notifier() if notifier is None else notifier
         self.status = status if status is not None else StatusLine.from_config(config.log)
         self.write = write
-        self.gate = SafetyGate(config.gate)
+        self.gate: SafetyGate | None = None
+        """The safety gate, built complete by :meth:`open` (the link's wire check, the arm's
+        regressor)."""
         self._diagnostics = None  # the link's status topic, if it has one (set by run)
         self._next_diagnostics = 0.0
         self.arm_watch = ArmWatch()
         """Says once when the mass stays clearly below zero (a wrong arm model)."""
-        self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s)
+        self.checkpointer = Checkpointer(config.model.path, config.model.checkpoint_period_s,
+                                         saves=not link_kind(config.link.kind).recorded)
         self.writer: LoadWriter | None = None
         self._publish = None  # the link's publish_estimate, if it has one (set by run)
         self.on_cycle: list[Callable[[CycleRecord], None]] = []
         self._stop = threading.Event()
-        self.latencies = LatencyWindow()
-        """Block-to-estimate latencies: from a block's last frame's arrival to its estimate."""
-        self.ages = LatencyWindow()
-        """Age of a block's frames (their mean arrival) when its estimate is out."""
-        self.cycles = 0
-        """Block points estimated."""
+        self.tally: RunTally | None = None
+        """What the current or last run counted (None before the first run)."""
         self.silent = False
-        self.silences = 0
-        self.skipped = 0
-        self.reader_skipped = 0
-        self.reader_former: BlockFormer | None = None
-        """The last run's reader's block former: the frames it bridged and those it did not
-        use (not newer than the last one used)."""
-        self.pace = LearningPace()
-        self.cpu_s = 0.0
-        self.cpu_parts = {"cycle": 0.0, "reader": 0.0, "learning": 0.0, "checkpoint": 0.0}
-        """CPU s of the last run by thread: the estimating loop's, the link reader's, the
-        learning worker's and the checkpoints' (``cpu_s`` is their sum)."""
-        self.step_cpu_s = 0.0
-        """CPU s of the last run's estimator steps (``OnlineIdentifier.step_block``), a
-        part of the loop's."""
-        self.wall_s = 0.0
+        """The controller is silent: the writes are stopped until it is back."""
+        self.failures = Failures()
+        """Every failure of this service, the first first."""
+        self.lifecycle = UNCONFIGURED
+        """Where it is in its lifecycle (see the module docstring)."""
         self.cpu_latency = None
         """The held CPU wake-up latency limit (``[host] cpu_dma_latency_us``), or None."""
+        self.reader = None
+        """The active run's reader (:mod:`deploy.service.reader`); None while inactive."""
+        self._model_checked = False  # configure got the model: shutdown saves it
+        self._cpu0 = (0.0, 0.0, 0.0)  # the loop's, learning's and checkpoints' CPU at start
 
     @property
     def checkpoints(self) -> int:
         """Saves of the model so far."""
         return self.checkpointer.count
 
-    # -- set-up ----------------------------------------------------------------------------
-    def open(self) -> Service:
+    # -- the lifecycle ---------------------------------------------------------------------
+    def configure(self) -> Service:
+        """Unconfigured -> inactive: hold the CPU latency limit, load the model, open the
+        link, build the gate (see the module docstring). A failure is recorded and raised;
+        :meth:`shutdown` closes what was opened."""
+        self._expect(UNCONFIGURED, "configure")
+        try:
+            self._configure()
+        except BaseException as exc:
+            self.failures.add("configuring", exc)
+            raise
+        self.lifecycle = INACTIVE
+        return self
+
+    open = configure
+    """The same as :meth:`configure`."""
+
+    def _configure(self) -> None:
         from deploy.model.training import tandem_for
         from sim.robot import ArmModel
 
@@ -177,17 +208,23 @@ class Service:
                          "µs)", self.cpu_latency.latency_us, self.cpu_latency.device,
                          self.cpu_latency.effective_us, extra={"event": "cpu_latency"})
         self.model, arm = checked_model(self.config, self.model)
+        self._model_checked = True
         # a live link: learning and heavy work never hold up estimating; a replay: inline
         # and at once, reproducible
         self.model.go_live(self.threaded_reader,
                            background=self.config.estimate.background_learning)
         if self.link is None:
+            from firmware_bridge.errors import LogFileError
             from firmware_bridge.links import open_link
 
             lc = self.config.link
-            self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
-                                  silence_timeout=lc.silence_timeout_s,
-                                  **self.config.link_options())  # [ros2] for kind ros2
+            try:
+                self.link = open_link(lc.kind, lc.channel, profile=lc.profile,
+                                      silence_timeout=lc.silence_timeout_s,
+                                      **self.config.link_options())  # [ros2] for kind ros2
+            except LogFileError as exc:  # a recording cell.toml names: a restart cannot fix
+                raise ConfigError(f"{self.config.source}: [link] channel = {lc.channel!r}: "
+                                  f"{exc}") from exc
         self.rate_hz = self._rate_hz or link_rate(self.config)
         self.block_frames = block_frames_of(self.config, self.rate_hz)
         self.point_rate_hz = self.rate_hz / self.block_frames
@@ -196,10 +233,10 @@ class Service:
         self._zeros = np.zeros(7)
         self.tandem = tandem_for(self.config.model.family, arm)
         self.online = self.identifier(self.model)
-        # out_of_wire_range before send; a CAN kind's link must declare its profile
-        self.gate.wire_check = wire_check_for(self.link, self.config.link.kind)
-        self.gate.motion.regressor = self._regressor  # the torque bound of a write
-        return self
+        # out_of_wire_range before send (a CAN kind's link must declare its profile); the
+        # torque bound of a write along the recent motion
+        self.gate = SafetyGate(self.config.gate,
+                               wire_check_for(self.link, self.config.link.kind), self._regressor)
 
     def identifier(self, model) -> OnlineIdentifier:
         """The online loop this service runs ``model`` in (its filters, smoothing and block
@@ -229,14 +266,12 @@ class Service:
     def stopping(self) -> bool:
         return self._stop.is_set()
 
-    # -- the loop --------------------------------------------------------------------------
-    def run(self, duration: float | None = None,
-            until: Callable[[], bool] | None = None) -> dict:
-        """Run until stopped, ``duration`` s passed, ``until()`` is true or a replay ends."""
+    def activate(self) -> None:
+        """Inactive -> active: a fresh tally, the load writer on the link, the reader
+        reading, the checkpointer due, systemd told READY."""
         from .reader import BatchReader, LinkReader
 
-        if self.link is None or self.model is None:
-            self.open()
+        self._expect(INACTIVE, "activate")
         model = self.model
         # the link as it is now; a kind that writes loads needs a PayloadSink (refused else)
         write = self.write and link_kind(self.config.link.kind).sink
@@ -246,130 +281,188 @@ class Service:
                          else None)  # a link with topics
         self._diagnostics = self.link if isinstance(self.link, DiagnosticsSink) else None
         self._next_diagnostics = 0.0
-        started = time.monotonic()
-        before = (time.thread_time(), model.learning_cpu_s, self.checkpointer.cpu_s)
-        self.step_cpu_s = 0.0
-        self.checkpointer.start(started)
+        self.online.learn = self.config.estimate.learn  # a run starts current
+        self.tally = RunTally(started=time.monotonic())
+        self._cpu0 = (time.thread_time(), model.learning_cpu_s, self.checkpointer.cpu_s)
+        self.checkpointer.start(self.tally.started)
+        self.reader = (LinkReader if self.threaded_reader else BatchReader)(
+            self.link, self.config.link.silence_timeout_s, self._former()).start()
+        self.lifecycle = ACTIVE
         self.notifier.ready(f"identifying the payload; {model.n_bags} bags")
         log.info("running: link %s, model %s (%d bags), writes %s, %g block points per s",
                  getattr(self.link, "name", self.link), model.name, model.n_bags,
                  "on" if self.writer.sink is not None else "off", self.point_rate_hz,
                  extra={"event": "started"})
-        timeout = self.config.link.silence_timeout_s
-        reader = (LinkReader if self.threaded_reader else BatchReader)(
-            self.link, timeout, self._former()).start()
-        watchdog = self.notifier.watchdog_period()
-        next_watchdog, smoothed = started, None
+
+    def deactivate(self) -> None:
+        """Active -> inactive: the reader stopped, the run's wall and CPU time taken, the
+        status line cleared, systemd told STOPPING. A failure is recorded; it is raised
+        only if it is the service's first."""
+        self._expect(ACTIVE, "deactivate")
+        self.failures.run_all(self._deactivate_steps())
+
+    def _deactivate_steps(self) -> list:
+        self.lifecycle = INACTIVE
+        return [("stopping the reader", self._account),
+                ("clearing the status line", self.status.clear),
+                ("telling systemd", self.notifier.stopping)]
+
+    def shutdown(self) -> None:
+        """Any state -> finalized: deactivated if active, then the final checkpoint
+        (synchronous: the learning worker's pending work lands first), the CPU latency
+        limit released, the worker stopped, the link closed. Each step runs even if one
+        before it failed; a failure is recorded, and raised only if it is the service's
+        first (after a failed run, the run's failure is the one on its way)."""
+        if self.lifecycle == FINALIZED:
+            return
+        steps = []
+        if self.lifecycle == ACTIVE:
+            steps += self._deactivate_steps()
+        if self._model_checked:  # what it learnt, and a model trained at start
+            steps.append(("saving the model", self.checkpoint))
+        # the loop is over: a failing worker or link must not keep cores polling
+        steps.append(("releasing the CPU latency limit", self._release_cpu_latency))
+        if self.model is not None:
+            steps.append(("stopping the learning worker", self.model.stop))
+        if self.link is not None:
+            steps.append(("closing the link", self.link.close))
+        steps.append(("closing the systemd notification socket", self.notifier.close))
+        self.lifecycle = FINALIZED
+        self.failures.run_all(steps)
+
+    close = shutdown
+    """The same as :meth:`shutdown`."""
+
+    def _expect(self, state: str, action: str) -> None:
+        if self.lifecycle != state:
+            raise RuntimeError(f"the service cannot {action} while {self.lifecycle}; it must be "
+                               f"{state}")
+
+    def _release_cpu_latency(self) -> None:
+        if self.cpu_latency is not None:
+            self.cpu_latency.close()
+            self.cpu_latency = None
+
+    # -- the loop --------------------------------------------------------------------------
+    def run(self, duration: float | None = None,
+            until: Callable[[], bool] | None = None) -> dict:
+        """Run until stopped, ``duration`` s passed, ``until()`` is true or a replay ends:
+        configured first if it is not, activated, deactivated at the end (see the module
+        docstring). A failure is recorded and raised; one while deactivating after it
+        follows it. Returns the run's summary."""
+        if self.lifecycle == UNCONFIGURED:
+            self.configure()
+        self.activate()
         try:
-            while not self._stop.is_set():
-                now = time.monotonic()
-                if (duration is not None and now - started >= duration) or (
-                        until is not None and until()):
-                    break
-                if watchdog is not None and now >= next_watchdog:
-                    self.notifier.watchdog()
-                    next_watchdog = now + watchdog
-                item = reader.get(timeout + 0.5)
-                if item is None or item.kind == "silent":
-                    self._silent_item(item, smoothed)
-                    continue
-                if item.kind == "end":
-                    break
-                if item.kind == "error":
-                    raise item.value
-                out = self.step(item)
-                if out is not None:
-                    smoothed = out.smoothed
-                    self._after_step(out, started)
+            self._loop(duration, until)
+        except BaseException as exc:
+            self.failures.add("running", exc)
+            raise
         finally:
-            self._account(reader, started, *before)
+            self.deactivate()
         return self.summary()
 
-    def _silent_item(self, item, smoothed) -> None:
+    def _loop(self, duration: float | None, until: Callable[[], bool] | None) -> None:
+        reader, started = self.reader, self.tally.started
+        timeout = self.config.link.silence_timeout_s
+        watchdog = self.notifier.watchdog_period()
+        next_watchdog = started
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if (duration is not None and now - started >= duration) or (
+                    until is not None and until()):
+                break
+            if watchdog is not None and now >= next_watchdog:
+                self.notifier.watchdog()
+                next_watchdog = now + watchdog
+            item = reader.get(timeout + 0.5)
+            if item is None or item.kind == "silent":
+                self._silent_item(item)
+                continue
+            if item.kind == "end":
+                break
+            if item.kind == "error":
+                raise item.value
+            out = self.step(item)
+            if out is not None:
+                self._after_step(out, started)
+
+    def _gate_time(self, controller_t: float) -> float:
+        """The run's one clock for the gate: the controller's time ``controller_t`` (s) of a
+        point or a silence, or this PC's monotonic clock now (``gate_clock``)."""
+        return controller_t if self.gate_clock == "controller" else time.monotonic()
+
+    def _silent_item(self, item) -> None:
         """Nothing read (None) or a controller silence: the writes stop; the gate decides
-        (and counts) on no write."""
+        (and counts) on no write, at the silence's time on the run's clock."""
         if item is None:
             return
         self._controller_silent(item.value)
-        if smoothed is not None:
-            self.gate.decide(time.monotonic(), smoothed)
+        t = self._gate_time(item.t)
+        if math.isfinite(t):  # (the controller's clock before its first frame: no time yet)
+            self.gate.step(t)  # a silence: no estimate, the hold counted
 
     def _after_step(self, out: CycleRecord, started: float) -> None:
         """The load writer, the checkpointer and the status line after one estimate."""
         now = time.monotonic()
-        t_gate = out.state.t if self.gate_clock == "controller" else now
-        self.writer.observe(t_gate, out.smoothed, out.raw, self.model.busy, out.state)
+        self.writer.step(self._gate_time(out.state.t), out.smoothed, out.raw, out.state,
+                         self.model.busy)
         self.checkpointer.tick(now, self.model)
         if self._diagnostics is not None and now >= self._next_diagnostics:
             self._next_diagnostics = now + DIAGNOSTICS_PERIOD_S
             self._diagnostics.publish_diagnostics(self.gate.verdict())
         if self.status.due(now):
-            self.status.show(status_text(self, now - started, out.smoothed))
+            self.status.show(status_text(self, now - started, out))
 
-    def _account(self, reader, started: float, cpu0: float, learn0: float,
-                 save0: float) -> None:
-        """The run's wall time and CPU by thread; the reader stopped; status and systemd
-        told."""
-        self.wall_s = time.monotonic() - started
+    def _account(self) -> None:
+        """The run's wall time and CPU by thread; the reader stopped."""
+        tally, reader = self.tally, self.reader
+        cpu0, learn0, save0 = self._cpu0
+        tally.wall_s = time.monotonic() - tally.started
+        cycle_cpu = time.thread_time() - cpu0
         reader.stop()
-        self.reader_skipped += reader.skipped
-        parts = self.cpu_parts = {"cycle": time.thread_time() - cpu0,
-                                  "reader": reader.cpu_s if self.threaded_reader else 0.0,
-                                  "learning": self.model.learning_cpu_s - learn0,
-                                  "checkpoint": self.checkpointer.cpu_s - save0}
-        self.cpu_s = sum(parts.values())
-        self.reader_former = reader.former
-        self.status.clear()
-        self.notifier.stopping()
+        tally.reader_skipped = reader.skipped
+        tally.cpu_parts = {"cycle": cycle_cpu,
+                           "reader": reader.cpu_s if self.threaded_reader else 0.0,
+                           "learning": self.model.learning_cpu_s - learn0,
+                           "checkpoint": self.checkpointer.cpu_s - save0}
+        tally.former = reader.former
+        self.reader = None
 
     def step(self, item) -> CycleRecord | None:
         """One block point through the estimator (no thread of its own): pace against the
         controller on a live link, learn and estimate, publish, record the latency, watch
         the arm model, tell the observers. None: the point was dropped (hopelessly late)."""
-        state = item.value
+        state, tally = item.value, self.tally
         if self.silent:
             self._controller_back()
         arrived = item.frame_time  # the block's last frame's arrival (epoch s)
-        max_lag = self.config.estimate.max_lag_s if self.gate_clock == "monotonic" else 0.0
+        # a block a silence closed is as old as the silence: that is no lag of the service
+        max_lag = (self.config.estimate.max_lag_s
+                   if self.gate_clock == "monotonic" and not item.flushed else 0.0)
         if max_lag:
             lag = time.time() - arrived if arrived > 0 else 0.0
             if lag > SKIP_LAG_S:
-                self.skipped += 1  # hopelessly behind: drop the point
+                tally.late += 1  # hopelessly behind: drop the point
                 return None
             self._pace(lag, max_lag)
         cpu0 = time.thread_time()
         raw, smoothed = self.online.step_block(state)
-        self.step_cpu_s += time.thread_time() - cpu0
+        tally.step_cpu_s += time.thread_time() - cpu0
         if self._publish is not None:  # the ros2 link: the estimate on its topics, at its
             self._publish(raw, smoothed)  # own rate
         done = time.time()
         latency = done - arrived if arrived > 0 else math.nan
         age = (done - 0.5 * (arrived + item.first_time) if arrived > 0 and item.first_time > 0
                else math.nan)
-        self.latencies.add(latency)
-        self.ages.add(age)
-        self.cycles += 1
+        tally.latencies.add(latency)
+        tally.ages.add(age)
+        tally.cycles += 1
         self.arm_watch.observe(state.t, smoothed, raw)
         record = CycleRecord(state, raw, smoothed, latency, age)
         for observer in self.on_cycle:
             observer(record)
         return record
-
-    def close(self) -> None:
-        """Final checkpoint (synchronous: the learning worker's pending work lands first),
-        then stop the worker and close the link."""
-        try:
-            if self.model is not None:
-                self.checkpoint()
-        finally:
-            if self.cpu_latency is not None:  # first: the loop is over, and a failing
-                self.cpu_latency.close()  # worker or link must not keep cores polling
-                self.cpu_latency = None
-            if self.model is not None:
-                self.model.stop()
-            if self.link is not None:
-                self.link.close()
-            self.notifier.close()
 
     def checkpoint(self) -> None:
         """Save the model now (atomic), waiting for a background save first."""
@@ -379,7 +472,7 @@ class Service:
     def _controller_silent(self, why: str) -> None:
         if not self.silent:
             self.silent = True
-            self.silences += 1
+            self.tally.silences += 1
             self.gate.controller_silent(True)
             log.warning("controller silent: writes stopped (%s)", why,
                         extra={"event": "controller_silent"})
@@ -389,13 +482,9 @@ class Service:
     def _pace(self, lag: float, max_lag: float) -> None:
         """Learn or not, as the service keeps up with the controller (:class:`deploy.service.pacing.
         LearningPace`)."""
-        if self.pace.observe(lag, max_lag):
-            self.online.learn = self.config.estimate.learn and not self.pace.behind
-
-    @property
-    def unlearnt(self) -> int:
-        """Block points estimated without learning because the service was behind."""
-        return self.pace.unlearnt
+        pace = self.tally.pace
+        if pace.observe(lag, max_lag):
+            self.online.learn = self.config.estimate.learn and not pace.behind
 
     def _controller_back(self) -> None:
         self.silent = False

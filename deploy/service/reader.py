@@ -30,11 +30,17 @@ the last before it).
   estimator takes them: the same blocks as frame by frame, to the bit, and nothing is dropped.
 
 An item's ``frame_time`` is the arrival (``time.time()``, epoch s) of the block's last frame
-and ``first_time`` that of its first (0.0 where the link has none, as a recording).
+and ``first_time`` that of its first (0.0 where the link has none, as a recording). A block
+that a silence or the end of the stream closed is ``flushed``: its last frame's arrival then
+measures how long the controller has been quiet, not how far the service is behind. A
+silence's ``t`` is on the controller's clock: the last frame's time plus the silence timeout
+for each read since that found nothing, so a run that decides on the controller's clock
+keeps to it through a silence.
 """
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
@@ -56,13 +62,17 @@ SLEEP_MARGIN = 2
 class Item(NamedTuple):
     """What a reader got: ``kind`` is ``"state"`` (``value`` a block point, a
     :class:`iem.types.JointState` of means; ``frame_time`` and ``first_time`` the arrival of
-    its last and first frames, epoch s), ``"silent"`` (``value`` the message), ``"end"`` or
-    ``"error"`` (``value`` the exception). Immutable."""
+    its last and first frames, epoch s; ``flushed``: a silence or the end closed it),
+    ``"silent"`` (``value`` the message; ``t`` when, on the controller's clock, s: NaN
+    before the first frame), ``"end"`` or ``"error"`` (``value`` the exception).
+    Immutable."""
 
     kind: str
     value: object = None
     frame_time: float = 0.0
     first_time: float = 0.0
+    flushed: bool = False
+    t: float = math.nan
 
 
 class LinkReader:
@@ -103,6 +113,7 @@ class LinkReader:
         cpu0 = time.thread_time()
         link, former, put = self.link, self.former, self._put
         first = 0.0
+        last_t, quiet = math.nan, 0  # the last frame's time; reads since that found none
         # after a block's first frame: asleep until SLEEP_MARGIN periods before its last is
         # due (none for blocks too short to gain from it)
         nap = (former.frames - 1 - SLEEP_MARGIN) / former.rate_hz if self.sleep else 0.0
@@ -112,7 +123,8 @@ class LinkReader:
                     frame = link.read(self.timeout)
                 except ControllerSilent as exc:
                     self._flush(first)
-                    put(Item("silent", str(exc)))
+                    quiet += 1
+                    put(Item("silent", str(exc), t=last_t + quiet * self.timeout))
                     continue
                 except EndOfStream:
                     self._flush(first)
@@ -121,6 +133,7 @@ class LinkReader:
                 except Exception as exc:  # a link failure: the service ends with it
                     put(Item("error", exc))
                     return
+                last_t, quiet = frame.t, 0
                 arrived = link.last_frame_time
                 if former.pending == 0:
                     first = arrived
@@ -139,7 +152,7 @@ class LinkReader:
     def _flush(self, first: float) -> None:
         point = self.former.flush()
         if point is not None:
-            self._put(Item("state", point, self._last, first))
+            self._put(Item("state", point, self._last, first, flushed=True))
 
     def _put(self, item: Item) -> None:
         q = self._queue
@@ -185,6 +198,8 @@ class BatchReader:
         self._cycles = np.empty(self.chunk, dtype=np.int64)
         self._ready: list[Item] = []
         self._next = 0
+        self._last_t = math.nan  # the last frame's time
+        self._quiet = 0  # reads since it that found none
 
     def start(self) -> BatchReader:
         return self
@@ -209,7 +224,10 @@ class BatchReader:
             try:
                 frame = link.read(self.timeout)
             except ControllerSilent as exc:
-                tail = Item("silent", str(exc))
+                if n:  # frames before it in this chunk: the last of them
+                    self._last_t, self._quiet = float(T[n - 1]), 0
+                self._quiet += 1
+                tail = Item("silent", str(exc), t=self._last_t + self._quiet * self.timeout)
                 break
             except EndOfStream:
                 tail = Item("end")
@@ -223,12 +241,14 @@ class BatchReader:
             X[n, 14:] = frame.tau_J
             cycles[n] = frame.cycle
             n += 1
+        if n and (tail is None or tail.kind != "silent"):
+            self._last_t, self._quiet = float(T[n - 1]), 0
         blocks = self.former.push_many(T[:n], X[:n], cycles[:n])
         items = [Item("state", blocks.state(i)) for i in range(len(blocks))]
         if tail is not None:
             if tail.kind != "error":  # the open block's frames end before the silence
                 point = self.former.flush()
                 if point is not None:
-                    items.append(Item("state", point))
+                    items.append(Item("state", point, flushed=True))
             items.append(tail)
         return items

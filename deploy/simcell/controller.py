@@ -228,21 +228,30 @@ class SimController:
     def stats(self) -> dict:
         """The controller's counts and its own record (docs/outputs.md lists the keys):
         ``load_in_force`` (``{"mass", "com", "inertia"}``, inertia 9 numbers column-major
-        about the CoM, or None), ``applied`` (every command applied) and ``mounted`` (every
-        payload the schedule mounted)."""
+        about the CoM, or None), ``payload`` (what the plant carries: its ``name`` and the
+        same three, or None), ``applied`` (every command applied) and ``mounted`` (every
+        payload mounted: the one at the start, then every change of the schedule)."""
         port = self.port
         load = self.plant.controller_load
         in_force = None
         if load is not None:
             mass, com, inertia = _set_load_args(load)
             in_force = {"mass": mass, "com": com, "inertia": inertia}
+        carried = self.plant.payload
+        payload = None
+        if carried is not None:
+            mass, com, inertia = _set_load_args(carried)
+            payload = {"name": carried.name, "mass": mass, "com": com, "inertia": inertia}
+        mounted = list(self.schedule.mounted)
+        if not (mounted and mounted[0]["t"] == 0.0):  # no change at 0: the start's payload
+            mounted.insert(0, {"t": 0.0, "payload": getattr(self.payload, "name", None)})
         return {"cycles": self.cycles, "overruns": self.overruns, "skips": self.skips,
                 "commands": len(self.commands),
                 "refused": sum(1 for _, ok in self.commands if not ok),
                 "refused_moving": self.refused_moving,
                 "dropped_commands": self.dropped_commands,
-                "load_seq": self.load_seq, "load_in_force": in_force,
-                "applied": list(self.applied), "mounted": list(self.schedule.mounted),
+                "load_seq": self.load_seq, "load_in_force": in_force, "payload": payload,
+                "applied": list(self.applied), "mounted": mounted,
                 "sent": getattr(port, "sent", 0), "send_errors": getattr(port, "send_errors", 0),
                 "saturated": getattr(port, "saturated", 0),
                 "faults": dict(port.faults.counts) if getattr(port, "faults", None) else {},

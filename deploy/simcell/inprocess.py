@@ -22,6 +22,12 @@ def virtual_channel(tag: str) -> str:
     return f"iem-{tag}-{os.getpid()}-{next(_channels)}"
 
 
+def virtual_link(tag: str) -> dict:
+    """The ``[link]`` of a cell in this process: the virtual bus on a channel of its own
+    (:func:`virtual_channel`), the fd profile."""
+    return {"kind": "virtual", "channel": virtual_channel(tag), "profile": "fd"}
+
+
 @contextlib.contextmanager
 def simulated_cell(config, *, path=None, payload=None, once: bool = False, seed: int = 0,
                    faults=None, model=None, status=None, **options):

@@ -26,6 +26,7 @@ def run_controller(args) -> int:
     from firmware_bridge.ros2_dds import cyclone_config, participant
     from firmware_bridge.ros2_peers import Ros2ControllerPort
     from sim.paths import load_path_csv
+    from sim.robot import arm_model
 
     from .controller import SimController
 
@@ -33,7 +34,7 @@ def run_controller(args) -> int:
     dp = participant(args.domain, cyclone_config(args.interface, tuple(args.peer)))
     port = Ros2ControllerPort(dp, args.topic, args.service, layout=args.layout,
                               arm=description.joint_names, refuse_first=args.refuse_first)
-    path = load_path_csv(args.path) if args.path else None
+    path = (load_path_csv(args.path, model=arm_model(description)) if args.path else None)
     controller = SimController(port, path=path, once=args.once, seed=args.seed,
                                description=description)
     print("ready", flush=True)

@@ -24,36 +24,35 @@ WireCheck = Callable[[Payload], "str | None"]
 
 
 def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | None = None
-                   ) -> tuple[Payload | None, str, str]:
-    """``(payload, reason, detail)`` of the estimate ``phi`` (paper order): ``reason`` is
-    ``""`` when it may be written as far as its values go, else ``not_finite``,
-    ``inconsistent``, ``over_rated`` (the payload and the declared end effector together
-    beyond the arm's rated payload), ``com_too_far``, ``out_of_wire_range`` or ``malformed``
-    (not 10 values); ``payload`` is None while ``phi`` has no recoverable CoM."""
+                   ) -> tuple[str, str]:
+    """``(reason, detail)`` of the estimate ``phi`` (paper order): ``reason`` is ``""`` when
+    it may be written as far as its values go, else ``not_finite``, ``inconsistent``,
+    ``over_rated`` (the payload and the declared end effector together beyond the arm's
+    rated payload), ``com_too_far``, ``out_of_wire_range`` or ``malformed`` (not 10
+    values)."""
     c = config
     if phi.shape != (10,):
-        return None, "malformed", f"phi has shape {phi.shape}, valid is (10,)"
+        return "malformed", f"phi has shape {phi.shape}, valid is (10,)"
     if not np.all(np.isfinite(phi)):
-        return None, "not_finite", "estimate has NaN or infinite values"
+        return "not_finite", "estimate has NaN or infinite values"
     if not phi[0] > 0.0:
-        return None, "inconsistent", f"mass {phi[0]:.4g} kg is not > 0"
+        return "inconsistent", f"mass {phi[0]:.4g} kg is not > 0"
     payload = Payload.from_phi(phi, name="estimate")
     problems = payload.consistency_violations()
     if problems:
-        return payload, "inconsistent", "; ".join(problems)
+        return "inconsistent", "; ".join(problems)
     if payload.mass + c.end_effector_mass_kg > c.rated_mass_kg:
-        return payload, "over_rated", (
+        return "over_rated", (
             f"mass {payload.mass:.3f} kg + end effector {c.end_effector_mass_kg:.3f} kg > "
             f"rated {c.rated_mass_kg:g} kg")
     radius = math.sqrt(sum(v * v for v in payload.com))
     if radius > c.max_com_radius_m:
-        return (payload, "com_too_far",
-                f"CoM {radius:.3f} m from the flange > {c.max_com_radius_m:g} m")
+        return "com_too_far", f"CoM {radius:.3f} m from the flange > {c.max_com_radius_m:g} m"
     if wire_check is not None:
         why = wire_check(payload)
         if why:
-            return payload, "out_of_wire_range", f"the link's wire format cannot carry it: {why}"
-    return payload, "", ""
+            return "out_of_wire_range", f"the link's wire format cannot carry it: {why}"
+    return "", ""
 
 
 def contract(estimate, t: float, age_s: float, config: GateConfig) -> tuple[str, str] | None:
@@ -163,8 +162,10 @@ def model_doubt(estimate, config: GateConfig) -> tuple[str, str] | None:
     determined = estimate.determined
     if determined is not None and not {"mass", "com"} <= set(determined):
         missing = " and ".join(g for g in ("mass", "com") if g not in determined)
+        settle = (estimate.extra or {}).get("settle")  # what motion would (the model's)
         return ("uncertain", f"the data do not determine the {missing} yet: it is the "
-                             "prior's guess, not a measurement")
+                             "prior's guess, not a measurement"
+                             + (f"; {settle}" if settle else ""))
     if estimate.std is not None:
         wide = _band_unusable(np.asarray(estimate.std, dtype=float), estimate, config)
         if wide is not None:

@@ -44,7 +44,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -73,16 +73,20 @@ SENT_LOADS_KEPT = 10_000
 """``send`` decisions :attr:`SafetyGate.sent_loads` keeps (a write a second: almost 3 h)."""
 HOLD_LOG_S = 10.0
 """While holding, the reason is logged at INFO at most once per this many seconds."""
+DEFER_POINTS = 3
+"""Steps a due decision may wait for one in which the model did no heavy work (the decision
+then does not land on top of a refresh or a projection)."""
 
 
 @dataclass(frozen=True)
 class Decision:
-    """What the gate decided at time ``t`` (s) and why; ``payload`` is the load a ``send``
-    writes (None: the empty load)."""
+    """What the gate decided at time ``t`` (s) and why; ``phi`` is the load a ``send``
+    writes, in the paper's order (None: the empty load); of a hold, the candidate it judged
+    (None: the empty load, or none)."""
 
     t: float
     reason: str
-    payload: Payload | None = None
+    phi: np.ndarray | None = None
     detail: str = ""
     from_prior: tuple = ()
     """Of a ``send``: the groups the model's data do not determine, written as its prior
@@ -92,11 +96,20 @@ class Decision:
     def send(self) -> bool:
         return self.reason == "send"
 
+    @property
+    def payload(self) -> Payload | None:
+        """The load as the link writes it (None: the empty load, or no body to write)."""
+        phi = self.phi
+        if phi is None or not (phi.shape == (10,) and np.isfinite(phi).all() and phi[0] > 0):
+            return None
+        return Payload.from_phi(phi, name="estimate")
+
 
 class SafetyGate:
-    """Decides which estimates reach the controller; counts every decision, logs refusals
-    and send failures, and a holding reason at most once per :data:`HOLD_LOG_S` s (the load
-    writer logs each send).
+    """Decides which estimates reach the controller, one step at a time (:meth:`step`);
+    counts every decision, logs a holding reason at most once per :data:`HOLD_LOG_S` s (the
+    load writer logs each send). The load in force is :attr:`commands`, which the load
+    writer keeps (:class:`deploy.writeback.writer.LoadWriter`).
 
     Args:
         config: the settings (default :class:`GateConfig`).
@@ -112,117 +125,86 @@ class SafetyGate:
         self.wire_check = wire_check
         self.commands = LoadInForce(c.ack_timeout_s, c.ack_retry_s, c.ack_retry_max_s,
                                     c.refusal_retry_s, c.refusal_retry_max_s)
+        """The load in force and what became of each command (the load writer tells it)."""
         self.motion = RecentMotion(regressor)
         self.counts: Counter[str] = Counter()
         self._history = TimeWindow(c.stable_window_s, 5)  # m, m·c, the mass's upper bound
         self._stable = False
-        self._estimate = None  # the raw estimate last observed
+        self._last_input = None  # (phi, raw) of the last step with an estimate
         self._newest = (-math.inf, -math.inf)  # (estimate time, gate time) of the newest
         self._last_decision_t = -math.inf
+        self._deferred = 0
         self._last: Decision | None = None
         self._logged = (-math.inf, "")  # (t, reason) of the last holding log at INFO
         self._last_send_t = -math.inf
-        self._proposed: Payload | None = None  # the load of the last send decision
         self._silent = False
         self.sent_loads: deque[tuple[float, Payload | None, tuple]] = deque(
             maxlen=SENT_LOADS_KEPT)
         """The latest ``send`` decisions: ``(t, load or None for the empty load, groups
         from the prior)``."""
 
-    # -- inputs from the service ---------------------------------------------------------
     def controller_silent(self, silent: bool) -> None:
+        """The controller fell silent (True) or is back (False)."""
         self._silent = silent
         if not silent:
             self.commands.controller_back()
-
-    def sent_command(self, seq: int, t: float) -> None:
-        """The link took the load of the last ``send`` decision as command ``seq``."""
-        self.commands.sent_command(seq, self._proposed, t)
-
-    def acknowledged(self, seq: int, t: float | None = None, load=None,
-                     received: float = -math.inf) -> None:
-        """The controller applied command ``seq`` (``received``: when the link took the ack,
-        ``time.perf_counter()``)."""
-        self.commands.acknowledged(seq, self._last_decision_t if t is None else t, load,
-                                   received)
-
-    def refused(self, seq: int, t: float, error: str = "") -> None:
-        """The controller answered command ``seq`` but kept its load (``error``: why)."""
-        ours = self.commands.pending is not None and self.commands.pending.seq == seq
-        self.commands.refused_command(seq, t, error)
-        wait = self.commands.retry_wait() if ours else None
-        log.warning("controller refused load command %d%s%s", seq,
-                    f": {error}" if error else " (no reason given)",
-                    "" if wait is None else f"; retry in {wait:.1f} s",
-                    extra={"event": "load_refused", "seq": seq, "error": error,
-                           "ours": ours})
-
-    def send_failed(self, error: str, t: float | None = None) -> None:
-        """The link could not send the load of the last ``send`` decision: counted and
-        logged; the load in force stays, the write is retried after the lost back-off."""
-        self.commands.send_failed(self._last_decision_t if t is None else t, error)
-        log.error("load not written, the link cannot send it: %s", error,
-                  extra={"event": "load_send_failed", "error": error})
-
-    def controller_report(self, report, t: float) -> None:
-        """The controller's own report of the load in force
-        (:class:`firmware_bridge.messages.LoadReport`)."""
-        self.commands.report(report.seq, report.load, report.has_values, t, report.t)
 
     @property
     def in_force(self):
         """The load in force: a :class:`Payload`, None (empty) or ``"unknown"``."""
         return self.commands.load
 
-    @property
-    def last_sent(self) -> Payload | None:
-        """The load of the last ``send`` decision (None: none, or the empty load)."""
-        return self._proposed
+    # -- the step ------------------------------------------------------------------------
+    def step(self, t: float, smoothed=None, raw=None, state=None,
+             busy: bool = False) -> Decision | None:
+        """One step at gate time ``t``: the smoothed estimate ``smoothed`` (paper order) of
+        one block point, the raw :class:`iem.types.PayloadEstimate` it came from (for its
+        time and its uncertainty) and the point's joint ``state`` (its pose, for the torque
+        bound) join the gate's view; then, every ``decision_period_s``, the decision (None
+        when none is due; deferred up to :data:`DEFER_POINTS` steps while the model is
+        ``busy`` with heavy work). A step without an estimate (a silence) decides on the
+        last one. Never raises for what the estimate holds: a malformed one is refused
+        with its reason."""
+        if smoothed is not None:
+            phi = _vector(smoothed)
+            self._observe(t, phi, raw, state)
+            self._last_input = (phi, raw)
+        elif self._last_input is None:
+            return None
+        if t - self._last_decision_t < self.config.decision_period_s:
+            return None
+        if busy and self._deferred < DEFER_POINTS:
+            self._deferred += 1
+            return None
+        self._deferred = 0
+        return self._decision(t, *self._last_input)
 
-    sent = property(lambda self: self.commands.sent)
-    acked = property(lambda self: self.commands.acked)
-    lost = property(lambda self: self.commands.lost)
-    refusals = property(lambda self: self.commands.refused)
-    send_errors = property(lambda self: self.commands.send_errors)
-
-    # -- the decision --------------------------------------------------------------------
-    def due(self, t: float) -> bool:
-        return t - self._last_decision_t >= self.config.decision_period_s
-
-    def observe(self, t: float, phi: np.ndarray, estimate=None, state=None) -> None:
-        """Add the smoothed estimate ``phi`` of one block point at gate time ``t`` to the
-        stability window; ``estimate`` is the raw :class:`iem.types.PayloadEstimate` it came
-        from, ``state`` the point's joint state (its pose, for the torque bound)."""
-        if estimate is not None:
-            self._estimate = estimate
-            when = _typed(estimate).t if _typed(estimate) is not None else math.nan
+    def _observe(self, t: float, phi: np.ndarray, raw, state) -> None:
+        """Add one block point to the stability window, its pose to the recent motion and
+        the raw estimate's time to the age's reference."""
+        typed = _typed(raw)
+        if typed is not None:
+            when = typed.t
             if isinstance(when, int | float) and when >= self._newest[0]:
                 self._newest = (float(when), t)
         if state is not None:
             self.motion.observe(t, state.q, state.dq)
-        phi = _vector(phi)
         if phi.shape == (10,) and np.isfinite(phi).all():
-            typed = _typed(estimate if estimate is not None else self._estimate)
             std = _vector(None if typed is None else typed.std)
             up = upper_mass(phi, std) if std.shape == (10,) else math.inf
             self._history.push(t, (*phi[:4], up if not math.isnan(up) else math.inf))
         else:
             self._history.expire(t)
 
-    def decide(self, t: float, phi: np.ndarray, estimate=None) -> Decision:
-        """Decide on the estimate ``phi`` (paper order) at time ``t``; ``estimate`` is the
-        raw estimate (default: the one last given to :meth:`observe`). Never raises for
-        what the estimate holds: a malformed one is refused with its reason."""
-        if estimate is None:
-            estimate = self._estimate
+    def _decision(self, t: float, phi: np.ndarray, raw) -> Decision:
+        """Decide at ``t``, count it, remember a send, log a hold."""
         self.commands.tick(t)
-        decision = self._decide(t, _vector(phi), estimate)
+        decision = self._decide(t, phi, raw)
         self._last_decision_t = t
         self._last = decision
         self.counts[decision.reason] += 1
         if decision.send:
             self.sent_loads.append((t, decision.payload, decision.from_prior))
-            self._proposed = decision.payload
             self._last_send_t = t
         else:
             self._log_hold(decision)
@@ -234,31 +216,30 @@ class SafetyGate:
         if broken:
             return Decision(t, broken[0], None, broken[1])
         empty = self._empty()
-        if empty:
-            payload = None
-        else:
-            payload, reason, detail = check_estimate(phi, c, self.wire_check)
+        candidate = None if empty else phi
+        if not empty:
+            reason, detail = check_estimate(phi, c, self.wire_check)
             if reason:
-                return Decision(t, reason, payload, detail)
+                return Decision(t, reason, phi if reason != "malformed" else None, detail)
         if self._silent:
-            return Decision(t, "controller_silent", payload, "no joint state from the controller")
+            return Decision(t, "controller_silent", candidate, "no joint state from the controller")
         hold = self.commands.hold(t)
         if hold is not None:
-            return Decision(t, hold[0], payload, hold[1])
+            return Decision(t, hold[0], candidate, hold[1])
         doubt = model_doubt(estimate, c)
         if doubt is not None:
-            return Decision(t, doubt[0], payload, doubt[1])
+            return Decision(t, doubt[0], candidate, doubt[1])
         if not self._is_stable(empty):
-            return Decision(t, "unstable", payload, self._spread_text())
-        helps = self._helps(phi, estimate, payload)
+            return Decision(t, "unstable", candidate, self._spread_text())
+        helps = self._helps(phi, estimate, candidate)
         if helps is not None:
-            return Decision(t, helps[0], payload, helps[1])
+            return Decision(t, helps[0], candidate, helps[1])
         if t - self._last_send_t < 1.0 / c.max_rate_hz:
-            return Decision(t, "rate_limited", payload)
-        return self._send(t, payload, estimate)
+            return Decision(t, "rate_limited", candidate)
+        return self._send(t, candidate, estimate)
 
-    def _send(self, t: float, payload: Payload | None, estimate) -> Decision:
-        if payload is None:
+    def _send(self, t: float, phi: np.ndarray | None, estimate) -> Decision:
+        if phi is None:
             return Decision(t, "send", None, "the empty load: the mass's upper 2-sigma bound "
                                              f"stayed below {self.config.empty_mass_kg:g} kg")
         determined = None if _typed(estimate) is None else _typed(estimate).determined
@@ -266,7 +247,8 @@ class SafetyGate:
                                                     if g not in determined)
         note = f"; {' and '.join(prior)} from the prior (the motion does not determine " \
                f"{'it' if len(prior) == 1 else 'them'})" if prior else ""
-        return Decision(t, "send", payload, describe(payload) + note, from_prior=prior)
+        decision = Decision(t, "send", phi, "", from_prior=prior)
+        return replace(decision, detail=describe(decision.payload) + note)
 
     # -- helpers -------------------------------------------------------------------------
     def _age(self, t: float, estimate) -> float:
@@ -285,16 +267,16 @@ class SafetyGate:
             return False
         return w.column_max(4) < self.config.empty_mass_kg
 
-    def _helps(self, phi, estimate, payload) -> tuple[str, str] | None:
-        """``("no_change" | "uncertain", detail)`` unless writing ``payload`` (None: the
-        empty load) helps (:mod:`deploy.writeback.write_rule`)."""
+    def _helps(self, phi, estimate, candidate) -> tuple[str, str] | None:
+        """``("no_change" | "uncertain", detail)`` unless writing ``candidate`` (paper
+        order; None: the empty load) helps (:mod:`deploy.writeback.write_rule`)."""
         c, in_force = self.config, self.commands.load
         typed = _typed(estimate)
         std = None if typed is None else typed.std
         cov = None if typed is None or typed.cov is None else np.asarray(typed.cov, float)
         band = np.zeros(10) if std is None else 2.0 * np.asarray(std, dtype=float)
         band = np.where(np.isfinite(band), band, 0.0)  # an unseen inertia: the prior's
-        candidate = np.zeros(10) if payload is None else payload.to_phi()
+        candidate = np.zeros(10) if candidate is None else candidate
         if in_force == UNKNOWN:
             return None  # nothing to keep: what the controller holds is not known
         have = np.zeros(10) if in_force is None else in_force.to_phi()

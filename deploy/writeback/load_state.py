@@ -119,9 +119,12 @@ class LoadInForce:
         self.sent += 1
 
     def send_failed(self, t: float, error: str) -> None:
-        """The link could not send: as a lost command (back-off, retry), counted apart."""
+        """The link could not send: as a lost command (back-off, retry), counted apart and
+        logged."""
         self.send_errors += 1
         self._start_backoff("lost", t, f"the link could not send the load: {error}")
+        log.error("load not written, the link cannot send it: %s", error,
+                  extra={"event": "load_send_failed", "error": error})
 
     def acknowledged(self, seq: int, t: float, load=None, received: float = -math.inf) -> None:
         """The controller applied command ``seq`` (``load``: the load its ack reports, if
@@ -132,12 +135,19 @@ class LoadInForce:
         self._settle(seq, self._by_seq.get(seq, load) if load is None else load, t)
 
     def refused_command(self, seq: int, t: float, error: str = "") -> None:
-        """The controller answered ``seq`` but kept its load."""
+        """The controller answered ``seq`` but kept its load (``error``: why); logged."""
         self.refused += 1
-        if self.pending is not None and self.pending.seq == seq:
+        ours = self.pending is not None and self.pending.seq == seq
+        if ours:
             self.pending = None
             self._start_backoff("refused", t, f"the controller refused command {seq}"
                                               f"{f' ({error})' if error else ''}")
+        wait = self.retry_wait() if ours else None
+        log.warning("controller refused load command %d%s%s", seq,
+                    f": {error}" if error else " (no reason given)",
+                    "" if wait is None else f"; retry in {wait:.1f} s",
+                    extra={"event": "load_refused", "seq": seq, "error": error,
+                           "ours": ours})
 
     def report(self, seq: int | None, load, has_values: bool, t: float,
                received: float = math.inf) -> None:

@@ -83,6 +83,16 @@ class TrainingAugment:
                 r += len(x)
         return self.reversed(X_out[:r], Y_out[:r])
 
+    def beyond(self, X: np.ndarray, Y: np.ndarray, batch: int, seed):
+        """Only what :meth:`__call__` adds to ``(X, Y)`` (the same rows, in its order), or
+        None if nothing: without coverage, the samples driven backwards alone (no copy of
+        ``(X, Y)`` made)."""
+        if self.coverage is None or self.draws <= 0:
+            return None if self.reverse is None else (self.reverse(X), Y)
+        X_all, Y_all = self(X, Y, batch, seed)
+        n = X.shape[0]
+        return X_all[n:], Y_all[n:]
+
     def reversed(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(X, Y)`` and, if ``reversal``, the same samples driven backwards."""
         if self.reverse is None:

@@ -137,6 +137,11 @@ class WeakLearner:
         seed: seed of that noise.
     """
 
+    keeps_statistics = False
+    """How a bag keeps what its refit at close trains on: False, a reservoir of its points
+    (:class:`~iem.ensemble.reservoir.Reservoir`); True, its sufficient statistics
+    (:class:`~iem.ensemble.expected.BagStatistics`, :mod:`iem.ensemble.expected`)."""
+
     def __init__(self, lo, hi, center, scale, lr: float = 0.5, input_noise=None,
                  seed: int | list[int] = 0) -> None:
         self.lo = np.array(lo, dtype=float).reshape(N_OUT)
@@ -318,7 +323,7 @@ class WeakLearner:
     # -- copies --------------------------------------------------------------------------
     def copy(self, seed=None) -> WeakLearner:
         """An independent copy (same weights, scaling and hyper-parameters)."""
-        other = WeakLearner(self.lo, self.hi, self.center, self.scale, lr=self.lr,
+        other = type(self)(self.lo, self.hi, self.center, self.scale, lr=self.lr,
                             input_noise=self.input_noise,
                             seed=self.seed if seed is None else seed)
         other.a = self.a.copy()

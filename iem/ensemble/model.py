@@ -17,6 +17,7 @@ from ..types import PayloadEstimate
 from .augment import TrainingAugment
 from .budget import BagBudget
 from .learner import N_IN, SENSOR_NOISE, WeakLearner
+from .learners import DEFAULT_LEARNER, learner_class
 from .ood_hold import OOD_HOLD_S, OOD_THRESHOLD, VELOCITY_THRESHOLD, OodHold
 from .reservoir import Reservoir
 from .router import DEFAULT_DELTA, DEFAULT_RHO, BagRouter
@@ -67,6 +68,12 @@ class IncrementalEnsemble(BagTraining, BaseEstimator):
             :mod:`sim.coverage`), or None: each bag's learner is then also trained (at fit
             and at close, after any coverage) on those, so a pose met again the other way
             reads as it did the first.
+        learner: how the learners are trained, a name of
+            :data:`iem.ensemble.learners.LEARNERS`: ``"sgd"`` (the paper's Algorithm 2) or
+            ``"expected"`` (the same in expectation over its input noise, exact: microseconds
+            a point and a refit). With ``"expected"``, ``reservoir`` and ``close_epochs``,
+            and ``fit_epochs`` and ``fit_lr`` are not used (the open bag keeps every point,
+            in its statistics; nothing iterates), and ``seed`` only seeds the coverage.
     """
 
     name = "IEM"
@@ -81,7 +88,9 @@ class IncrementalEnsemble(BagTraining, BaseEstimator):
                  coverage_draws: int = 1, ood_hold_s: float = OOD_HOLD_S,
                  reversal: str | None = None,
                  velocity_threshold: float | None = VELOCITY_THRESHOLD,
-                 probation_bags: int | None = None) -> None:
+                 probation_bags: int | None = None, learner: str = DEFAULT_LEARNER) -> None:
+        self._learner_cls = learner_class(learner)
+        self.learner_kind = learner
         self.delta = float(delta)
         self.rho = float(rho)
         self.lr = float(lr)
@@ -126,7 +135,7 @@ class IncrementalEnsemble(BagTraining, BaseEstimator):
                 "ood_threshold": self.ood_threshold, "coverage": self.coverage,
                 "coverage_draws": self.coverage_draws, "ood_hold_s": self.ood_hold_s,
                 "reversal": self.reversal, "velocity_threshold": self.velocity_threshold,
-                "probation_bags": self.probation_bags}
+                "probation_bags": self.probation_bags, "learner": self.learner_kind}
 
     def clone(self):
         """A fresh, untrained estimator with the same hyper-parameters."""

@@ -2,18 +2,21 @@
 rebuilt from it.
 
 The state (plain data, :mod:`iem.persistence` packs it): ``params`` (the hyper-parameters as
-given), ``router`` (the bags' means and counts), ``learners`` (one per bag), ``open`` (the bag
-being formed, -1: none), ``kept`` (its reservoir of samples, or None), ``out`` (the output
-scaling ``[lo, hi]`` new bags' learners start from, or None before the first), ``gen`` (each
-slot's generation) and the budget's bookkeeping (:meth:`iem.ensemble.budget.BagBudget.
-to_state`; ``retired`` 0 without a budget). Older layouts are brought to this one by
-:mod:`iem.migrations` before :func:`restore_ensemble` reads it.
+given, the ``learner`` among them), ``router`` (the bags' means and counts), ``learners`` (one
+per bag), ``open`` (the bag being formed, -1: none), ``kept`` (what it keeps for its refit:
+its reservoir of samples, or its statistics with the ``expected`` learner, or None),
+``out`` (the output scaling ``[lo, hi]`` new bags' learners start from, or None before the
+first), ``gen`` (each slot's generation) and the budget's bookkeeping
+(:meth:`iem.ensemble.budget.BagBudget.to_state`; ``retired`` 0 without a budget). Older
+layouts are brought to this one by :mod:`iem.migrations` before :func:`restore_ensemble`
+reads it.
 """
 
 from __future__ import annotations
 
 from ..errors import InvalidInputError
-from .learner import N_OUT, WeakLearner, saved_numbers
+from .expected import BagStatistics
+from .learner import N_OUT, saved_numbers
 from .reservoir import Reservoir
 from .router import BagRouter
 
@@ -37,7 +40,7 @@ def restore_ensemble(model, state: dict):
         InvalidInputError: the parts of the state do not fit together.
     """
     model._router = BagRouter.from_state(state["router"])
-    model._learners = [WeakLearner.from_state(s) for s in state["learners"]]
+    model._learners = [model._learner_cls.from_state(s) for s in state["learners"]]
     if len(model._learners) != len(model._router):
         raise InvalidInputError(f"model state has {len(model._router)} bags but "
                                 f"{len(model._learners)} learners")
@@ -52,7 +55,8 @@ def restore_ensemble(model, state: dict):
         raise InvalidInputError(f"model state's open bag {model._open} is not one of its "
                                 f"{len(model._learners)} bags (or -1)")
     kept = state["kept"]
-    model._kept = None if kept is None else Reservoir.from_state(kept)
+    keeper = BagStatistics if model._learner_cls.keeps_statistics else Reservoir
+    model._kept = None if kept is None else keeper.from_state(kept)
     if model._open >= 0:  # the jobs train their own copy; the published one stays
         model._training = model._learners[model._open].copy()
     out = state["out"]  # the output scaling (lo, hi) new bags' learners start from

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..base import Samples
 from ..errors import InvalidInputError
+from .expected import BagStatistics, refit
 from .learner import WeakLearner, output_range
 from .reservoir import Reservoir
 
@@ -32,8 +33,8 @@ class BagTraining:
         seed = [self.seed, bag]
         if nearest < 0:  # the very first bag of an untrained model: a fresh learner
             center, scale = X.mean(axis=0), X.std(axis=0)
-            return WeakLearner(*self._out, center, scale, lr=self.lr,
-                               input_noise=self.input_noise, seed=seed)
+            return self._learner_cls(*self._out, center, scale, lr=self.lr,
+                                     input_noise=self.input_noise, seed=seed)
         return self._learners[nearest].copy_for(X.mean(axis=0), seed=seed)
 
     def fit(self, Q, F, samples_at):
@@ -63,7 +64,7 @@ class BagTraining:
                 self._out = output_range(Y)
             batch = Y.shape[0] // len(idx)
             X, Y = self._augment(X, Y, batch, [self.seed, bag, 5])
-            self._learners.append(WeakLearner.fit(
+            self._learners.append(self._learner_cls.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise,
                 seed=[self.seed, bag], epochs=self.fit_epochs, batch=batch,
                 fit_lr=self.fit_lr))
@@ -118,8 +119,11 @@ class BagTraining:
         if gen:  # a reused slot: its own noise, not the retired bag's
             learner._rng = np.random.default_rng([self.seed, bag, 4, gen])
         training = learner.copy() if self.background else learner
-        kept = (Reservoir(self.reservoir, [self.seed, bag, 2] + ([gen] if gen else []))
-                if self.reservoir > 0 else None)
+        if learner.keeps_statistics:  # every point, with its training beyond the path
+            kept = BagStatistics(learner)
+        else:
+            kept = (Reservoir(self.reservoir, [self.seed, bag, 2] + ([gen] if gen else []))
+                    if self.reservoir > 0 else None)
         self._open, self._kept, self._training = bag, kept, training
         self._schedule.submit(self._training_job(bag, (X, Y), self.warmup_iters))
         return bag
@@ -134,9 +138,16 @@ class BagTraining:
 
         def job():
             X, Y = self._schedule.resolve(samples)
-            training.learn(X, Y, iters)
-            if kept is not None:
-                kept.add(X, Y)
+            if isinstance(kept, BagStatistics):  # the point's steps add it to them
+                seed = [self.seed, bag, 5] + ([gen] if gen else []) + [len(kept)]
+                training.learn(X, Y, iters, keep=kept)
+                beyond = self._augment.beyond(X, Y, X.shape[0], seed)
+                if beyond is not None:
+                    kept.add(*beyond)
+            else:
+                training.learn(X, Y, iters)
+                if kept is not None:
+                    kept.add(X, Y)
             self._publish(bag, gen, training)
             if self.report_errors and self._gen[bag] == gen:  # not a retired bag's job
                 Y = np.asarray(Y, dtype=float)
@@ -154,7 +165,8 @@ class BagTraining:
     def close(self) -> None:
         """Close the open bag (the path left it, or a task ended): its learner is trained
         once more on the bag's kept points (in the worker if ``background``), then it is
-        final."""
+        final: by SGD on its reservoir, or, for the ``expected`` learner, by the solve on
+        its statistics (:func:`iem.ensemble.expected.refit`)."""
         bag, kept = self._open, self._kept
         self._open, self._kept, self._training = -1, None, None
         if bag < 0 or kept is None:
@@ -163,17 +175,20 @@ class BagTraining:
         epochs = self.fit_epochs if self.close_epochs is None else self.close_epochs
         seed = [self.seed, bag, 3] + ([gen] if gen else [])
 
-        def refit():
+        def refit_job():
             if len(kept) < 2:
                 return
+            if isinstance(kept, BagStatistics):  # the solve of the expected loss
+                self._publish(bag, gen, refit(kept, self._learners[bag], seed))
+                return
             X, Y = self._augment(*kept.stacked(), kept.batch(), [*seed, 5])
-            learner = WeakLearner.fit(
+            learner = self._learner_cls.fit(
                 X, Y, *self._out, lr=self.lr, input_noise=self.input_noise, seed=seed,
                 epochs=epochs, batch=kept.batch(), fit_lr=self.fit_lr,
                 pause=self._schedule.pause)
             self._publish(bag, gen, learner)
 
-        self._schedule.submit(refit)
+        self._schedule.submit(refit_job)
 
     def _publish(self, bag: int, gen: int, learner: WeakLearner) -> None:
         """Swap a trained learner in (unless its slot was reused since): one assignment."""

@@ -74,14 +74,18 @@ class InnovationTest:
         self.last_nis = math.nan
         """The last equation's normalised innovation squared per degree of freedom."""
 
-    def __call__(self, Y, r, R, mean, cov, detect: bool, curvature=None) -> bool:
+    def __call__(self, Y, r, R, mean, cov, detect: bool, curvature=None,
+                 R_detect=None) -> bool:
         """Test one equation against the posterior ``N(mean, cov)``: its NIS always, the
         change detector only if ``detect``; True if the detector reports a change. A
         ``curvature`` (7, :attr:`iem.physics.regression.PayloadRegression.curvature`) gives the
         detector the innovation judged with the model error
-        ``S + diag((MODEL_ERROR_GAIN * curvature)²)`` too."""
+        ``S + diag((MODEL_ERROR_GAIN * curvature)²)`` too. ``R_detect``: the equation's
+        error as the detector judges it (None: ``R``), e.g. without the slow part that the
+        caller carries as a state of its own and has taken out of ``r`` already."""
         nu = r - Y @ mean
-        S = R + Y @ cov @ Y.T
+        P = Y @ cov @ Y.T
+        S = R + P
         S += S.T  # symmetric: 0.5 (S + S^T), with no temporaries
         S *= 0.5
         try:
@@ -94,6 +98,14 @@ class InnovationTest:
         self.nis = float(self._ring[:min(self.count, NIS_WINDOW)].mean())
         if not detect:
             return False
+        if R_detect is not None:
+            S = R_detect + P
+            S += S.T
+            S *= 0.5
+            try:
+                chi2 = chi_square(nu, S)
+            except np.linalg.LinAlgError:
+                return False
         chi2_model = None
         if curvature is not None:
             S.flat[::self.dof + 1] += np.square(MODEL_ERROR_GAIN * curvature)  # the diagonal

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from ..base import BaseEstimator, Samples
+from ..ensemble.learners import FAST_LEARNER
 from ..ensemble.model import IncrementalEnsemble
 from ..errors import InvalidInputError
 from ..sensor import DEFAULT_SENSOR
@@ -32,7 +33,8 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
     """The IEM's estimate as a prior, fused with Bayesian least squares on the regressor.
 
     Args:
-        ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included).
+        ensemble: keyword arguments of the held :class:`IncrementalEnsemble` (seed included;
+            its ``learner`` is :data:`iem.ensemble.learners.FAST_LEARNER` unless given).
         dynamics: the robot model (required): ``"module:function[@ARG]"`` of its factory
             (see :mod:`iem.physics.regression`), stored in the model file.
         sigma_tau: torque noise of one measured frame, N·m.
@@ -105,7 +107,8 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         self._schedule = RefreshScheduler(project_budget, self.update_every, self.refresh_every)
         # the physics governs out of distribution through the per-input score's inflation;
         # the velocity score serves only the IEM's own hold and the gate: not scored here
-        self._ens = IncrementalEnsemble(**{"velocity_threshold": None, **self.ensemble})
+        self._ens = IncrementalEnsemble(**{"velocity_threshold": None,
+                                           "learner": FAST_LEARNER, **self.ensemble})
         self._ens.report_errors = True  # the prior's calibration: every learnt point
         self._reg = self._regression(noise)
         self._weight = self._reg.correlation_weight
@@ -125,6 +128,9 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
                                       None if noise is None else np.square(noise.gain_std))
         self._bias_var = None if noise is None or not any(noise.bias_std) else np.square(
             noise.bias_std)
+        # the slow part of the arm's error, which the window carries as its offsets: the
+        # change detector judges an equation without it (PayloadTracking._detect_error)
+        self._slow_var = None if noise is None else np.square(noise.offset_std)
         self._observed_x = np.full(21, math.nan)  # the last sample observed (a copy) and
         self._observed_bag = -2  # its bag (-2: none), so that predict_one at it routes once
         self._report = None  # (posterior, (std, cov)) the last estimate reported
@@ -166,7 +172,8 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         return PayloadRegression(self.dynamics, self.sigma_tau / root, self.sigma_dq / root,
                                  self.cutoff_hz, self.rate_hz, every=1, settle=-1,
                                  payload_inertia=True, decimate=self.update_every,
-                                 model_error_std=None if noise is None else noise.std)
+                                 model_error_std=None if noise is None else noise.std,
+                                 considered=noise is not None)
 
     def params(self) -> dict:
         """The hyper-parameters as given (``type(self)(**self.params())`` is a fresh clone)."""
@@ -297,6 +304,10 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
     def _estimate(self, post: Posterior, t: float, bag: int = -1,
                   learning: bool = False) -> PayloadEstimate:
         extra = {"change": True, "reset": True} if self._changed else {}
+        if self._reverted:  # back to the posterior before a false alarm
+            extra.update(reset=True, reverted=True)
+        if self._advice is not None:  # what motion would determine the mass or the CoM
+            extra["settle"] = self._advice
         unverified = self._initial is not None and self._window.m < DETECT_AFTER
         shown, phi = self._schedule.show(post)
         extra["mean_mass"] = float(shown.mean[0])  # before the projection: may be < 0
@@ -315,20 +326,28 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
                                extra=extra)
 
     def _reported(self, shown: Posterior) -> tuple[np.ndarray, np.ndarray]:
-        """The standard deviations and covariance an estimate showing ``shown`` reports: its
-        own, with the sensors' gain error and the arm model's bias on the diagonal. Made once
-        per shown posterior (the estimates between two refreshes share them; read-only)."""
+        """The standard deviations and covariance an estimate showing ``shown`` reports
+        (:meth:`reported_cov`). Made once per shown posterior (the estimates between two
+        refreshes share them; read-only)."""
         if self._report is not None and self._report[0] is shown:
             return self._report[1]
-        var = np.square(shown.std) + shown.gain_var  # the sensors' gain error on the load
-        if self._bias_var is not None:  # what the arm model's error reads as payload
-            var = var + self._bias_var
-        std = np.sqrt(var)
-        cov = np.array(shown.cov, dtype=float)  # with the same terms, uncorrelated
-        cov.flat[::11] = var  # the diagonal
+        cov = self.reported_cov(shown)
+        std = np.sqrt(np.diag(cov))
         std.flags.writeable = cov.flags.writeable = False
         self._report = (shown, (std, cov))
         return std, cov
+
+    def reported_cov(self, post: Posterior) -> np.ndarray:
+        """The covariance an estimate of ``post`` reports: its own, plus what the arm
+        model's calibration leaves uncertain along the window's poses (``post.arm_cov``),
+        plus the sensors' gain error and, where it is larger than the arm's own part, the
+        arm model's bias read by the calibration's folds (``bias_std``) on the diagonal."""
+        cov = np.array(post.cov, dtype=float) + post.arm_cov
+        extra = np.array(post.gain_var, dtype=float)  # the sensors' gain error on the load
+        if self._bias_var is not None:  # what the folds read as payload, where larger
+            extra += np.maximum(self._bias_var - np.diag(post.arm_cov), 0.0)
+        cov.flat[::11] += extra  # the diagonal
+        return cov
 
     def _determined(self, unverified: bool) -> tuple[str, ...]:
         """The groups the estimate does not take from a guess: those the window's equations

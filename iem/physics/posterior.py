@@ -104,6 +104,7 @@ class EquationWindow:
     """
 
     def __init__(self, offset_var=None, gain_var=None) -> None:
+        self._priors = (offset_var, gain_var)
         self.offset_prec = (None if offset_var is None else
                             1.0 / np.asarray(offset_var, dtype=float).reshape(7))
         self._offset_prec_matrix = None if offset_var is None else np.diag(self.offset_prec)
@@ -116,15 +117,22 @@ class EquationWindow:
         self._eta_o = np.zeros(7)
         self._gain = np.zeros((10, 7, 10))  # sum Y^T W diag(Y e_b), b the last axis
         self._gain_o = np.zeros((7, 7, 10))  # sum W diag(Y e_b)
+        self._arm: np.ndarray | None = None  # sum Y^T W A, A the arm's sensitivity (10 x k)
+        self._arm_o: np.ndarray | None = None  # sum W A (7 x k)
         self._marginal: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._factor: np.ndarray | None = None  # Cholesky factor of sum W + P_o, made once
         self._eig: tuple[np.ndarray, np.ndarray] | None = None  # of info, made once
         self.m = 0
         """Equations in the window."""
 
+    def fresh(self) -> EquationWindow:
+        """An empty window with the same offsets' and gains' priors."""
+        return EquationWindow(*self._priors)
+
     def clear(self) -> None:
         for a in self._sums():
             a[:] = 0.0
+        self._arm = self._arm_o = None
         self._marginal = self._factor = self._eig = None
         self.m = 0
 
@@ -132,13 +140,23 @@ class EquationWindow:
         return (self._info, self._eta, self._cross, self._w, self._eta_o, self._gain,
                 self._gain_o)
 
-    def add(self, Y: np.ndarray, r: np.ndarray, R: np.ndarray, weight: float = 1.0) -> None:
+    def add(self, Y: np.ndarray, r: np.ndarray, R: np.ndarray, weight: float = 1.0,
+            A: np.ndarray | None = None) -> None:
         """Add ``r = Y phi + e``, ``e ~ N(0, R)``, counted as ``1 / weight`` independent
-        equations (its covariance taken as ``weight * R``)."""
+        equations (its covariance taken as ``weight * R``). ``A`` (7 x k): how the arm
+        model's torques at the equation move per unit of its considered parameters
+        (:meth:`arm_sensitivity`), or None."""
         W = sym_inv(R * weight)
         YtRi = Y.T @ W
         self._info += YtRi @ Y
         self._eta += YtRi @ r
+        if A is not None:
+            if self._arm is None:
+                self._arm = np.zeros((10, A.shape[1]))
+                self._arm_o = np.zeros((7, A.shape[1]))
+            self._arm += YtRi @ A
+            if self.offset_prec is not None:
+                self._arm_o += W @ A
         if self.gain_var is not None:
             self._gain += YtRi[:, :, None] * Y[None, :, :]
         if self.offset_prec is not None:
@@ -170,6 +188,14 @@ class EquationWindow:
             self._factor = cholesky(0.5 * (A + A.T))
         return self._factor
 
+    def offset_cov(self) -> np.ndarray | None:
+        """The covariance (7x7, (N·m)²) of the torque offsets the window gives for a known
+        payload, ``(sum W + P_o)^-1`` (its prior's while the window is empty), or None
+        without offsets: how far :meth:`offsets` may still be off."""
+        if self.offset_prec is None:
+            return None
+        return cholesky_inverse(self._offset_factor())
+
     def info_eigh(self) -> tuple[np.ndarray, np.ndarray]:
         """Eigenvalues (ascending) and eigenvectors of :attr:`info` (symmetrised), made once
         per state of the window: a refresh's :func:`prior_inflation` and :meth:`data_std`
@@ -189,6 +215,16 @@ class EquationWindow:
         if self.offset_prec is not None:
             K = K - self._marginalised()[2] @ (self._gain_o @ phi)
         return K
+
+    def arm_sensitivity(self) -> np.ndarray | None:
+        """What a unit change of each of the arm model's considered parameters adds to
+        :attr:`eta` (10 x k; the estimate moves by the posterior covariance times it), with
+        the offsets marginalised; None without any (no equation carried a sensitivity)."""
+        if self._arm is None:
+            return None
+        if self.offset_prec is None:
+            return self._arm
+        return self._arm - self._marginalised()[2] @ self._arm_o
 
     def offsets(self, phi: np.ndarray) -> np.ndarray | None:
         """The torque offsets (7, N·m) the window's equations give for the payload ``phi``
@@ -224,7 +260,8 @@ class EquationWindow:
         return np.sqrt(var)
 
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in self._sums())
+        arm = 0 if self._arm is None else self._arm.nbytes + self._arm_o.nbytes
+        return sum(a.nbytes for a in self._sums()) + arm
 
     def to_state(self) -> dict:
         state = {"info": self._info.tolist(), "eta": self._eta.tolist(), "m": self.m}
@@ -232,6 +269,8 @@ class EquationWindow:
             state["offsets"] = [self._cross.tolist(), self._w.tolist(), self._eta_o.tolist()]
         if self.gain_var is not None:
             state["gains"] = [self._gain.tolist(), self._gain_o.tolist()]
+        if self._arm is not None:
+            state["arm"] = [self._arm.tolist(), self._arm_o.tolist()]
         return state
 
     def set_state(self, state: dict) -> None:
@@ -252,6 +291,11 @@ class EquationWindow:
             self._gain_o = np.array(gains[1], dtype=float).reshape(7, 7, 10)
         elif self.gain_var is not None and self.m:  # without its gain sums a window
             self.clear()  # cannot say what the gains do to its estimate: start it again
+        arm = state.get("arm")
+        self._arm = self._arm_o = None
+        if arm is not None and self.m:
+            self._arm = np.array(arm[0], dtype=float).reshape(10, -1)
+            self._arm_o = np.array(arm[1], dtype=float).reshape(7, -1)
 
 
 @dataclass
@@ -267,6 +311,10 @@ class Posterior:
         gain_var: the variance per parameter (10) the torque sensors' gain errors add to
             the estimate (:class:`EquationWindow`'s ``gain_var``; zeros without). Not
             saved: the window's sums are, and the next refresh makes it again.
+        arm_cov: the covariance (10x10) the arm model's considered parameters add to the
+            estimate along the window's poses (``J J^T``, ``J`` the posterior covariance
+            times :meth:`EquationWindow.arm_sensitivity`; zeros without). Not saved, as
+            ``gain_var``.
     """
 
     mean: np.ndarray
@@ -276,6 +324,7 @@ class Posterior:
     eps: float = EPS
     equations: int = 0
     gain_var: np.ndarray = field(default_factory=lambda: np.zeros(10))
+    arm_cov: np.ndarray = field(default_factory=lambda: np.zeros((10, 10)))
     _phi: np.ndarray | None = field(default=None, repr=False)
     _std: np.ndarray | None = field(default=None, repr=False)
 
@@ -299,9 +348,9 @@ class Posterior:
     @staticmethod
     def nbytes(n: int = 10) -> int:
         """Bytes a posterior of ``n`` parameters holds: mean, projected phi, std and gain
-        variance (``n`` floats each), covariance and precision (``n x n`` each); what a
-        model reserves for one whether it has been made yet or not."""
-        return np.dtype(float).itemsize * (4 * n + 2 * n * n)
+        variance (``n`` floats each), covariance, precision and the arm's covariance (``n x
+        n`` each); what a model reserves for one whether it has been made yet or not."""
+        return np.dtype(float).itemsize * (4 * n + 3 * n * n)
 
     def to_state(self) -> dict:
         return {"mean": self.mean.tolist(), "cov": self.cov.tolist(),
@@ -328,7 +377,9 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
     :func:`prior_inflation` if the data contradict it) and the window's equations, with the
     variance the window's considered gain errors add to its mean (``J = cov K``, ``K`` the
     window's :meth:`~EquationWindow.gain_sensitivity` at the mean: ``gain_var = sum_j
-    g_j² J[:, j]²``)."""
+    g_j² J[:, j]²``) and the covariance its arm model's considered parameters add
+    (``J = cov K``, ``K`` the window's :meth:`~EquationWindow.arm_sensitivity`: ``arm_cov =
+    J J^T``)."""
     inflation = 1.0
     if not window.empty:
         inflation = prior_inflation(mu_p, c_p, window.info, window.eta, window.info_eigh())
@@ -343,4 +394,10 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
     if K is not None:
         J = cov @ K
         gain_var = np.square(J) @ window.gain_var
-    return Posterior(mean, cov, precision, inflation, eps, window.m, gain_var=gain_var)
+    arm_cov = np.zeros((10, 10))
+    K = None if window.empty else window.arm_sensitivity()
+    if K is not None:
+        J = cov @ K
+        arm_cov = J @ J.T
+    return Posterior(mean, cov, precision, inflation, eps, window.m, gain_var=gain_var,
+                     arm_cov=arm_cov)

@@ -150,6 +150,11 @@ class PayloadRegression:
             equations (:attr:`iem.physics.torque_noise.TorqueNoise.std`, measured in this domain),
             or None: the sensor noise alone. Its excess over the filtered torque noise is
             added to ``R``'s diagonal (:attr:`model_var`).
+        considered: with each equation, :attr:`sensitivity`: how the arm model's torques
+            move per unit of its considered parameters, if the dynamics callable has any
+            (its ``considered`` count and ``sensitivity(q, dq, ddq)``, e.g.
+            :class:`sim.arm.ArmDynamics` of a calibrated arm: its calibration's
+            uncertainty).
     """
 
     def __init__(self, dynamics=None,
@@ -157,7 +162,7 @@ class PayloadRegression:
                  sigma_dq: float = DEFAULT_SENSOR.sigma_dq, cutoff_hz: float = 20.0,
                  rate_hz: float = NOMINAL_RATE_HZ,
                  every: int = 1, settle: int = 0, payload_inertia: bool = False,
-                 decimate: int = 1, model_error_std=None) -> None:
+                 decimate: int = 1, model_error_std=None, considered: bool = False) -> None:
         if int(every) < 1 or int(decimate) < 1:
             raise InvalidInputError(f"every and decimate must be >= 1 sample, got {every}, "
                                     f"{decimate}")
@@ -188,6 +193,7 @@ class PayloadRegression:
             np.square(np.asarray(model_error_std, dtype=float).reshape(7)) - self.r_tau, 0.0))
         """Variance per joint that the arm model's error adds to ``R``'s diagonal, (N·m)²."""
         self._r_diag = self.r_tau + self.model_var
+        self.considered = bool(considered)
         """How many of the equations, one every ``every`` filter samples, carry the
         information of one independent equation about a constant: the sum of the filtered
         noise's autocorrelation at multiples of that spacing (:func:`correlation_weight`)."""
@@ -202,11 +208,20 @@ class PayloadRegression:
         self._n_acc = 0
         self._x: np.ndarray | None = None  # the last input sample (block averaging)
         self._robot_torques: list[np.ndarray] = []  # tau_robot of the last two equations
+        self.sensitivity: np.ndarray | None = None
+        """How the arm model's torques at the last equation's state move per unit of its
+        considered parameters (7 x k), or None (none asked for, or none there)."""
         self.curvature: np.ndarray | None = None
         """Second difference of the robot model's torque ``tau_robot`` over the last three
         equations (7, N·m), None until three consecutive equations since the start: how
         sharply the arm's own torque bends, which sets the error of the filtered equations
         (:data:`iem.physics.innovation.MODEL_ERROR_GAIN`)."""
+
+    @property
+    def r_diag(self) -> np.ndarray:
+        """The diagonal of ``R`` without the velocity noise's share: the filtered torque
+        noise plus the arm model's error, (N·m)² per joint (read-only view)."""
+        return self._r_diag
 
     @property
     def settled(self) -> bool:
@@ -293,7 +308,10 @@ class PayloadRegression:
         mid = 0.5 * (f + prev)
         q, dq, tau = mid[:7], mid[7:14], mid[14:]
         ddq = (f[7:14] - prev[7:14]) * self.filter_rate_hz
-        tau_robot, Y, M = self.model()(q, dq, ddq)
+        f = self.model()
+        tau_robot, Y, M = f(q, dq, ddq)
+        if self.considered and getattr(f, "considered", 0):
+            self.sensitivity = f.sensitivity(q, dq, ddq)
         last = self._robot_torques
         self.curvature = tau_robot - 2.0 * last[1] + last[0] if len(last) == 2 else None
         last.append(tau_robot)

@@ -14,6 +14,8 @@ import numpy as np
 
 from ..errors import InvalidInputError
 from ..types import GROUPS
+from .advice import advice
+from .candidate import DECIDE_S, Candidate, log_likelihood
 from .posterior import DEFAULT_PRIOR_STD, Posterior, combine
 
 __all__ = ["DETECT_AFTER", "PRIOR_FLOOR", "PayloadTracking"]
@@ -26,6 +28,9 @@ RESTART_STD_FLOOR = 1e-4
 the prior after a restart is never so sharp that the live data cannot move it."""
 DETECT_AFTER = 10
 """Equations a window holds before the change detector tests new ones (0.1 s by default)."""
+ADVICE_EQUATIONS = 100
+"""Equations between two makings of the advice on what motion would settle the payload
+(1 s by default; :mod:`iem.physics.advice`)."""
 
 
 class PayloadTracking:
@@ -43,6 +48,9 @@ class PayloadTracking:
         self._forget()
         self._holdoff = 0
         self.changes = 0
+        self.reverts = 0
+        """Alarms the data did not bear out: the estimate went back to the posterior before
+        them (:mod:`iem.physics.candidate`); counted in :attr:`changes` too."""
         self._steps = 1
 
     def resume(self) -> None:
@@ -81,13 +89,13 @@ class PayloadTracking:
         if post is None:
             return
         phi = np.array(post.phi, dtype=float)
-        var = np.square(post.std) + post.gain_var  # as its estimates reported it
-        if self._bias_var is not None:
-            var = var + self._bias_var
+        var = np.diag(self.reported_cov(post))  # as its estimates reported it
         std = np.maximum(np.nan_to_num(np.sqrt(var), nan=1.0, posinf=1.0), RESTART_STD_FLOOR)
         self.start_from(phi, std)
 
     def _forget(self) -> None:
+        self._candidate: Candidate | None = None  # the posterior before an alarm
+        self._reverted = False
         self._window.clear()
         self.ensemble_prior.summary.clear()
         self._innovation.reset()
@@ -97,6 +105,8 @@ class PayloadTracking:
         self._schedule.clear()  # nothing due, queued or shown: the next estimate at once
         self._data_shown = False  # an estimate with equations was given since the change
         self._undetermined: tuple[str, ...] = tuple(GROUPS)  # groups from the prior alone
+        self._advice: str | None = None  # what motion would determine them (advice)
+        self._advice_m = 0  # the window's equations when it was made
 
     # -- views ---------------------------------------------------------------------------
     @property
@@ -132,20 +142,26 @@ class PayloadTracking:
     # -- samples in -------------------------------------------------------------------------
     def _observe(self, x: np.ndarray, flange, est) -> None:
         """:meth:`observe_one`, given the ensemble's estimate at ``x`` if already made."""
-        self._changed = False
+        self._changed = self._reverted = False
         self._schedule.busy = self._take_queued()  # one job: the last sample's equation
         steps, self._steps = self._steps, 1
         equation = self._reg(x, self._mean_for_noise, steps)
         if equation is not None:
-            equation = (*equation, self._reg.curvature)  # for the test's model error
+            # the test's model error, and the arm's considered parameters' sensitivity
+            equation = (*equation, self._reg.curvature, self._reg.sensitivity)
             self._schedule.busy = True  # forming it was this sample's work
             if self._holdoff <= 0:
                 if self._schedule.one_job:
                     self._schedule.queued = equation
                 else:
                     self._take(equation)
+            elif self._candidate is not None:  # the hold-off's equations: the old window's
+                Y, r, R, _, A = equation
+                self._add(self._candidate.window, Y, r, R, A)
         if self._holdoff > 0:
             self._holdoff = max(0, self._holdoff - steps)
+        if self._candidate is not None:
+            self._decide_candidate()
         self._observed_bag = -2
         if not self._ens.n_bags:
             return
@@ -162,18 +178,82 @@ class PayloadTracking:
 
     def _take(self, equation) -> None:
         """Test an equation against the posterior, then add it to the window (or restart
-        on a detected change)."""
-        Y, r, R, curvature = equation
+        on a detected change, the posterior before it kept as a candidate)."""
+        Y, r, R, curvature, A = equation
+        if self._candidate is not None and self._compare(Y, r, R, A):
+            return  # the alarm was false: the old window, this equation added, is back
         if self._test(Y, r, R, curvature):
-            self._forget()
-            self._changed = True
-            self.changes += 1
-            self._holdoff = self._holdoff_n
+            self._alarm()
         else:
-            if self._info_cov is not None:
-                R = R + self._info_cov
-            self._window.add(Y, r, R, weight=self._weight)
+            self._add(self._window, Y, r, R, A)
             self._schedule.equation_added(self._window.m)
+
+    def _add(self, window, Y, r, R, A) -> None:
+        """Add an equation to ``window`` with the arm's correlated error counted in (``A``:
+        the arm's considered parameters' sensitivity, or None)."""
+        if self._info_cov is not None:
+            R = R + self._info_cov
+        window.add(Y, r, R, weight=self._weight, A=A)
+
+    def _alarm(self) -> None:
+        """A detected payload change: the window, the prior and the detector restart; the
+        posterior before it is kept as a candidate (:mod:`iem.physics.candidate`) until
+        the data choose between them."""
+        old = None
+        post = self._post
+        if post is not None and not self._window.empty:
+            old = Candidate(self._window, post, self.ensemble_prior.summary, self._initial,
+                            round(DECIDE_S * self.rate_hz), self._weight)
+            self._window = self._window.fresh()
+        self._forget()
+        self._candidate = old
+        self._changed = True
+        self.changes += 1
+        self._holdoff = self._holdoff_n
+
+    def _compare(self, Y, r, R, A) -> bool:
+        """Judge an equation after an alarm under the candidate and the new posterior, add
+        it to the candidate's window; True if the candidate is chosen (and restored)."""
+        cand = self._candidate
+        post = self._posterior()
+        verdict = None
+        if post is not None:
+            R_fast = self._fast_error(R)
+            G = self._window.offset_cov()
+            offsets = self._window.offsets(post.mean)
+            nu = r - Y @ post.mean if offsets is None else r - offsets - Y @ post.mean
+            S = (R_fast if G is None else R_fast + G) + Y @ post.cov @ Y.T
+            verdict = cand.judge(cand.old_log_likelihood(Y, r, R_fast),
+                                 log_likelihood(nu, S))
+        self._add(cand.window, Y, r, R, A)
+        if verdict == "revert":
+            self._revert()
+            return True
+        if verdict == "drop":
+            self._candidate = None
+        return False
+
+    def _revert(self) -> None:
+        """Back to the candidate: its window (with the equations since the alarm), its
+        prior summary and known payload; the detector starts afresh."""
+        cand = self._candidate
+        self._forget()
+        self._window = cand.window
+        self.ensemble_prior.summary = cand.summary
+        self._initial = cand.initial
+        self._holdoff = 0
+        self._reverted = True
+        self.reverts += 1
+        self._schedule.equation_added(self._window.m)
+
+    def _decide_candidate(self) -> None:
+        """A sample after an alarm: at :data:`~iem.physics.candidate.DECIDE_S`, the
+        candidate is restored if the evidence favours it, else dropped."""
+        verdict = self._candidate.due()
+        if verdict == "revert":
+            self._revert()
+        elif verdict == "drop":
+            self._candidate = None
 
     def _take_queued(self) -> bool:
         """Test and add the equation a spread sample queued, if any; True if there was one."""
@@ -197,15 +277,42 @@ class PayloadTracking:
         """Test one equation against the current posterior (whose prior the data have
         already inflated if they contradict it, :class:`iem.physics.innovation.InnovationTest`): its
         NIS always, the change detector from the window's :data:`DETECT_AFTER`-th equation
-        on (before, a conflict is the prior's, not a new payload's)."""
+        on (before, a conflict is the prior's, not a new payload's).
+
+        The equation is judged net of the torque offsets the window carries as states; the
+        detector judges it against :meth:`_detect_error`: the error of the equation without
+        the slow part those offsets stand for, plus how uncertain they still are."""
         post = self._posterior()
         if post is None:
             return False
         offsets = self._window.offsets(post.mean)  # the equation is judged net of them
         if offsets is not None:
             r = r - offsets
-        return self._innovation(Y, r, R, post.mean, post.cov,
-                                self._window.m >= DETECT_AFTER, curvature)
+        detect = self._window.m >= DETECT_AFTER
+        R_detect = None
+        if detect and self._slow_var is not None:
+            G = self._window.offset_cov()
+            R_detect = None if G is None else self._fast_error(R) + G
+        return self._innovation(Y, r, R, post.mean, post.cov, detect, curvature, R_detect)
+
+    def _fast_error(self, R: np.ndarray) -> np.ndarray:
+        """The equation error ``R`` without the slow part the window's offsets carry (the
+        change detector's and the candidate's; ``R`` itself without a noise model).
+
+        ``R`` holds the arm's whole measured error per joint, its slow drift included
+        (:attr:`iem.physics.torque_noise.TorqueNoise.offset_std`); the window carries that
+        drift as one offset per joint and the test takes their estimate out of the
+        innovation, whose remaining uncertainty (:meth:`EquationWindow.offset_cov`) the
+        caller adds. Counting the drift again in ``R`` would hide a payload change of the
+        drift's size: a 0.275 kg swap (about 1 N·m on the shoulder) stood at chi² 15-27
+        per equation against a slow part of 0.3 N·m on a realistic arm, under the
+        detector's drift. The drift's variance comes off the model error only, never off
+        the sensor's own noise."""
+        if self._slow_var is None:
+            return R
+        out = R.copy()
+        out[np.diag_indices(7)] -= np.minimum(self._slow_var, self._reg.model_var)
+        return out
 
     def _prior(self, x=None, flange=None):
         """``(mu_p, C_p)``: a payload to start from (:meth:`start_from`), else the summary
@@ -253,8 +360,33 @@ class PayloadTracking:
             except np.linalg.LinAlgError:
                 return None
             self._undetermined = self._from_prior(prior[1])
+            self._settle(prior[1])
             self._schedule.refreshed()
         return self._post
+
+    def _settle(self, c_p: np.ndarray) -> None:
+        """While the data do not determine the mass or the CoM, what motion would
+        (:mod:`iem.physics.advice`), made again after each :data:`ADVICE_EQUATIONS` equations
+        at most (the estimate's ``extra["settle"]``)."""
+        q = self._observed_x[:7]
+        if (not {"mass", "com"} & set(self._undetermined) or self._window.m < ADVICE_EQUATIONS
+                or not np.isfinite(q).all()):
+            self._advice = None  # determined, or too few equations to say what they lack
+            return
+        if self._advice is not None and self._window.m < self._advice_m + ADVICE_EQUATIONS:
+            return
+        f = self._reg.model()
+        zero = np.zeros(7)
+        var = np.array(self._reg.r_diag, dtype=float)
+        if self._info_cov is not None:
+            var = var + np.diag(self._info_cov)
+        limits = getattr(f, "q_limits", None)
+        self._advice = advice(lambda pose: f(pose, zero, zero)[1], q,
+                              self._post.cov, self._window.data_std(),
+                              np.sqrt(np.maximum(np.diag(c_p), 0.0)), var * self._weight,
+                              self.rate_hz / self.update_every,
+                              *(limits if limits is not None else (None, None)))
+        self._advice_m = self._window.m
 
     def _from_prior(self, c_p: np.ndarray) -> tuple[str, ...]:
         """The parameter groups the window's equations do not determine: where, for some

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..arm import ArmParams
+from ..end_effector import end_effector_of
 from ..friction import friction_torque
 from ..robot import ArmModel, nominal_link_params
 from .consistency import consistent, consistent_map
@@ -17,6 +18,7 @@ from .excitation import (
     regressors,
 )
 from .fit import fit_map, joint_rms, never_worse
+from .posterior import posterior_covariance
 from .prior import (
     DEFAULT_SETTINGS,
     CalibrationError,
@@ -49,14 +51,16 @@ def calibrate(t, q, dq, tau, settings: CalibrationSettings = DEFAULT_SETTINGS,
 
 def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        source: str = "traffic", end_effector=None,
-                       refuse: bool = True, description=None) -> ArmParams:
+                       refuse: bool = True, description=None,
+                       posterior: bool = True) -> ArmParams:
     """:func:`calibrate` on several recordings ``[(t, q, dq, tau), ...]``, each filtered on
     its own and split at its gaps (:func:`.signals.calibration_signals`).
     ``end_effector`` (a spec or :class:`sim.end_effector.EndEffector`; None: the arm
     model's default) is the prior's body 7 and the nominal model the result is compared with, on the
     arm model ``description`` (:mod:`sim.description`; None: the default).
     ``refuse=False`` fits too little excitation instead of refusing it (the prior holds the
-    directions it lacks): the cross-validation's folds (:mod:`sim.calibration_noise`)."""
+    directions it lacks): the cross-validation's folds (:mod:`sim.calibration_noise`), which
+    need no ``posterior`` either (:mod:`.posterior`: the result's covariance, step 8)."""
     s = settings
     if not parts:
         raise CalibrationError("no traffic to calibrate from (no segment of at least 3 s)")
@@ -65,7 +69,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
                        for k in ("q", "dq", "ddq", "tau"))
     kinematics = ArmModel(description=description)
     nominal_model = kinematics.model
-    ee = _end_effector(end_effector, kinematics.description)  # the prior's centre
+    ee = end_effector_of(end_effector, kinematics.description)  # the prior's centre
     theta0 = nominal_link_params(ee, kinematics.description).ravel()
     W = regressors(nominal_model, q, dq, ddq)  # (N, 7, 70)
     basis = base_basis(nominal_model, kinematics=kinematics)
@@ -89,6 +93,8 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
     params, moved = consistent(theta if fixed is None else fixed, theta0.reshape(7, 10))
     params, phi, off, warnings, fallback = never_worse(W, dq, tau, theta0, params, phi, off)
     warnings += _payload_warning(params, theta0, sd_theta)
+    cov = (posterior_covariance(W, dq, tau, params, phi, off, sd_theta, sd_phi, sd_off,
+                                s.rate_hz) if posterior else None)
     if MAX_CONDITION < cond < float("inf"):  # accepted: only negligible directions are weak
         warnings.append(f"condition number {cond:.0f} above {MAX_CONDITION:g} only in "
                         f"directions that move the torques by less than "
@@ -112,17 +118,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},
     }
     return ArmParams(params, phi, off, report, end_effector=ee.label,
-                     description=kinematics.description)
-
-
-def _end_effector(end_effector, description):
-    """The :class:`sim.end_effector.EndEffector` of a spec (None: the arm model's
-    default)."""
-    from ..end_effector import EndEffector
-    from ..end_effector import end_effector as resolve_end_effector
-
-    return end_effector if isinstance(end_effector, EndEffector) else resolve_end_effector(
-        end_effector or description.default_end_effector)
+                     description=kinematics.description, posterior=cov)
 
 
 def _payload_warning(params: np.ndarray, theta0: np.ndarray, sd_theta: np.ndarray) -> list:

@@ -172,6 +172,16 @@ def service_process(config: Path, *extra: str) -> subprocess.Popen:
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
+def stopped_summary(logs: str) -> dict:
+    """The summary of ``iem run``'s ``stopped`` event in its JSON logs ``logs``."""
+    import json
+
+    events = [json.loads(line) for line in logs.splitlines() if line.startswith("{")]
+    stopped = [e for e in events if e.get("event") == "stopped"]
+    assert len(stopped) == 1, logs
+    return stopped[0]["summary"]
+
+
 def wait_for(predicate, timeout: float, step: float = 0.1):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -105,9 +105,9 @@ def test_train_refuses_a_bad_description_before_training(case, tmp_path, capsys)
 
 
 @pytest.mark.parametrize("argv, names", [
-    (["--arm-model", "fr3", "--arm-flange", "nosuchlink"], ("no flange", "'nosuchlink'")),
-    (["--arm-model", "{tmp}/missing.urdf"], ("missing.urdf", "cannot be read")),
-    (["--arm-model", "{tmp}/latin1.urdf"], ("latin1.urdf", "cannot be read")),
+    (["--arm-model", "{tmp}/missing.urdf"], ("missing.urdf", "cannot read the URDF file: it "
+                                              "does not exist")),
+    (["--arm-model", "{tmp}/latin1.urdf"], ("latin1.urdf", "not UTF-8 text")),
     (["--arm-model", "ur5"], ("'ur5' is not valid", "'panda', 'fr3'", ".urdf")),
 ])
 def test_train_refuses_an_arm_model_it_cannot_read(argv, names, tmp_path, capsys):

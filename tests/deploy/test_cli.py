@@ -4,6 +4,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from deploy.cli import COMMANDS, main
 
 
@@ -25,6 +27,7 @@ def test_nested_group_help(capsys):
     assert "sim" in capsys.readouterr().out
 
 
+@pytest.mark.smoke
 def test_bench_sim_writes_json(tmp_path):
     out = tmp_path / "bench.json"
     proc = subprocess.run([sys.executable, "-m", "deploy.cli", "bench", "sim", "--calls", "50",

@@ -58,9 +58,8 @@ def test_a_non_utf8_payload_file(tmp_path, capsys):
     status, err = run_iem(capsys, "replay", str(tmp_path / "traffic.blf"), "--truth",
                           str(payload))
     assert status == 2  # a command at a terminal: only the service exits EX_CONFIG
-    assert err.startswith(f"iem: error: {payload}: payload file is not UTF-8 text "
-                          "(byte 0xe9 on line 1, offset 9)")
-    assert "must be UTF-8 TOML" in err
+    assert err.startswith(f"iem: error: {payload}: not UTF-8 text (byte 0xe9 on line 1, "
+                          "offset 9); a payload file must be UTF-8")
 
 
 @pytest.mark.parametrize(("seed", "parts"), [
@@ -114,7 +113,8 @@ def test_a_bad_path_file_is_a_config_error(tmp_path, capsys):
     path.write_bytes(b"t,q1,q2,q3,q4,q5,q6,q7\n0,\xff\n")
     status, err = run_iem(capsys, "sim-controller", "--interface", "virtual", "--path",
                           str(path))
-    assert status == 2 and err.startswith(f"iem: error: {path}: path file is not UTF-8")
+    assert status == 2 and err.startswith(f"iem: error: {path}: not UTF-8 text")
+    assert "a path file must be UTF-8" in err
 
 
 def test_which_errors_are_configuration_errors():
@@ -134,3 +134,83 @@ def test_which_errors_are_configuration_errors():
     # a restart may help (the adapter is back), or it is a data file, not the configuration
     for exc in (LinkError("x"), ModelFileError("x"), LogFileError("x"), EncodeError("x")):
         assert exit_status(exc) == EX_ERROR == 2, exc
+
+
+# -- every file cell.toml names: missing or unreadable exits 78 ------------------------------
+def _fifo(path: Path) -> Path:
+    import os
+
+    os.mkfifo(path)
+    return path
+
+
+FILE_KEYS = {
+    # key: (what to set, how the named file is made, what the message names)
+    "[model] path, missing": (lambda t, m: {"model": {"path": str(t / "none.msgpack")}},
+                              None, "[model] path = "),
+    "[model] path, not a model": (lambda t, m: {"model": {"path": str(t / "junk.msgpack")}},
+                                  lambda t: (t / "junk.msgpack").write_bytes(b"not a model"),
+                                  "is not a msgpack model file"),
+    "[model] path, a FIFO": (lambda t, m: {"model": {"path": str(t / "pipe.msgpack")}},
+                             lambda t: _fifo(t / "pipe.msgpack"), "it is a FIFO"),
+    "[model] arm, missing": (lambda t, m: {"model": {"arm": str(t / "none-arm.msgpack")}},
+                             None, "[model] arm = "),
+    "[model] arm, a FIFO": (lambda t, m: {"model": {"arm": str(t / "arm-pipe")}},
+                            lambda t: _fifo(t / "arm-pipe"), "it is a FIFO"),
+    "[model] excitation, missing": (lambda t, m: {"model": {
+        "path": str(t / "new.msgpack"), "train_if_missing": True,
+        "excitation": str(t / "none.csv")}}, None, "none.csv"),
+    "[arm] model, missing": (lambda t, m: {"arm": {"model": str(t / "none.urdf")},
+                                           "gate": {"rated_mass_kg": 3.0}}, None,
+                             "none.urdf: cannot read the URDF file: it does not exist"),
+    "[arm] end_effector, missing": (lambda t, m: {"arm": {"end_effector": str(t / "no.toml")}},
+                                    None, "cannot read the payload file: it does not exist"),
+    "[arm] end_effector, a FIFO": (lambda t, m: {"arm": {"end_effector": str(t / "ee.toml")}},
+                                   lambda t: _fifo(t / "ee.toml"), "it is a FIFO"),
+    "[estimate] initial_payload, missing": (
+        lambda t, m: {"estimate": {"initial_payload": str(t / "no.toml")}}, None,
+        "cannot read the payload file: it does not exist"),
+    "[link] channel of a replay, missing": (
+        lambda t, m: {"link": {"kind": "replay", "channel": str(t / "none.blf")}}, None,
+        "[link] channel = "),
+    "[link] channel of a recording, a FIFO": (
+        lambda t, m: {"link": {"kind": "recording", "channel": str(t / "pipe.csv")}},
+        lambda t: _fifo(t / "pipe.csv"), "it is a FIFO"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(FILE_KEYS))
+def test_every_file_cell_toml_names_exits_78_when_missing_or_unreadable(tmp_path, capsys,
+                                                                        phys_model_file,
+                                                                        case):
+    """Whatever its key, a file the configuration names that cannot be read is the
+    configuration's error: exit 78 (systemd does not restart into it), one line naming it.
+    A missing [model] arm exited 2 (five restarts), a missing initial_payload 78."""
+    from tests.watchdog import within
+
+    sections, make, named = FILE_KEYS[case]
+    if make is not None:
+        make(tmp_path)
+    sections = sections(tmp_path, phys_model_file)
+    link = sections.pop("link", {"kind": "virtual", "channel": f"exit-{case}"})
+    doc = cell_config(phys_model_file, link, **sections)
+    with within(60):
+        status, err = run_iem(capsys, "run", "--config",
+                              str(write_toml(tmp_path / "cell.toml", doc)))
+    last = err.strip().splitlines()[-1]
+    assert status == EX_CONFIG, (case, err)
+    assert last.startswith("iem: error: ") and named in last, (case, last)
+
+
+@pytest.mark.parametrize("command", [["run", "--config", "cell.toml"],
+                                     ["sim-controller", "--interface", "virtual"]])
+@pytest.mark.parametrize("duration", ["nan", "-5", "0", "inf", "soon"])
+def test_a_duration_that_is_not_a_number_of_seconds_is_a_usage_error(capsys, command,
+                                                                     duration):
+    """``iem run --duration nan`` ran for ever and ``--duration -5`` exited 0 at once: a
+    duration is a finite number of seconds > 0, or the command does not start."""
+    with pytest.raises(SystemExit) as exit_:
+        main([*command, "--duration", duration])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument --duration: {duration!r}: valid is a number of seconds > 0" in err

@@ -13,6 +13,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from iem.errors import IemError, MissingExtraError
@@ -99,7 +100,11 @@ def test_the_cell_commands_run_without_the_sim_and_plots_extras(without_extras):
         assert res[f"{command} --help"]["rc"] == 0, res[f"{command} --help"]["err"]
         assert f"usage: iem {command}" in res[f"{command} --help"]["out"]
     assert res["calibrate --write-motion"]["rc"] == 0, res["calibrate --write-motion"]["err"]
-    assert (tmp / "motion.csv").stat().st_size > 0
+    from sim.paths import calibration_path, load_path_csv
+
+    written, motion = load_path_csv(tmp / "motion.csv"), calibration_path()
+    assert written.duration == motion.duration
+    np.testing.assert_allclose(written.q, motion.q, rtol=0, atol=1e-12)  # the motion, as CSV
     assert res["identify"]["rc"] == 0, res["identify"]["err"]
     from sim.payload import load_payload
 

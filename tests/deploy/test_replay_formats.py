@@ -26,7 +26,7 @@ from sim.plant import ArmPlant
 from tests.can_logs import write_log
 from tests.firmware_bridge.test_recordings import FR3, PANDA, write_bag, write_csv
 
-from .conftest import cell_config, write_toml
+from .conftest import cell_config, stopped_summary, write_toml
 
 SECONDS = 1.0
 
@@ -174,8 +174,19 @@ def bad_inputs(folder, files) -> list[tuple[str, list[str], list[str]]]:
     again = t.copy()
     again[20] = again[19]
     csv_case("csv repeated", ["line 22: t = 0.019 s repeats line 21's 0.019 s"], t=again)
-    csv_case("csv header only", ["0 joint state(s); a recording needs at least 2"], t=t[:0],
+    csv_case("csv header only", ["0 joint state(s); a recording needs at least 10"], t=t[:0],
              q=q[:0], dq=dq[:0], tau=tau[:0])
+    # two rows 1.75 ms apart: too short, not a 570 Hz recording the model was not made for
+    slow = t[:2] * 1.75
+    csv_case("csv of two rows", ["2 joint state(s); a recording needs at least 10 (its rate "
+                                 "is the median of its steps"], t=slow, q=q[:2], dq=dq[:2],
+             tau=tau[:2])
+    far = t.copy()
+    far[-1] = 1e306  # once an OverflowError with a traceback
+    csv_case("csv at t = 1e306", [f"line {len(t) + 1}: t = 1e+306 s is beyond any recording's "
+                                  "time stamps; valid are |t| <= 1e+10 s"], t=far)
+    early = t - 1e306
+    csv_case("csv at t = -1e306", ["line 2: t = -1e+306 s is beyond"], t=early)
     empty = folder / "empty.csv"
     empty.write_text("")
     cases.append(("csv empty", [str(empty)], ["empty.csv: empty", "t,q1,q2"]))
@@ -302,6 +313,24 @@ def test_iem_run_replays_a_recording_link(files, model_file, tmp_path, capsys):
                       cell_config(model_file, {"kind": "recording",
                                                "channel": str(files["csv"])}))
     assert main(["run", "--config", str(cell)]) == 0
-    err = capsys.readouterr().err
-    assert int(err.split("iem run: ")[1].split(" block points")[0]) == -(-(int(SECONDS * 1000) + 1)
-                                                                    // 10)  # block points
+    cycles = stopped_summary(capsys.readouterr().err)["cycles"]
+    assert cycles == -(-(int(SECONDS * 1000) + 1) // 10)  # block points
+
+
+def test_iem_run_over_a_recording_never_writes_the_model(files, model_file, tmp_path, capsys):
+    """A recorded link (kind "recording" or "replay") never writes ``[model] path``, as ``iem
+    replay`` never does without ``--save-model``: no checkpoint while it runs (every 1 s
+    here), none at the stop, and a model trained because none was there stays in memory.
+    ``iem run`` over a recording overwrote the model file."""
+    before, mtime = model_file.read_bytes(), model_file.stat().st_mtime_ns
+    doc = cell_config(model_file, {"kind": "recording", "channel": str(files["csv"])},
+                      model={"checkpoint_period_s": 1.0})
+    assert main(["run", "--config", str(write_toml(tmp_path / "cell.toml", doc))]) == 0
+    assert model_file.read_bytes() == before and model_file.stat().st_mtime_ns == mtime
+    new = tmp_path / "new.msgpack"
+    doc = cell_config(new, {"kind": "replay", "channel": str(files["can"])},
+                      model={"train_if_missing": True, "kind": "IEM+phys"},
+                      arm={"noise": "sensor"})
+    assert main(["run", "--config", str(write_toml(tmp_path / "new.toml", doc))]) == 0
+    assert not new.exists()
+    assert "trained a model in memory" in capsys.readouterr().err

@@ -225,8 +225,7 @@ def test_calibrate_on_a_200_hz_csv(kin, recordings, tmp_path, capsys):
 def test_the_service_writes_a_load_the_simulated_kinova_acknowledges(kin, models, tmp_path):
     import shutil
 
-    from deploy.config import config_from_dict
-    from deploy.simcell.cell import cell_sections
+    from deploy.config import cell_sections, config_from_dict
     from deploy.simcell.inprocess import simulated_cell, virtual_channel
     from sim.paths import new_task_path
     from tests.deploy.conftest import cell_config
@@ -240,7 +239,7 @@ def test_the_service_writes_a_load_the_simulated_kinova_acknowledges(kin, models
                         once=True, seed=1, description=kin) as (controller, service):
         controller.start()
         summary = service.run(until=lambda: controller.cycles >= 7000 or (
-            controller.plant.controller_load is not None and service.gate.acked))
+            controller.plant.controller_load is not None and service.gate.commands.acked))
     assert summary["writes"]["acked"] >= 1 and summary["writes"]["refused_by_controller"] == 0
     load = controller.plant.controller_load
     assert controller.plant.description is kin

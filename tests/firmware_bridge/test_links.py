@@ -9,9 +9,10 @@ from firmware_bridge.errors import (
     AckTimeout,
     BridgeConfigError,
     ControllerSilent,
+    EndOfStream,
     LinkError,
 )
-from firmware_bridge.links import LINKS, open_link
+from firmware_bridge.links import LINKS, RecordedSource, open_link
 from iem.errors import IemError, PayloadError
 from sim.payload import Payload
 
@@ -105,3 +106,39 @@ def test_one_opener_signature_and_unknown_options_name_the_valid_ones(channel):
     with pytest.raises(BridgeConfigError, match="is not a CAN bus"):
         open_bus("serial", "loop://")
     assert link_kind("replay").sink is False and link_kind("recording").sink is False
+
+
+# -- a recording's source: one base ------------------------------------------------------------
+class _ThreeStates(RecordedSource):
+    def __init__(self) -> None:
+        self.states = iter(synthetic_states(3, 1))
+        self.closed = 0
+
+    def read(self, timeout=None):
+        try:
+            return next(self.states)
+        except StopIteration:
+            raise EndOfStream("after 3 joint states") from None
+
+    def close(self) -> None:
+        self.closed += 1
+
+
+def test_a_recorded_source_iterates_to_its_end_and_closes_on_leaving_with():
+    with _ThreeStates() as src:
+        assert [s.cycle for s in src] == [0, 1, 2]
+        assert list(src) == [] and src.closed == 0  # the end stays the end
+    assert src.closed == 1
+    with pytest.raises(RuntimeError), _ThreeStates() as failing:
+        raise RuntimeError("a failure inside")
+    assert failing.closed == 1
+    RecordedSource().close()  # nothing to release by default
+
+
+def test_the_recordings_sources_write_none_of_it_again():
+    from firmware_bridge.recordings import RecordingSource
+    from firmware_bridge.replay import ReplaySource
+
+    for source in (ReplaySource, RecordingSource):
+        assert issubclass(source, RecordedSource)
+        assert not {"__iter__", "__enter__", "__exit__"} & set(vars(source)), source

@@ -29,19 +29,36 @@ def publish(channel, profile, n, pace=0.0):
     port.close()
 
 
+class StopWhenDrained:
+    """The recorder's bus: the first read that finds it empty once ``published`` is set
+    sets ``stop``. The virtual bus queues every frame sent on it, so the recorder stops
+    after the last one however late its thread gets to read (on a loaded machine it may
+    start after the publisher finished)."""
+
+    def __init__(self, bus, published: threading.Event, stop: threading.Event) -> None:
+        self.bus, self.published, self.stop = bus, published, stop
+        self.channel_info = bus.channel_info
+
+    def recv(self, timeout=None):
+        msg = self.bus.recv(timeout)
+        if msg is None and self.published.is_set():
+            self.stop.set()
+        return msg
+
+
 def record_virtual(tmp_path, channel, profile, suffix, n=200, pace=0.0):
     out = tmp_path / f"bus{suffix}"
     bus = open_bus("virtual", channel, profile)
-    stop = threading.Event()
+    published, stop = threading.Event(), threading.Event()
     written = []
-    th = threading.Thread(target=lambda: written.append(record(bus, out, stop=stop)))
+    th = threading.Thread(target=lambda: written.append(
+        record(StopWhenDrained(bus, published, stop), out, stop=stop)))
     th.start()
-    time.sleep(0.05)
     publish(channel, profile, n, pace)
-    time.sleep(0.2)
-    stop.set()
-    th.join(5)
+    published.set()
+    th.join(60)
     bus.shutdown()
+    assert not th.is_alive() and written, "the recorder did not stop"
     return out, written[0]
 
 

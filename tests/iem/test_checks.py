@@ -108,9 +108,36 @@ def test_check(name, check):
     check(ESTIMATORS[name], DATA)
 
 
-@pytest.mark.parametrize("name", sorted(MODELS))
-def test_check_estimator_runs_all(name):
-    check_estimator(ESTIMATORS[name], DATA)
+def test_check_estimator_runs_every_check_in_order_and_stops_at_the_first_failure(
+        monkeypatch):
+    """Every ``check_*`` of the two modules is in CHECKS, once; check_estimator runs them in
+    that order on the factory and data it is given (test_check ran each above), and the first
+    failure ends it."""
+    import inspect
+
+    defined = {f for module in (checks, capability_checks)
+               for name, f in inspect.getmembers(module, inspect.isfunction)
+               if name.startswith("check_") and f is not check_estimator
+               and f.__module__ == module.__name__}
+    assert len(checks.CHECKS) == len(set(checks.CHECKS)) and set(checks.CHECKS) == defined
+    ran = []
+
+    def check(k: int, fails: bool = False):
+        def run(make, data):
+            ran.append((k, make, data))
+            if fails:
+                raise CheckFailed(f"check {k}")
+        return run
+
+    make = ESTIMATORS["LS"]
+    monkeypatch.setattr(checks, "CHECKS", (check(0), check(1), check(2)))
+    check_estimator(make, DATA)
+    assert ran == [(0, make, DATA), (1, make, DATA), (2, make, DATA)]
+    ran.clear()
+    monkeypatch.setattr(checks, "CHECKS", (check(0), check(1, fails=True), check(2)))
+    with pytest.raises(CheckFailed, match="check 1"):
+        check_estimator(make, DATA)
+    assert [k for k, *_ in ran] == [0, 1]
 
 
 # -- the checks catch what they are meant to catch -------------------------------------

@@ -84,6 +84,20 @@ def test_reversed_samples_are_the_tandem_at_the_reversed_state(gap):
             assert np.abs(back[:, 14:] - X[:, 14:]).max() > 0.05
 
 
+def test_samples_of_one_state_are_reversed_as_each_alone():
+    """The samples of one state share their velocities and take one row's friction: the same
+    numbers to the bit as each sample reversed on its own; samples of several states too."""
+    arm = RealityGap(seed=3).realise()
+    model = ArmModel(arm=arm)
+    tandem = TandemSimulators(training_phi()[:6], model=model)
+    reverse = build(reversal_spec(arm), "reversal")
+    rng = np.random.default_rng(2)
+    X = np.vstack([tandem.samples(*model.random_state(rng))[0] for _ in range(2)])
+    one = X[:6]  # one state
+    np.testing.assert_array_equal(reverse(one), np.vstack([reverse(row[None]) for row in one]))
+    np.testing.assert_array_equal(reverse(X), np.vstack([reverse(row[None]) for row in X]))
+
+
 def test_reversal_is_a_hyper_parameter_that_doubles_the_training():
     spec = "sim.coverage:reversed_velocities"
     ens = IncrementalEnsemble(seed=0, reversal=spec)

@@ -52,3 +52,43 @@ def test_the_cholesky_helpers_agree_with_numpy():
     np.testing.assert_allclose(cholesky_solve(L, b), np.linalg.solve(A, b), rtol=1e-12)
     np.testing.assert_allclose(cholesky_inverse(L), np.linalg.inv(A), rtol=1e-10,
                                atol=1e-14)
+
+
+def test_the_arms_considered_parameters_move_the_estimate_as_their_covariance_says():
+    """What the arm's uncertainty adds to the estimate (``Posterior.arm_cov``) against an
+    independent computation: the posterior mean of windows whose equations carry the arm's
+    torque for each unit parameter ``A e_i`` (offsets marginalised alike) moves by column
+    ``i`` of ``J``, and ``arm_cov = J J^T``."""
+    from iem.physics.posterior import combine
+
+    rng = np.random.default_rng(5)
+    offset_var = rng.uniform(0.01, 0.2, 7) ** 2
+    k = 4
+    mu, C = rng.normal(size=10), np.diag(rng.uniform(0.1, 1.0, 10))
+    eqs = []
+    for _ in range(25):  # data that agree with the prior: it is not inflated
+        Y, _, R = _equation(rng)
+        eqs.append((Y, Y @ mu + rng.normal(size=7) * 0.01, R, rng.normal(size=(7, k)) * 0.05))
+
+    def posterior(shift=None):
+        window = EquationWindow(offset_var)
+        for Y, r, R, A in eqs:
+            window.add(Y, r if shift is None else r + A @ shift, R, weight=3.0, A=A)
+        return combine(mu, C, window)
+
+    base = posterior()
+    assert base.inflation == 1.0
+    J = np.column_stack([posterior(np.eye(k)[i]).mean - base.mean for i in range(k)])
+    np.testing.assert_allclose(base.arm_cov, J @ J.T, rtol=1e-6, atol=1e-12)
+    assert np.all(np.diag(base.arm_cov) > 0.0)
+    # a window without them adds nothing; its state keeps them for the next refresh
+    plain = EquationWindow(offset_var)
+    for Y, r, R, _ in eqs:
+        plain.add(Y, r, R, weight=3.0)
+    assert not combine(mu, C, plain).arm_cov.any()
+    window = EquationWindow(offset_var)
+    for Y, r, R, A in eqs:
+        window.add(Y, r, R, weight=3.0, A=A)
+    back = EquationWindow(offset_var)
+    back.set_state(window.to_state())
+    np.testing.assert_array_equal(back.arm_sensitivity(), window.arm_sensitivity())

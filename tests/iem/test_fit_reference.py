@@ -83,13 +83,15 @@ def test_fit_is_the_reference_to_the_bit(n, batch, noise):
     assert np.abs(want.a).max() > 0  # it did learn
 
 
-def test_the_reference_tells_one_bit_apart():
-    """The comparison can fail: a refit on data one ulp apart is another learner."""
+def test_the_reference_tells_a_last_digit_apart():
+    """The comparison can fail: a refit on data that differ in one value's 12th significant
+    digit is another learner. (One ulp can vanish in the rounding of the sums it enters,
+    depending on the machine's kernels: it did on OpenBLAS's Sandybridge kernel.)"""
     X, Y = _bag(600)
     lo, hi = output_range(Y)
     kw = {"input_noise": SENSOR_NOISE, "seed": 1, "epochs": 2, "batch": 60}
     nudged = X.copy()
-    nudged[17, 3] = np.nextafter(nudged[17, 3], np.inf)
+    nudged[17, 3] *= 1.0 + 1e-12
     assert state_bytes(WeakLearner.fit(nudged, Y, lo, hi, **kw)) != \
         state_bytes(reference_fit(X, Y, lo, hi, **kw))
 

@@ -375,7 +375,8 @@ def test_a_posterior_saved_as_a_list_still_loads_and_its_size_is_what_it_holds()
         np.testing.assert_array_equal(back.mean, PHI)
         assert back.inflation == 2.0 and back.equations == equations
     # phi and std are made on first use; the size a model reserves counts them
-    held = (post.mean, post.cov, post.precision, post.phi, post.std, post.gain_var)
+    held = (post.mean, post.cov, post.precision, post.phi, post.std, post.gain_var,
+            post.arm_cov)
     assert Posterior.nbytes() == sum(a.nbytes for a in held)
 
 

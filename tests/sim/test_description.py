@@ -229,7 +229,8 @@ def test_a_continuous_joint_is_revolute_within_one_turn():
 
 @pytest.mark.parametrize("spec, flange, names", [
     ("fr3", "nosuchlink", ("no flange", "'nosuchlink'")),
-    (str(Path("nowhere") / "arm.urdf"), None, ("cannot be read",)),
+    (str(Path("nowhere") / "arm.urdf"), None, ("cannot read the URDF file: it does not "
+                                                "exist",)),
     ("arm.txt", None, ("is not valid", "'panda', 'fr3'")),
 ])
 def test_a_bad_spec_is_refused_naming_it(spec, flange, names):

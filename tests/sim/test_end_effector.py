@@ -6,7 +6,7 @@ import pytest
 from iem.errors import InvalidInputError, ModelFileError
 from iem.persistence import check_arm
 from sim.arm import ArmParams, arm_record, load_arm, save_arm
-from sim.end_effector import check_same, end_effector
+from sim.end_effector import check_same, end_effector, end_effector_of
 from sim.nominal import link7_params
 from sim.payload import Payload, save_payload
 from sim.robot import ArmModel, nominal_link_params
@@ -25,6 +25,31 @@ def test_none_is_link7_alone_and_the_hand_is_its_0_76_kg():
     hand = end_effector("franka_hand")
     assert hand.mass == pytest.approx(0.73 + 2 * 0.015, abs=1e-9)  # hand and two fingers
     assert np.allclose(link7_params() + hand.params(), nominal_link_params()[6])
+
+
+def test_an_end_effector_is_resolved_on_its_arm_model(tmp_path):
+    """One resolution (end_effector_of): an EndEffector as it is; a spec; None or "" the arm
+    model's default, the hand on a named arm model and nothing on a URDF file."""
+    from sim.description import arm_description
+
+    fr3 = arm_description("fr3")
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(fr3.text, encoding="utf-8")
+    own = arm_description(str(urdf), fr3.flange)
+    tool = end_effector("none")
+    assert end_effector_of(tool, fr3) is tool
+    for declared in (None, ""):
+        assert end_effector_of(declared).spec == "franka_hand"  # the default arm model's
+        assert end_effector_of(declared, fr3).spec == "franka_hand"
+        assert end_effector_of(declared, own).spec == "none"
+    assert end_effector_of("none", fr3).label == "none"
+    assert end_effector_of("franka_hand", own).mass == end_effector("franka_hand").mass
+    assert own.end_effector_spec(None) == "none" and fr3.end_effector_spec("x.toml") == "x.toml"
+    with pytest.raises(InvalidInputError, match="'gripper' is not valid"):
+        end_effector_of("gripper", fr3)
+    # and everything that builds the arm from a declaration takes it from there
+    assert ArmParams.nominal(None, own).end_effector == "none"
+    assert np.array_equal(nominal_link_params(None, own), nominal_link_params("none", own))
 
 
 def test_a_tool_file_is_a_payload_fused_into_body_7(tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import re
 
 import numpy as np
@@ -25,6 +26,7 @@ from sim.paths import (
     save_path_csv,
 )
 from sim.robot import arm_model
+from tests.watchdog import within
 
 H = 1.0 / RATE_HZ
 DELTA = math.radians(30.0)  # the paper's joint-space threshold, rad
@@ -483,10 +485,15 @@ def test_csv_errors_name_file_line_and_what_is_valid(tmp_path, case):
 
 def test_csv_unreadable_files(tmp_path):
     missing = tmp_path / "missing.csv"
-    with pytest.raises(PathError, match=r"missing\.csv: cannot read path file"):
+    with pytest.raises(PathError, match=r"missing\.csv: cannot read the path file: it does "
+                                        "not exist"):
         load_path_csv(missing)
-    with pytest.raises(PathError, match="cannot read path file"):
+    with pytest.raises(PathError, match="cannot read the path file: it is a directory"):
         load_path_csv(tmp_path)  # a folder
+    fifo = tmp_path / "fifo.csv"  # once a read that waited for a writer for good
+    os.mkfifo(fifo)
+    with within(10), pytest.raises(PathError, match="it is a FIFO"):
+        load_path_csv(fifo)
     binary = tmp_path / "binary.csv"
     binary.write_bytes(b"\xff\xfe\x00t,q1")
     with pytest.raises(PathError, match="not UTF-8 text"):
@@ -498,3 +505,20 @@ def test_csv_with_byte_order_mark_and_crlf(tmp_path):
     f.write_bytes(("\ufeff" + HEADER + "\r\n" + "\r\n".join(_rows(6)) + "\r\n").encode())
     p = load_path_csv(f)
     assert p.duration == pytest.approx(0.05)
+
+
+def test_a_csv_is_checked_against_the_arm_model_it_is_for(tmp_path):
+    """An FR3 path faster than the Panda's limits allow (its wrist turns at 4.18 rad/s, the
+    Panda's at 2.61) loads for the FR3 and is refused for the Panda."""
+    from sim.robot import ArmModel
+
+    fr3 = ArmModel(description="fr3")
+    q0 = np.array(fr3.description.home)
+    q1 = q0.copy()
+    q1[5] += 1.6  # joint 6: a quintic's peak speed 1.875 x 1.6 / 1 s = 3.0 rad/s
+    path = linear_path(q0, q1, 1.0, model=fr3)
+    f = tmp_path / "fr3.csv"
+    save_path_csv(path, f)
+    assert load_path_csv(f, model=fr3).duration == pytest.approx(1.0)
+    with pytest.raises(PathError, match="joint 6 velocity"):
+        load_path_csv(f)

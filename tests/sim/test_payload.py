@@ -104,6 +104,11 @@ def test_toml_round_trip(tmp_path):
         ('name = "x"\nmass = 1.0\ncom = [0, 0, 0]\ninertia = [1e-3, 0, 0, 1e-3, 0, 1e-3]\n'
          'colour = "red"', "unknown key"),
         ('name = "x"\nmass = 1.0\ncom = [0, 0, 0', "not valid TOML"),
+        # a misspelt key: named, with what it was meant to be (not "missing key 'mass'")
+        ('name = "x"\nmas = 1.0\ncom = [0, 0, 0]\ninertia = [1e-3, 0, 0, 1e-3, 0, 1e-3]',
+         r"unknown key\(s\) 'mas' \(did you mean 'mass'\?\); valid keys are"),
+        ('name = "x"\nmass = 1.0\ncom = [0, 0, 0]\ninertia = [1e-3, 0, 0, 1e-3, 0, 1e-3]\n'
+         'x = ' + '[' * 40 + ']' * 40, "nested more than 32 deep on line 5"),
     ],
 )
 def test_bad_files_name_the_key_and_valid_range(tmp_path, text, words):
@@ -114,8 +119,22 @@ def test_bad_files_name_the_key_and_valid_range(tmp_path, text, words):
     assert str(f) in str(info.value)
 
 
+def test_a_fifo_is_refused_not_waited_on(tmp_path):
+    """A FIFO named as a payload file (an end effector, an initial payload) would block the
+    read until a writer came: it is refused at once, as every file a user hands over is."""
+    import os
+
+    from tests.watchdog import within
+
+    fifo = tmp_path / "tool.toml"
+    os.mkfifo(fifo)
+    with within(10), pytest.raises(PayloadError, match="it is a FIFO \\(named pipe\\); valid "
+                                                       "is a regular file"):
+        load_payload(fifo)
+
+
 def test_missing_file_is_a_clear_error(tmp_path):
-    with pytest.raises(PayloadError, match="cannot read payload file"):
+    with pytest.raises(PayloadError, match="cannot read the payload file: it does not exist"):
         load_payload(tmp_path / "none.toml")
 
 

@@ -119,13 +119,10 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     ``rated_mass_kg`` (None: the arm model's rated payload); the figures, with ``runs`` (the
     records, for the figures) beside them."""
     from deploy.bench.writeback.scenarios import ideal_plant, realistic_plant, run_scenario
-    from deploy.config import config_from_dict
-    from deploy.simcell.cell import cell_sections
+    from deploy.config import cell_config
 
-    cell = cell_sections(description, rated_mass_kg)
-    # an end effector beyond the rated payload fails before training (cell_sections
-    # refused an arm model without one)
-    config_from_dict({"arm": cell["arm"], "gate": cell["gate"]}, where="bench writeback")
+    # an end effector beyond the rated payload fails before training
+    cell_config(description, rated_mass_kg, where="bench writeback")
 
     timing = TIMING["quick" if quick else "full"]
     records, figures, setup = [], [], []
@@ -133,10 +130,11 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     for seed in seeds:
         for kind in plants if sim else ():
             t0 = time.perf_counter()
-            plant = (ideal_plant(seed, log=log, description=description, cell=cell)
+            plant = (ideal_plant(seed, log=log, description=description,
+                                 rated_mass_kg=rated_mass_kg)
                      if kind == "ideal" else
                      realistic_plant(seed, out_dir, log=log, description=description,
-                                     cell=cell))
+                                     rated_mass_kg=rated_mass_kg))
             setup.append({"plant": kind, "seed": seed, "calibration": plant.calibration,
                           "set_up_s": time.perf_counter() - t0})
             for name in sim:
@@ -234,7 +232,7 @@ def configure(parser) -> None:
                         "0,1,2): sensor noise, learners and the realistic plant's gap")
     parser.add_argument("--quick", action="store_true",
                         help="the first seed only, shorter scenarios")
-    parser.add_argument("--plant", choices=("ideal", "realistic", "both"), default="both",
+    parser.add_argument("--plant", choices=("ideal", "realistic", "both"), default=None,
                         help="which plant (default both)")
     parser.add_argument("--scenarios", default=",".join(ALL),
                         help=f"comma-separated, of {', '.join(ALL)} (default all)")
@@ -243,14 +241,15 @@ def configure(parser) -> None:
                         "extra), the arm files and the real recording's CSVs")
     parser.add_argument("--real", metavar="DIR", help="folder of the real recording "
                         "(default: IEM_REAL_DIR, else ../shared/real beside the checkout)")
-    from deploy.options import add_arm_model
+    from deploy.options import add_arm_model, add_rated_mass
 
     add_arm_model(parser)
+    add_rated_mass(parser)
 
 
 def run(args) -> int:
     from deploy.bench.real import require_panda
-    from deploy.options import arm_description_of
+    from deploy.options import arm_description_of, refuse_unused
     from iem.extras import require
 
     seeds = _seeds(args.seeds)[:1] if args.quick else _seeds(args.seeds)
@@ -258,7 +257,13 @@ def run(args) -> int:
     description = arm_description_of(args)
     if "real" in scenarios:
         require_panda(description, "iem bench writeback's real scenario")
-    plants = PLANTS if args.plant == "both" else (args.plant,)
+    else:
+        refuse_unused(args, ["--real"], "without the real scenario: it is that scenario's "
+                      "recording")
+    if set(scenarios) == {"real"}:
+        refuse_unused(args, ["--plant"], "with the real scenario alone: it runs on the "
+                      "recording, not on a simulated plant")
+    plants = PLANTS if args.plant in (None, "both") else (args.plant,)
     if args.out:
         require("matplotlib", "iem bench writeback --out (its figures)")
 

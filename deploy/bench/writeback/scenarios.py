@@ -35,8 +35,8 @@ LOG_KEPT = 400
 
 @dataclass
 class Plant:
-    """The arm the controller simulates and the plug-in's model for it; ``cell``: the cell's
-    arm model and gate rating (:func:`deploy.simcell.cell.cell_sections`)."""
+    """The arm the controller simulates and the plug-in's model for it; ``description``
+    the arm model, ``rated_mass_kg`` the gate's rating (None: the arm model's)."""
 
     name: str
     seed: int
@@ -45,7 +45,7 @@ class Plant:
     arm_file: str | None = None
     calibration: dict = field(default_factory=dict)
     description: object = None
-    cell: dict = field(default_factory=lambda: {"arm": {}, "gate": {}})
+    rated_mass_kg: float | None = None
 
 
 @dataclass
@@ -72,7 +72,8 @@ def tools() -> dict:
     return test_payloads()
 
 
-def ideal_plant(seed: int, log=print, description=None, cell: dict | None = None) -> Plant:
+def ideal_plant(seed: int, log=print, description=None,
+                rated_mass_kg: float | None = None) -> Plant:
     """The plant equal to its model (of the arm model ``description``; None: the default);
     IEM+phys trained for the nominal arm with the sensor's noise as its equations' error (as
     ``iem demo`` runs it)."""
@@ -80,12 +81,11 @@ def ideal_plant(seed: int, log=print, description=None, cell: dict | None = None
 
     model = train_initial_model("IEM+phys", seed=seed, noise="sensor", log=log,
                                 description=description)
-    return Plant("ideal", seed, model, description=description,
-                 cell=cell or {"arm": {}, "gate": {}})
+    return Plant("ideal", seed, model, description=description, rated_mass_kg=rated_mass_kg)
 
 
 def realistic_plant(seed: int, out_dir, log=print, description=None,
-                    cell: dict | None = None) -> Plant:
+                    rated_mass_kg: float | None = None) -> Plant:
     """``iem bench realistic``'s plant of ``seed`` (its reality gap), the bare arm calibrated
     as that bench does (written to ``out_dir``), IEM+phys trained for the calibrated arm (as
     ``iem train --arm``)."""
@@ -101,23 +101,22 @@ def realistic_plant(seed: int, out_dir, log=print, description=None,
     return Plant("realistic", seed, model, gap=bench.gap, arm_file=str(arm_file),
                  calibration={"rms_before": arm.report["rms_before"],
                               "rms_after": arm.report["rms_after"], "held_out": held_out},
-                 description=description, cell=cell or {"arm": {}, "gate": {}})
+                 description=description, rated_mass_kg=rated_mass_kg)
 
 
-def cell_config(plant: Plant, model_file):
+def run_config(plant: Plant, model_file):
     """The cell of a run: the virtual bus, IEM+phys at ``model_file`` (checkpointed at the
     end only), the plant's arm file and arm model, the gate's defaults (its rating the
-    plant's cell's)."""
-    from deploy.config import config_from_dict
-    from deploy.simcell.inprocess import virtual_channel
+    plant's)."""
+    from deploy.config import cell_config
+    from deploy.simcell.inprocess import virtual_link
 
-    return config_from_dict({
-        "link": {"kind": "virtual", "channel": virtual_channel("writeback"), "profile": "fd"},
-        "model": {"path": str(model_file), "kind": "IEM+phys", "seed": plant.seed,
-                  "checkpoint_period_s": 3600.0, "arm": plant.arm_file or ""},
-        "arm": {**plant.cell["arm"], "noise": "arm" if plant.arm_file else "sensor"},
-        "gate": plant.cell["gate"],
-        "log": {"status_line": "off"}}, where="bench writeback")
+    return cell_config(
+        plant.description, plant.rated_mass_kg, where="bench writeback",
+        link=virtual_link("writeback"),
+        model={"path": str(model_file), "kind": "IEM+phys", "seed": plant.seed,
+               "checkpoint_period_s": 3600.0, "arm": plant.arm_file or ""},
+        arm={"noise": "arm" if plant.arm_file else "sensor"})
 
 
 class _Lines(logging.Handler):
@@ -140,7 +139,7 @@ def run_cell(plant: Plant, schedule, end_s: float, model_file, *, model=None,
     ``controller_load``: the load the controller holds at its start."""
     from deploy.simcell.inprocess import simulated_cell
 
-    config = cell_config(plant, model_file)
+    config = run_config(plant, model_file)
     rows: list[tuple] = []
     handler = _Lines()
     loggers = [logging.getLogger(n) for n in ("iem.gate", "iem.service")]

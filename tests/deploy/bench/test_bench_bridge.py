@@ -5,9 +5,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[3]
 
 
+@pytest.mark.smoke
 def test_bench_bridge_writes_json(tmp_path):
     out = tmp_path / "bridge.json"
     done = subprocess.run([sys.executable, "-m", "deploy.cli", "bench", "bridge", "--cycles",

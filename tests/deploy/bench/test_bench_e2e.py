@@ -8,7 +8,7 @@ import time
 import pytest
 
 from deploy.bench.e2e import _back_to_back, measure
-from deploy.bench.timing import step_timing
+from deploy.bench.timing import MACHINE_LOOP, machine_speed, step_timing
 from iem.persistence import load_model
 
 
@@ -52,6 +52,27 @@ def test_bench_e2e_steps_the_same_points_again_back_to_back(phys_model_file):
     # the live step is a part of the loop thread's CPU
     loop_us = figures["cpu_share_parts"]["cycle"] * figures["seconds"] / figures["cycles"] * 1e6
     assert step["live"] <= loop_us
+
+
+def test_machine_speed_times_a_fixed_round_by_cpu_and_wall():
+    started = time.perf_counter()
+    figures = machine_speed(rounds=200, repeats=3)
+    assert set(figures) == {"cpu_us", "wall_us"}
+    assert 0.0 < figures["cpu_us"] <= figures["wall_us"] * 1.05  # one thread: CPU <= wall
+    # three repeats of 200 rounds, each a round's time: the medians are what was timed
+    assert 3 * 200 * figures["wall_us"] * 1e-6 <= (time.perf_counter() - started) * 1.5
+    assert MACHINE_LOOP[0] >= 1000 and MACHINE_LOOP[1] >= 3  # medians of enough work
+    for bad in ((0, 3), (10, 0)):
+        with pytest.raises(ValueError, match="rounds and repeats >= 1"):
+            machine_speed(*bad)
+
+
+def test_bench_e2e_reads_the_machine_speed_beside_the_share(phys_model_file):
+    f = measure(1.0, model=load_model(phys_model_file), log=lambda *a: None)
+    m = f["machine_us"]
+    assert m["before"]["cpu_us"] > 0.0 and m["after"]["cpu_us"] > 0.0
+    round_s = (m["before"]["cpu_us"] + m["after"]["cpu_us"]) / 2.0 * 1e-6
+    assert f["cpu_share_rounds"] == pytest.approx(f["cpu_share"] / round_s, rel=1e-12)
 
 
 def test_a_run_that_estimated_nothing_has_no_back_to_back_figure():

@@ -5,6 +5,7 @@ import json
 import pytest
 
 from deploy.bench.paper import run_paper
+from deploy.bench.report import PAPER_TABLE2
 
 GROUPS = {"mass", "com", "inertia"}
 
@@ -56,8 +57,12 @@ def test_forgetting_beside_the_papers_old_iem(results):
     out, r = results
     old = r["scenarios"]["forgetting"]["old_IEM"]
     assert old["update"] == "frozen"
-    assert old["paper"]["after"] == {"mass": 0.037, "com": 0.025, "inertia": 0.0022}
-    assert old["paper"]["before"]["mass"] == 0.00655
+    paper, table2 = old["paper"], PAPER_TABLE2["old_IEM"]  # Table 2 per group, 5.3, ratio
+    assert paper["before"] == pytest.approx({"mass": table2[0], "com": sum(table2[1:4]) / 3,
+                                             "inertia": sum(table2[4:]) / 6}, rel=1e-12)
+    for g in GROUPS:
+        assert paper["ratio"][g] == pytest.approx(paper["after"][g] / paper["before"][g],
+                                                  rel=1e-12)
     for key in ("before_raw", "after_raw"):
         assert set(old[key]) == GROUPS
     variant = old["variants"]["running_centre"]
@@ -67,6 +72,8 @@ def test_forgetting_beside_the_papers_old_iem(results):
     text = (out / "report.md").read_text()
     assert "paper after (5.3)" in text and "old_IEM (running_centre)" in text
     assert "times the paper's figures" in text
+    for g in GROUPS:  # the paper's after/before beside ours
+        assert f"{paper['ratio'][g]:.3g} |" in text
 
 
 def test_checks_that_can_fail(results):
@@ -93,6 +100,7 @@ def test_checks_that_can_fail(results):
     assert not any(tuple(p.to_phi().round(12)) in trained for p in holdout_payloads(0, 4))
 
 
+@pytest.mark.smoke
 def test_report_and_figures(results):
     out, _ = results
     text = (out / "report.md").read_text()

@@ -176,6 +176,7 @@ def test_short_run_bookkeeping(trained_phys_model_file):
     assert math.isfinite(f["end_s"])
 
 
+@pytest.mark.smoke
 def test_a_figure_per_run(tmp_path):
     pytest.importorskip("matplotlib")
     from deploy.bench.writeback.figures import write_figures

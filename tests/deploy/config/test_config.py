@@ -1,5 +1,6 @@
 """``cell.toml``: the example documents every key; bad input names key, value and what is valid."""
 
+import os
 import re
 import tomllib
 from dataclasses import fields, replace
@@ -19,6 +20,7 @@ from deploy.config import (
     config_from_dict,
     load_config,
 )
+from tests.watchdog import within
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "deploy" / "cell.toml"
 
@@ -198,9 +200,31 @@ def test_bad_toml_names_the_file_and_the_place(tmp_path):
         load_config(path)
 
 
+@pytest.mark.parametrize(("what", "make", "message"), [
+    ("5,000 nested brackets", lambda p: p.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n"),
+     "arrays or inline tables nested more than 32 deep on line 1; a configuration file nests "
+     "them at most 32 deep"),
+    ("5,000 nested inline tables", lambda p: p.write_text("[link]\nx = " + "{a = " * 5000 + "1"
+                                                          + "}" * 5000 + "\n"),
+     "nested more than 32 deep on line 2"),
+    ("a FIFO", os.mkfifo, "cannot read the configuration file: it is a FIFO (named pipe); "
+                          "valid is a regular file"),
+    ("2 MB", lambda p: p.write_text("# " + "x" * 2_000_000 + "\n"),
+     "cannot read the configuration file: it holds 1.91 MB; valid is at most 1 MB"),
+])
+def test_a_file_out_of_bounds_is_a_clear_error_at_once(tmp_path, what, make, message):
+    """Nesting that made Python's TOML parser raise RecursionError, a FIFO that blocked the
+    start for good, a file of any size: each a ConfigError (exit 78), at once."""
+    path = tmp_path / "cell.toml"
+    make(path)
+    with within(10), pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value) == f"{path}: {message}" or message in str(info.value), what
+
+
 def test_missing_file_says_it_cannot_be_read(tmp_path):
-    with pytest.raises(ConfigError, match=r"nope\.toml: cannot read the configuration: "
-                                          r"No such file"):
+    with pytest.raises(ConfigError, match=r"nope\.toml: cannot read the configuration file: "
+                                          r"it does not exist"):
         load_config(tmp_path / "nope.toml")
 
 
@@ -237,6 +261,7 @@ def test_systemd_unit_parses_and_is_a_notify_service_with_a_watchdog():
     assert env["OPENBLAS_NUM_THREADS"] == "1"  # small solves: BLAS threads only contend
     assert svc["ReadWritePaths"] == "/var/lib/iem" and svc["ProtectSystem"] == "strict"
     assert "MemoryDenyWriteExecute" not in svc  # libffi closures need executable pages
+    assert svc["StandardOutput"] == "null"  # the journal: JSON logs only, no summary in words
 
 
 def test_setup_vcan_script_is_valid_bash_and_has_help():

@@ -11,6 +11,7 @@ import json
 import math
 
 import can
+import numpy as np
 import pytest
 
 from deploy.cli import main
@@ -168,6 +169,18 @@ def test_cli_writes_csv_json_and_keeps_the_model_file(tmp_path, fd_log, replay_m
     assert hashlib.sha256(replay_model_file.read_bytes()).hexdigest() == before
 
 
+def test_the_replay_reports_its_cpu_and_speed_per_cpu_second(fd_log, replay_model):
+    """``cpu_speed`` is the recorded time over the CPU of the replay's threads, the loop's
+    (learning inline in it) and the reader's; never more than the wall time allows."""
+    log_file, _ = fd_log
+    summary, _ = replay(log_file, model=replay_model, log=lambda _: None)
+    parts = summary["cpu_parts"]
+    assert summary["replay_cpu_s"] == parts["cycle"] + parts["reader"] > 0.0
+    assert summary["cpu_speed"] == summary["recorded_s"] / summary["replay_cpu_s"]
+    assert parts["learning"] <= parts["cycle"]  # inline: a part of the loop's CPU
+    assert summary["replay_cpu_s"] <= summary["wall_s"] * 1.05  # one thread's CPU (+ clocks)
+
+
 def test_save_model_writes_the_learnt_model(tmp_path, fd_log, replay_model,
                                            replay_model_file):
     from iem.persistence import load_model
@@ -203,6 +216,25 @@ def test_bad_files_exit_2_with_clear_errors(tmp_path, fd_log, replay_model_file,
     missing_model = tmp_path / "none.msgpack"
     assert main(["replay", str(bad), "--model", str(missing_model)]) == 2
     assert "none.msgpack" in capsys.readouterr().err
+
+
+def test_an_empty_blf_and_a_random_asc_are_said_once_and_clearly(tmp_path, replay_model_file,
+                                                                 capsys):
+    """An empty ``.blf`` names what a BLF file starts with (not python-can's "unpack requires
+    a buffer of 72 bytes"); a random ``.asc`` says each warning once (the rate's peek at the
+    start no longer says them too)."""
+    empty = tmp_path / "empty.blf"
+    empty.write_bytes(b"")
+    assert main(["replay", str(empty), "--model", str(replay_model_file), "--no-status"]) == 2
+    err = capsys.readouterr().err
+    assert "empty.blf: empty (0 bytes): a BLF file starts with its header" in err, err
+    random = tmp_path / "random.asc"
+    random.write_bytes(np.random.default_rng(0).integers(0, 256, 4000, np.uint8).tobytes())
+    assert main(["replay", str(random), "--model", str(replay_model_file), "--no-status"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("random.asc is truncated") == 1, err
+    assert err.count("lines python-can could not read") == 1, err
+    assert err.count("iem: error:") == 1
 
 
 # -- damaged logs: a truncated one replays what it holds, a bad line is skipped and counted --

@@ -31,7 +31,8 @@ from tests.firmware_bridge.test_recordings import PANDA, write_bag
 from ..conftest import REPO
 
 SECONDS = 1.0
-RUN_TIME_KEYS = ("wall_s", "speed", "estimates_per_s", "cpu_s", "cpu_parts", "step_cpu_s")
+RUN_TIME_KEYS = ("wall_s", "speed", "estimates_per_s", "cpu_s", "cpu_parts", "step_cpu_s",
+                 "replay_cpu_s", "cpu_speed")
 """Summary keys that measure the run, not the replay: they differ between any two runs."""
 
 

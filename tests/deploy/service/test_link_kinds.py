@@ -33,7 +33,7 @@ from sim.paths import excitation_path, new_task_path
 from tests.firmware_bridge import franka_fake
 from tests.firmware_bridge.hil import vcan_unavailable
 
-from ..conftest import cell_config, write_toml
+from ..conftest import cell_config, stopped_summary, write_toml
 from ..replay.test_replay import record_sim
 
 _channels = itertools.count()
@@ -201,7 +201,5 @@ def test_replay_through_iem_run(tmp_path, model_file, capsys):
     cell = write_toml(tmp_path / "cell.toml",
                       cell_config(model_file, {"kind": "replay", "channel": str(log)}))
     assert main(["run", "--config", str(cell)]) == 0
-    err = capsys.readouterr().err
-    assert "iem run: " in err and " block points" in err
-    cycles = int(err.split("iem run: ")[1].split(" block points")[0])
+    cycles = stopped_summary(capsys.readouterr().err)["cycles"]
     assert cycles == -(-len(path) // 10)  # every recorded cycle's block, then the end

@@ -9,6 +9,7 @@ import itertools
 import time
 
 import numpy as np
+import pytest
 
 from deploy.service.reader import BatchReader, LinkReader
 from firmware_bridge.can_link import CanControllerPort, CanLink, open_bus
@@ -107,6 +108,10 @@ def test_a_silence_closes_the_open_block_first():
     np.testing.assert_allclose(last.q, np.mean([s.q for s in states[20:]], axis=0),
                                rtol=0, atol=1e-5)  # the wire quantises q
     assert last.cycle == 24
+    # the silence closed it: its age is the silence's, no lag of the service
+    assert [i.flushed for i in items[:3]] == [False, False, True]
+    # the silence on the controller's clock: the last frame's time plus the timeout
+    assert items[3].t == pytest.approx(states[24].t + 0.05, abs=1e-5)  # the wire's 1 µs
 
 
 class _Frames:
@@ -144,3 +149,34 @@ def test_a_replay_reads_in_bulk_the_blocks_the_live_reader_forms():
     for a, b in zip(got, items, strict=True):
         assert a.value.t == b.value.t and a.value.cycle == b.value.cycle
         np.testing.assert_array_equal(a.value.features(), b.value.features())
+
+
+class _Pausing(_Frames):
+    """A replayed stream that is silent for ``reads`` reads after frame ``at``."""
+
+    def __init__(self, states, at: int, reads: int) -> None:
+        super().__init__(states)
+        self.read_frames, self.at, self.quiet = 0, at, reads
+
+    def read(self, timeout):
+        from firmware_bridge.errors import ControllerSilent
+
+        if self.read_frames == self.at and self.quiet:
+            self.quiet -= 1
+            raise ControllerSilent("quiet")
+        self.read_frames += 1
+        return super().read(timeout)
+
+
+def test_a_replays_silence_is_on_the_recordings_clock_and_closes_the_open_block():
+    states = synthetic_states(40)
+    batch = BatchReader(_Pausing(states, at=25, reads=2), 0.05, chunk=32)
+    items = []
+    while (item := batch.get()).kind != "end":
+        items.append(item)
+    assert [i.kind for i in items] == ["state"] * 3 + ["silent"] * 2 + ["state"] * 2
+    # the silence and the end each close the open block
+    assert [i.flushed for i in items if i.kind == "state"] == [False, False, True, False, True]
+    last = states[24].t  # the last frame before the silence; a read that finds none: 50 ms
+    assert [i.t for i in items if i.kind == "silent"] == pytest.approx([last + 0.05,
+                                                                        last + 0.10])

@@ -56,8 +56,8 @@ def test_service_estimates_from_1khz_joint_states_and_publishes(model_file):
     c = service.link.counters
     stamps = sorted(rows)
     # one estimate per block point of 10 frames (a silence closes a block early)
-    assert len(rows) == service.cycles == summary["cycles"]
-    assert c.delivered // 10 <= service.cycles <= c.delivered // 10 + 1 + c.silences
+    assert len(rows) == service.tally.cycles == summary["cycles"]
+    assert c.delivered // 10 <= service.tally.cycles <= c.delivered // 10 + 1 + c.silences
     # every message from the first to the last one read was either delivered or counted
     # lost: they span the block points' mean times (ms) plus half of the first and the last
     # block (4.5 ms each at most)

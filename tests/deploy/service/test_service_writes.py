@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from deploy.config import config_from_dict
+from deploy.writeback.gate import SafetyGate
 from firmware_bridge.protocol import LoadAck
 from iem.base import BaseEstimator
 from iem.types import PayloadEstimate
@@ -108,7 +109,7 @@ def test_an_encode_error_in_send_is_counted_logged_and_survived(tmp_path, caplog
     caplog.set_level(logging.INFO, logger="iem")
 
     def no_wire_check(service):
-        service.gate.wire_check = None
+        service.gate = SafetyGate(service.gate.config, None, service.gate.motion.regressor)
 
     summary, controller, _ = run_cell(tmp_path, OneLoad(BAR), seconds=2.0, gate=FAST,
                                       prepare=no_wire_check)
@@ -166,7 +167,7 @@ def test_refused_loads_are_retried_until_the_controller_accepts(tmp_path, caplog
     gate = {**FAST, "refusal_retry_s": 0.2, "refusal_retry_max_s": 0.4}
     summary, controller, service = run_cell(
         tmp_path, OneLoad(TRUTH), seconds=6.0, gate=gate, prepare=refuse_twice,
-        until=lambda c, s: c.plant.controller_load is not None and s.gate.acked)
+        until=lambda c, s: c.plant.controller_load is not None and s.gate.commands.acked)
     # two refusals, counted and logged with the controller's text, then the load written
     assert len(proxies[0].refused) == 2
     w = summary["writes"]
@@ -181,8 +182,8 @@ def test_refused_loads_are_retried_until_the_controller_accepts(tmp_path, caplog
     load = controller.plant.controller_load
     assert abs(load.mass - TRUTH.mass) < 1e-4
     np.testing.assert_allclose(load.com, TRUTH.com, atol=1e-5)
-    assert service.gate.last_sent is not None
-    assert abs(service.gate.last_sent.mass - TRUTH.mass) < 1e-9
+    last_sent = service.gate.sent_loads[-1][1]
+    assert last_sent is not None and abs(last_sent.mass - TRUTH.mass) < 1e-9
 
 
 def test_off_a_terminal_the_service_writes_plain_status_lines_between_whole_log_lines(

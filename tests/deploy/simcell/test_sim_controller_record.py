@@ -21,7 +21,7 @@ from sim.robot import ArmModel
 from .test_sim_controller import Port
 
 TOOL = Payload("tool", 0.73, (0.01, -0.02, 0.06), (2e-3, 1e-4, -2e-4, 3e-3, 3e-4, 1.5e-3))
-RECORD_KEYS = {"dropped_commands", "load_in_force", "applied", "mounted"}
+RECORD_KEYS = {"dropped_commands", "load_in_force", "payload", "applied", "mounted"}
 
 
 def test_dropped_commands_are_neither_applied_nor_acked_and_later_ones_are():
@@ -84,7 +84,9 @@ def test_none_unmounts_and_the_empty_load_is_null():
     assert stats["load_in_force"] is None
     assert [a["seq"] for a in stats["applied"]] == [1, 2]
     assert stats["applied"][1] == {"t": 0.01, "seq": 2, "mass": 0.0, "com": [0.0, 0.0, 0.0]}
-    assert stats["mounted"] == [{"t": 0.01, "payload": None}]
+    assert stats["mounted"] == [{"t": 0.0, "payload": ctl.payload.name},
+                                {"t": 0.01, "payload": None}]
+    assert stats["payload"] is None  # the truth at exit: nothing mounted
 
 
 def test_cli_writes_the_record_to_stats_json(tmp_path):
@@ -101,12 +103,37 @@ def test_cli_writes_the_record_to_stats_json(tmp_path):
     assert stats["dropped_commands"] == 0 and stats["cycles"] == 150
 
 
+def test_stats_json_holds_the_true_payload_and_what_was_mounted_without_a_schedule(tmp_path):
+    """Without --payload-schedule, ``mounted`` holds the payload mounted at the start (it
+    was empty), and ``payload`` the true payload at exit in ``load_in_force``'s terms, to
+    compare what the plug-in wrote with (it was missing)."""
+    tool = tmp_path / "tool.toml"
+    save_payload(TOOL, tool)
+    out = tmp_path / "stats.json"
+    assert main(["sim-controller", "--interface", "virtual", "--channel", "record-truth",
+                 "--duration", "0.05", "--payload", str(tool), "--stats-json", str(out)]) == 0
+    stats = json.loads(out.read_text())
+    assert stats["mounted"] == [{"t": 0.0, "payload": "tool"}]
+    truth = stats["payload"]
+    assert truth["name"] == "tool" and truth["mass"] == TOOL.mass
+    assert truth["com"] == list(TOOL.com)
+    np.testing.assert_allclose(np.reshape(truth["inertia"], (3, 3), order="F"),
+                               TOOL.inertia_matrix)
+    out.unlink()
+    assert main(["sim-controller", "--interface", "virtual", "--channel", "record-default",
+                 "--duration", "0.05", "--stats-json", str(out)]) == 0
+    stats = json.loads(out.read_text())
+    default = default_test_payload()
+    assert stats["mounted"] == [{"t": 0.0, "payload": default.name}]
+    assert stats["payload"]["mass"] == default.mass
+
+
 @pytest.mark.parametrize(("spec", "wanted"), [
     ("soon", "entry 'soon': valid is comma-separated T:FILE or T:none"),
     ("x:none", "time 'x' is not a number"),
     ("-1:none", "time -1.0: valid is a number of s >= 0"),
     ("0:none,0:none", "time 0 s given twice"),
-    ("0:/no/such/tool.toml", "cannot read payload file"),
+    ("0:/no/such/tool.toml", "cannot read the payload file: it does not exist"),
 ])
 def test_cli_bad_schedules_exit_2_naming_what_is_valid(spec, wanted, capsys):
     with pytest.raises(SystemExit) as info:

@@ -47,28 +47,32 @@ class Controller:
         if not decision.send:
             return
         self.seq += 1
-        self.gate.sent_command(self.seq, decision.t)
+        self.gate.commands.sent_command(self.seq, decision.payload, decision.t)
         if self.lose:
             self.lose -= 1
             return
         self.applied.append((decision.t, decision.payload))
-        self.gate.acknowledged(self.seq, decision.t)
+        self.gate.commands.acknowledged(self.seq, decision.t)
 
 
 def feed(gate: SafetyGate, phi_at, t0: float, t1: float, controller=None, std=STD, **kw):
-    """A block point every DT s in [t0, t1] (``phi_at``: a vector or ``t -> vector``);
-    decide when due; the controller answers sends."""
+    """A block point every DT s in [t0, t1] (``phi_at``: a vector or ``t -> vector``), one
+    gate step each; the controller answers sends."""
     decisions = []
     for k in range(round((t1 - t0) / DT) + 1):
         t = round(t0 + k * DT, 9)
         phi = phi_at(t) if callable(phi_at) else phi_at
-        gate.observe(t, phi, est(phi, t, std=std, **kw))
-        if gate.due(t):
-            d = gate.decide(t, phi)
+        d = gate.step(t, phi, est(phi, t, std=std, **kw))
+        if d is not None:
             decisions.append(d)
             if controller is not None:
                 controller.handle(d)
     return decisions
+
+
+def report(gate: SafetyGate, r: LoadReport, t: float) -> None:
+    """The controller's own report of the load in force, as the load writer passes it on."""
+    gate.commands.report(r.seq, r.load, r.has_values, t, r.t)
 
 
 def reasons(decisions) -> list[str]:
@@ -211,7 +215,7 @@ def test_an_ack_lost_but_the_command_reported_in_force_settles_it():
     ctl = Controller(gate, lose=1)
     feed(gate, phi_of(), 0.0, 0.6, ctl)
     assert gate.commands.pending is not None
-    gate.controller_report(LoadReport(t=0.0, seq=ctl.seq, load=None, has_values=False), 0.62)
+    report(gate, LoadReport(t=0.0, seq=ctl.seq, load=None, has_values=False), 0.62)
     assert gate.commands.pending is None and gate.in_force.mass == pytest.approx(P.mass)
     assert gate.summary()["lost"] == 0
 
@@ -221,7 +225,7 @@ def test_a_report_that_disagrees_is_logged_and_written_again(caplog):
     ctl = Controller(gate)
     feed(gate, phi_of(), 0.0, 2.0, ctl)
     with caplog.at_level(logging.WARNING, logger="iem.gate"):  # someone else set 0 kg
-        gate.controller_report(LoadReport(t=0.0, seq=None, load=None, has_values=True), 2.0)
+        report(gate, LoadReport(t=0.0, seq=None, load=None, has_values=True), 2.0)
     assert gate.in_force is None and "believed" in caplog.text
     feed(gate, phi_of(), 2.0, 4.0, ctl)
     assert len(ctl.applied) == 2 and gate.summary()["mismatches"] == 1
@@ -233,16 +237,17 @@ def test_a_refused_load_keeps_the_old_one_and_is_retried_with_back_off():
     times = []
     for k in range(600):
         t = round(k * DT, 9)
-        gate.observe(t, phi_of(), est(phi_of(), t))
-        if gate.due(t) and gate.decide(t, phi_of()).send:
+        d = gate.step(t, phi_of(), est(phi_of(), t))
+        if d is not None and d.send:
             seq += 1
             times.append(t)
-            gate.sent_command(seq, t)
+            gate.commands.sent_command(seq, d.payload, t)
             if seq < 3:
-                gate.refused(seq, t + 0.01, "command not possible in the current mode")
+                gate.commands.refused_command(seq, t + 0.01,
+                                              "command not possible in the current mode")
             else:
-                gate.acknowledged(seq, t + 0.01)
-    assert len(times) == 3 and gate.refusals == 2 and gate.in_force is not None
+                gate.commands.acknowledged(seq, t + 0.01)
+    assert len(times) == 3 and gate.commands.refused == 2 and gate.in_force is not None
     assert times[2] - times[1] > times[1] - times[0] - 0.06  # doubled wait
 
 
@@ -252,13 +257,12 @@ def test_a_send_error_is_survived_and_retried(error):
     decisions = []
     for k in range(300):
         t = round(k * DT, 9)
-        gate.observe(t, phi_of(), est(phi_of(), t))
-        if gate.due(t):
-            d = gate.decide(t, phi_of())
+        d = gate.step(t, phi_of(), est(phi_of(), t))
+        if d is not None:
             decisions.append(d)
             if d.send:
-                gate.send_failed(error, t)
-    assert gate.send_errors >= 2 and gate.in_force is None
+                gate.commands.send_failed(t, error)
+    assert gate.commands.send_errors >= 2 and gate.in_force is None
     assert "lost" in reasons(decisions)
 
 
@@ -271,9 +275,36 @@ def test_silence_stops_writes():
 
 # -- stability, rate, settings ------------------------------------------------------------------
 def test_stability_has_hysteresis():
-    gate = SafetyGate(GateConfig(stable_mass_kg=0.02))
-    wobble = lambda t: phi_of(dm=0.015 * math.sin(40 * t))  # noqa: E731 spread 0.03 kg
-    assert "send" not in reasons(feed(gate, wobble, 0.0, 2.0))
+    """Stable once the spread is within the band; unstable again only beyond twice it. A
+    wobble of 1.5 bands keeps a stable estimate stable and a fresh one unstable; 2.5 bands
+    is unstable."""
+    band = 0.02
+
+    def wobble(bands: float):
+        return lambda t: phi_of(dm=bands * band / 2 * math.sin(40 * t))  # spread: bands x band
+
+    gate = SafetyGate(GateConfig(stable_mass_kg=band))
+    ctl = Controller(gate)
+    steady = reasons(feed(gate, phi_of(), 0.0, 1.0, ctl))
+    assert steady[0] == "unstable" and "send" in steady and steady[-1] == "no_change"
+    within = reasons(feed(gate, wobble(1.5), 1.0, 3.0, ctl))
+    assert within and "unstable" not in within
+    beyond = reasons(feed(gate, wobble(2.5), 3.0, 5.0, ctl))
+    assert "unstable" in beyond and beyond[-1] == "unstable"
+    fresh = SafetyGate(GateConfig(stable_mass_kg=band))
+    assert set(reasons(feed(fresh, wobble(1.5), 0.0, 2.0, Controller(fresh)))) == {"unstable"}
+
+
+def test_a_due_decision_waits_up_to_three_busy_steps():
+    """While the model does heavy work the decision waits, at most three steps."""
+    gate = SafetyGate()
+    phi = phi_of()
+    assert gate.step(0.0, phi, est(phi, 0.0), busy=True) is None
+    assert gate.step(0.01, phi, est(phi, 0.01), busy=True) is None
+    assert gate.step(0.02, phi, est(phi, 0.02), busy=True) is None
+    assert gate.step(0.03, phi, est(phi, 0.03), busy=True) is not None
+    assert gate.step(0.04, phi, est(phi, 0.04)) is None  # not due: 10 ms since
+    assert gate.step(0.08, phi, est(phi, 0.08)) is not None
 
 
 def test_rate_limit_between_writes():
@@ -296,10 +327,10 @@ def test_a_gate_config_built_in_code_checks_itself(bad):
 
 def test_the_rating_counts_the_end_effector():
     gate = SafetyGate(GateConfig(end_effector_mass_kg=0.76))
-    d = gate.decide(0.0, Payload("x", 2.5, P.com, P.inertia).to_phi(), est(phi_of()))
+    d = gate.step(0.0, Payload("x", 2.5, P.com, P.inertia).to_phi(), est(phi_of()))
     assert d.reason == "over_rated" and "end effector 0.760 kg" in d.detail
-    assert SafetyGate().decide(0.0, Payload("x", 2.5, P.com, P.inertia).to_phi(),
-                               est(phi_of())).reason != "over_rated"
+    assert SafetyGate().step(0.0, Payload("x", 2.5, P.com, P.inertia).to_phi(),
+                             est(phi_of())).reason != "over_rated"
 
 
 # -- what a user sees ----------------------------------------------------------------------------
@@ -400,9 +431,9 @@ def test_an_estimate_the_data_do_not_determine_is_not_written():
         t = round(k * DT, 9)
         e = PayloadEstimate(t=t, phi=phi_of(), std=STD, nis=1.0, ood=False,
                             determined=("inertia",))
-        gate.observe(t, phi_of(), e)
-        if gate.due(t):
-            decisions.append(gate.decide(t, phi_of()))
+        d = gate.step(t, phi_of(), e)
+        if d is not None:
+            decisions.append(d)
     assert "send" not in reasons(decisions)
     assert "the prior's guess" in decisions[-1].detail
 
@@ -411,9 +442,9 @@ def test_a_report_taken_before_the_ack_is_passed_over():
     """A heartbeat on its way when the controller acknowledged names the old command."""
     gate = SafetyGate()
     feed(gate, phi_of(), 0.0, 0.6)
-    gate.sent_command(1, 0.6)
-    gate.acknowledged(1, 0.62, received=10.0)
-    gate.controller_report(LoadReport(t=9.9, seq=0, load=None, has_values=False), 0.63)
+    gate.commands.sent_command(1, gate.sent_loads[-1][1], 0.6)
+    gate.commands.acknowledged(1, 0.62, received=10.0)
+    report(gate, LoadReport(t=9.9, seq=0, load=None, has_values=False), 0.63)
     assert gate.in_force.mass == pytest.approx(P.mass) and gate.summary()["mismatches"] == 0
-    gate.controller_report(LoadReport(t=10.1, seq=0, load=None, has_values=False), 0.7)
+    report(gate, LoadReport(t=10.1, seq=0, load=None, has_values=False), 0.7)
     assert gate.summary()["mismatches"] == 1  # newer than the ack: the controller says so

@@ -28,13 +28,11 @@ def writes(estimate, config=LOOSE, seconds: float = 1.0) -> int:
     sent = 0
     for k in range(round(seconds / 0.01)):
         t = k * 0.01
-        gate.observe(t, PHI, estimate)
-        if gate.due(t):
-            decision = gate.decide(t, PHI)
-            if decision.send:
-                sent += 1
-                gate.sent_command(sent, t)
-                gate.acknowledged(sent)
+        decision = gate.step(t, PHI, estimate)
+        if decision is not None and decision.send:
+            sent += 1
+            gate.commands.sent_command(sent, decision.payload, t)
+            gate.commands.acknowledged(sent, t)
     return sent
 
 
@@ -131,9 +129,9 @@ def _bypass(**fields) -> PayloadEstimate:
 def test_each_hole_in_the_contract_is_refused_with_its_reason(fields, reason, words):
     gate = SafetyGate(LOOSE)
     for k in range(50):  # the newest estimates are fresh: the gate knows their age
-        gate.observe(k * 0.01, PHI, replace(GOOD, t=k * 0.01))
+        gate.step(k * 0.01, PHI, replace(GOOD, t=k * 0.01))
     bad = _bypass(**fields)
-    decision = gate.decide(0.5, PHI, bad)
+    decision = gate.step(0.5, PHI, bad)
     assert decision.reason == reason and words in decision.detail, decision
     assert not decision.send
 
@@ -214,10 +212,9 @@ def test_no_estimate_however_malformed_makes_decide_raise(phi, std, nis, t, ood,
     for config in (GateConfig(), GateConfig(allow_without_uncertainty=True)):
         gate = SafetyGate(config)
         for k in range(3):
-            gate.observe(k * 0.3, PHI, GOOD)
-        gate.observe(0.9, smoothed, bad)
-        decision = gate.decide(1.0, smoothed, bad)
+            gate.step(k * 0.3, PHI, GOOD)
+        decision = gate.step(1.0, smoothed, bad)
         assert decision.reason and not (decision.send and decision.payload is not None
                                         and not np.isfinite(decision.payload.to_phi()).all())
-        gate.decide(1.1, smoothed)
+        gate.step(1.1)
         gate.verdict()
