@@ -105,6 +105,11 @@ class ProgramLink:
         fed.append((state, time.time()))
         self._moving = True
 
+    @property
+    def backlog(self) -> int:
+        """States fed and not yet read by the estimator."""
+        return len(self._fed)
+
     def apply(self, timeout: float = 1.0) -> LoadAck | None:
         """Between motions: the kept command to the robot's ``set_load`` (see the module
         docstring); its acknowledgement, or None when no command waits."""

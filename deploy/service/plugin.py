@@ -34,12 +34,17 @@ neither.
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from iem.payload import Payload
 
+CATCH_UP_POLL_S = 0.002
+CATCH_UP_S = 0.05
+"""After the fed states are read, how long :meth:`PayloadPlugin.apply` gives the service for
+the last block point and the gate's decision on it (its decision period), s."""
 READ_STATE = {
     "franky": lambda robot: robot.state,
     "pylibfranka": lambda robot: robot.read_once(),
@@ -126,8 +131,17 @@ class PayloadPlugin:
     def apply(self, timeout: float = 1.0):
         """Write the load the gate let through with the robot's ``set_load`` (call it between
         motions); the :class:`firmware_bridge.protocol.LoadAck` (applied or refused, and the
-        load the robot reports after it), or None when the gate has nothing to write."""
-        return self.link.apply(timeout)
+        load the robot reports after it), or None when the gate has nothing to write.
+
+        It first lets the service estimate what the motion fed and has not been estimated
+        yet (the service may lag behind the robot's loop), for at most half of ``timeout``
+        s, so the load written is judged on the whole motion."""
+        deadline = time.monotonic() + 0.5 * timeout
+        while self.link.backlog and time.monotonic() < deadline:
+            time.sleep(CATCH_UP_POLL_S)
+        if time.monotonic() < deadline:
+            time.sleep(min(CATCH_UP_S, deadline - time.monotonic()))  # its last decision
+        return self.link.apply(0.5 * timeout)
 
     def reading(self) -> Reading:
         """The newest estimate, its band, the load in force and the gate's verdict."""
