@@ -271,7 +271,7 @@ def _refuse_keys_not_kept(model, state: dict, where: str, kind: str, label: str)
         raise ModelFileError(f"{where}: the state holds the unknown key(s) "
                              f"{', '.join(unknown[:10])}"
                              f"{f' and {len(unknown) - 10} more' if len(unknown) > 10 else ''}"
-                             f"; a {kind} {label} keeps none of them")
+                             f"; a {label} of kind {kind!r} keeps none of them")
 
 
 def loads(data: bytes, registry: Mapping[str, str] | None = None, source: str = "<bytes>",

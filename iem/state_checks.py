@@ -221,14 +221,18 @@ RULES: dict[str, Rule] = {
     "torque_noise.std": NONNEGATIVE, "torque_noise.weight": NONNEGATIVE,
     "torque_noise.offset_std": NONNEGATIVE, "torque_noise.bias_std": NONNEGATIVE,
     "torque_noise.gain_std": NONNEGATIVE,
+    # the open bag's statistics of the expected learner (iem.ensemble.expected)
+    "kept.points": count,
+    "kept.span": POSITIVE,
+    "kept.noise": NONNEGATIVE,
     # -- covariances, precisions, information and sums of outer products -------------------
     **{k: psd for k in ("post.cov", "post.precision", "P", "calib", "noise0", "sum_c_base",
-                        "info", "sum_outer", "dq_precision")},
+                        "info", "sum_outer", "dq_precision", "kept.gram")},
     # -- free: weights, means, filter states, offsets (finite) -----------------------------
     **{k: free for k in (
         "means", "lo", "hi", "center", "a", "b", "out", "eta", "sum_phi", "post.mean", "phi",
         "filter", "input", "output", "previous", "last", "trees.threshold", "trees.value",
-        "offsets", "gains", "block")},
+        "offsets", "gains", "block", "kept.prior", "kept.cross")},
     "initial": initial,
 }
 """The rule of each key (matched on the end of its path; the longest match wins)."""

@@ -419,7 +419,7 @@ def first_run_recipe() -> str:
 
 def test_the_first_live_run_recipe_is_short_and_complete():
     recipe = first_run_recipe()
-    assert len(recipe.splitlines()) <= 15
+    assert len(recipe.splitlines()) <= 20  # a screenful: 8 lines of commands, a cell.toml
     for part in ("iem sim-controller --interface slcan-pty", "iem run --config cell.toml",
                  "kill $CONTROLLER"):
         assert part in recipe, part

@@ -158,7 +158,8 @@ def checked_model(config: CellConfig, model=None):
         check_model_arm(model, arm_record, where=where)
     check_model_family(model, config.model.family, where=where)
     if config.estimate.initial_payload:
-        start_from_file(model, config.estimate.initial_payload)
+        with file_of(config, "[estimate] initial_payload", config.estimate.initial_payload):
+            start_from_file(model, config.estimate.initial_payload)
     elif restored:  # the payload may have been swapped while the plug-in was down
         model.distrust()
         log.info("restarted from %s: its payload is unverified until the live data have "

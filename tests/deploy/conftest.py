@@ -172,6 +172,19 @@ def service_process(config: Path, *extra: str) -> subprocess.Popen:
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
+def fatal_line(err: str) -> str:
+    """The failure ``iem`` ended with, as ``iem: error: <message>``, from its stderr ``err``:
+    the last line, or, in ``iem run``'s JSON logging, its ``fatal`` record."""
+    import json
+
+    last = err.strip().splitlines()[-1]
+    if last.startswith("{"):
+        record = json.loads(last)
+        assert record.get("event") == "fatal", last
+        return f"iem: error: {record['msg']}"
+    return last
+
+
 def stopped_summary(logs: str) -> dict:
     """The summary of ``iem run``'s ``stopped`` event in its JSON logs ``logs``."""
     import json

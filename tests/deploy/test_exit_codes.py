@@ -1,6 +1,7 @@
 """Exit statuses and messages of ``iem`` on bad input: a configuration error ends in one line
-``iem: error: ...`` naming the file or key and what is valid, with status 78 (EX_CONFIG), so
-systemd does not restart into it; a link failure keeps status 2 (restarted)."""
+``iem: error: ...`` (in ``iem run``'s JSON logging, its ``fatal`` record) naming the file or
+key and what is valid, with status 78 (EX_CONFIG), so systemd does not restart into it; a
+link failure keeps status 2 (restarted)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 
 from deploy.cli import EX_CONFIG, main
 
-from .conftest import cell_config, write_toml
+from .conftest import cell_config, fatal_line, write_toml
 
 UNIT = Path(__file__).resolve().parents[2] / "deploy" / "iem.service"
 
@@ -104,7 +105,7 @@ def test_a_link_failure_keeps_status_2(tmp_path, capsys, model_file):
     status, err = run_iem(capsys, "run", "--config", str(write_toml(tmp_path / "cell.toml",
                                                                     doc)))
     assert status == 2
-    last = err.splitlines()[-1]  # after the JSON logs of the start
+    last = fatal_line(err)  # after the JSON logs of the start, as one of them
     assert last.startswith("iem: error: cannot open slcan bus") and "ttyACM9" in last
 
 
@@ -197,7 +198,7 @@ def test_every_file_cell_toml_names_exits_78_when_missing_or_unreadable(tmp_path
     with within(60):
         status, err = run_iem(capsys, "run", "--config",
                               str(write_toml(tmp_path / "cell.toml", doc)))
-    last = err.strip().splitlines()[-1]
+    last = fatal_line(err)
     assert status == EX_CONFIG, (case, err)
     assert last.startswith("iem: error: ") and named in last, (case, last)
 
