@@ -135,7 +135,10 @@ def test_the_docs_example_runs_against_franky_sim(trained_fr3_phys_model_file, t
     """The documented franky-control program, as written, against franky-sim's FR3: its
     hand picks a payload up (the scene mounts it when the hand closes), its motions feed
     the plug-in, ``apply()`` runs between them, and it ends with the service's summary."""
-    pytest.importorskip("franky", reason="the franky extra (franky-control) is not installed")
+    from importlib.util import find_spec
+
+    if find_spec("franky") is None:  # never imported here: this process may hold pylibfranka
+        pytest.skip("the franky extra (franky-control) is not installed")
     pytest.importorskip("franky_sim", reason="franky-sim is not installed")
     from deploy.simcell import FciSim
     from sim.family import default_test_payload

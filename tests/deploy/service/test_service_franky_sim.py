@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import shutil
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ pytest.importorskip("pylibfranka", reason="the franka extra (pylibfranka) is not
 pytest.importorskip("franky_sim", reason="franky-sim is not installed")
 
 
-def test_iem_run_on_the_franka_link_reads_estimates_and_writes(trained_fr3_model_file,
+def test_iem_run_on_the_franka_link_reads_estimates_and_writes(trained_fr3_phys_model_file,
                                                                tmp_path):
     from deploy.config import config_from_dict
     from deploy.service import Service
@@ -25,14 +26,13 @@ def test_iem_run_on_the_franka_link_reads_estimates_and_writes(trained_fr3_model
     from sim.robot import ArmModel
 
     model = tmp_path / "model.msgpack"
-    shutil.copyfile(trained_fr3_model_file, model)
+    shutil.copyfile(trained_fr3_phys_model_file, model)
     payload = default_test_payload()
     with FciSim() as scene:
         config = config_from_dict({
             "link": {"kind": "franka", "channel": scene.host, "silence_timeout_s": 0.5},
-            "model": {"path": str(model), "kind": "IEM", "train_if_missing": False},
-            "gate": {"allow_without_uncertainty": True, "refusal_retry_s": 0.25,
-                     "refusal_retry_max_s": 0.5},
+            "model": {"path": str(model), "train_if_missing": False},
+            "gate": {"refusal_retry_s": 0.25, "refusal_retry_max_s": 0.5},
             "log": {"status_line": "off"}})
         assert config.arm.model == "fr3"  # the franka link's arm model
         service = Service(config)
@@ -47,9 +47,11 @@ def test_iem_run_on_the_franka_link_reads_estimates_and_writes(trained_fr3_model
             scene.mount(payload)
             scene.play(linear_path(q0, q1, 2.0, model=kinematics).q)
             scene.wait_still()
-            deadline = scene.status()["t"] + 20.0
-            while scene.status()["m_load"] == 0.0 and scene.status()["t"] < deadline:
-                scene.wait(0.2)
+            deadline = time.monotonic() + 60.0  # wall s: a loaded machine lags the robot
+            while not (scene.status()["m_load"] > 0.0
+                       and service.gate.verdict()["acked"] >= 1) \
+                    and time.monotonic() < deadline:
+                time.sleep(0.2)  # the service confirms what the robot applied
             scene.wait(0.5)
         finally:
             service.stop()
