@@ -292,6 +292,9 @@ class LinkKind:
         arm_model: the one arm model the kind serves (libfranka >= 0.10 serves the FR3
             only: ``"fr3"``), which ``[arm] model`` defaults to and may not differ from;
             None: any.
+        load_range: the range of the values its load command can carry
+            (:mod:`firmware_bridge.load_range`): ``"dbc"`` (the CAN wire profile's signals),
+            ``"float64"`` (any finite double), or ``""`` (a kind that carries no loads).
     """
 
     module: str
@@ -306,40 +309,45 @@ class LinkKind:
     fixed_rate_hz: float | None = None
     load_report: str = ""
     arm_model: str | None = None
+    load_range: str = ""
 
 
 LINKS: dict[str, LinkKind] = {
     "virtual": LinkKind("firmware_bridge.can_link", "open_can_link",
                         "python-can's in-process virtual bus (tests, the in-process demo)",
-                        bus="virtual", controller=True, load_report="seq"),
+                        bus="virtual", controller=True, load_report="seq",
+                        load_range="dbc"),
     "socketcan": LinkKind("firmware_bridge.can_link", "open_can_link",
                           "Linux SocketCAN: can0 on a robot-cell PC, vcan0 for tests",
-                          bus="socketcan", controller=True, load_report="seq"),
+                          bus="socketcan", controller=True, load_report="seq",
+                          load_range="dbc"),
     "slcan": LinkKind("firmware_bridge.can_link", "open_can_link",
                       "a serial-line CAN adapter (slcan/LAWICEL; CANable 2.0 for CAN FD): any "
                       "pyserial URL or device",
                       bus="slcan", bus_class="firmware_bridge.slcan_buffered:BufferedSlcanBus",
-                      controller=True, pty=True, load_report="seq"),
+                      controller=True, pty=True, load_report="seq", load_range="dbc"),
     "serial": LinkKind("firmware_bridge.serial_link", "open_serial_link",
                        "msgpack messages over a serial line (COBS + CRC32 framing): any "
                        "pyserial URL", controller=True, pty=True, fixed_rate_hz=NOMINAL_RATE_HZ,
-                       load_report="seq"),
+                       load_report="seq", load_range="float64"),
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
                        "0.10; exclusive FCI); channel: the robot's IP",
-                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3"),
+                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3",
+                       load_range="float64"),
     "program": LinkKind("firmware_bridge.program_link", "open_program_link",
                         "the plug-in inside your own franky-control or pylibfranka program: "
                         "states fed from its motion callback, loads through its robot's "
                         "set_load between motions (deploy.service.PayloadPlugin; not iem run)",
-                        fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3"),
+                        fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3",
+                        load_range="float64"),
     "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
                      "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
                      "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ,
-                     load_report="values"),
+                     load_report="values", load_range="float64"),
     "replay": LinkKind("firmware_bridge.replay", "open_replay",
                        "a recorded CAN log (.blf .log .asc .trc); channel: the file",
-                       sink=False, recorded=True),
+                       sink=False, recorded=True, load_range="dbc"),
     "recording": LinkKind("firmware_bridge.recordings", "open_recording_link",
                           "a recorded rosbag2 bag (directory, .db3, .mcap; JointState topic "
                           "/franka/joint_states) or joint-state CSV (t,q1..q7,dq1..dq7,"

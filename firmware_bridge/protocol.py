@@ -40,7 +40,7 @@ from pathlib import Path as FsPath
 from iem.types import N_JOINTS
 
 from .control_codecs import PAYLOAD_FIELDS, HeartbeatCodec, LoadAssembler, LoadCodec
-from .errors import BridgeConfigError, EncodeError
+from .errors import BridgeConfigError
 from .frame_codec import Field, FrameCodec
 from .messages import ACK_ERRORS, ACK_STATUS, Heartbeat, LoadAck, LoadCommand
 from .state_codec import STATE_FIELDS, STATE_INDEX, JointStateCodec
@@ -140,14 +140,12 @@ def profile(name: str = "fd") -> WireProfile:
 def payload_wire_error(payload, profile: str) -> str | None:
     """Why the load command of profile ``profile`` cannot carry ``payload``, or None if it can.
 
-    The encoder's own range checks (:meth:`LoadCodec.raw_of`, the DBC's signal ranges and
-    steps), without encoding a frame: the message names the signal, the value and the valid
-    range. The safety gate asks this before it lets a load through, so a load the wire cannot
-    carry is refused there instead of failing in ``send``.
+    The DBC's signal ranges and steps (:func:`firmware_bridge.load_range.of_profile`),
+    checked as every link's declared range is, without encoding a frame: the message names
+    the signal, the value and the valid range. The safety gate asks this before it lets a
+    load through, so a load the wire cannot carry is refused there instead of failing in
+    ``send``.
     """
-    codecs = globals()["profile"](profile)  # the argument shadows the module's profile()
-    try:
-        codecs.command.raw_of(1, payload)
-    except EncodeError as exc:
-        return str(exc)
-    return None
+    from .load_range import of_profile
+
+    return of_profile(profile).error(payload)

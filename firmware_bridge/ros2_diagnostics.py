@@ -36,6 +36,7 @@ LEVELS = {
     "not_finite": ERROR, "inconsistent": ERROR, "over_rated": ERROR, "com_too_far": ERROR,
     "out_of_wire_range": ERROR, "malformed": ERROR, "stale": ERROR,
     "controller_silent": ERROR, "ack_missing": ERROR, "lost": ERROR, "unreported": ERROR,
+    "controller_disagrees": ERROR,
 }
 """The level of each reason of the gate. ``refused``: a Franka refuses ``setLoad`` while a
 controller runs, and the gate retries; ``stale``: the estimate stopped coming."""

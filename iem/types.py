@@ -138,6 +138,10 @@ class PayloadEstimate:
         cov: the covariance of ``phi`` (10x10, ``std`` its diagonal's square root), where the
             model has one: the gate bounds the joint-torque error of a write with it; None:
             the standard deviations alone (correlations unknown).
+        prior: the parameters of the prior the estimate started from (10, paper order),
+            where the model has one: a group the data do not determine (``determined``) is
+            written as the prior has it; None: the model has none (the gate then writes no
+            estimate whose inertia the data do not determine).
         extra: diagnostics that no safety decision reads (``change``, ``reset``,
             ``ood_score``, ``velocity_score``, ``held``; ``mean_mass``: a model that projects
             its estimate onto possible bodies gives the mass before the projection, which
@@ -155,6 +159,7 @@ class PayloadEstimate:
     determined: tuple[str, ...] | None = None
     extra: dict = field(default_factory=dict, compare=False)
     cov: np.ndarray | None = field(default=None, compare=False)
+    prior: np.ndarray | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         """Check the contract where the estimate is made: ``phi`` 10 finite numbers (or all

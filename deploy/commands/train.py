@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from deploy.config import MODEL_KINDS
-from deploy.model.training import NOISE_SOURCES, train_initial_model
+from deploy.model.training import NOISE_CHOICES, noise_for, train_initial_model
 from deploy.options import (
     add_arm_model,
     add_block_frames,
@@ -56,16 +56,18 @@ def configure(parser) -> None:
                              "Algorithm 2, or 'expected', the same in expectation, exact "
                              "(microseconds a point and a refit); default: the kind's "
                              "(IEM sgd, IEM+phys expected)")
-    parser.add_argument("--noise", choices=NOISE_SOURCES, default=None,
-                        help="IEM+phys's equation error: 'arm' (default), the arm file's "
-                             "measured noise, or a conservative default for an uncalibrated "
-                             "arm; 'sensor', the sensor's white noise alone (a simulated arm "
-                             "whose model is exact)")
+    parser.add_argument("--noise", choices=NOISE_CHOICES, default=None,
+                        help="IEM+phys's equation error: 'arm', the arm file's measured "
+                             "noise, or a conservative default for an uncalibrated arm; "
+                             "'sensor', the sensor's white noise alone (a simulated arm whose "
+                             "model is exact; on a real arm the model's data test then holds "
+                             "the gate's writes); 'auto' (default): 'arm' with --arm, else "
+                             "'sensor'")
 
 def run(args) -> int:
     from iem.signals.rate import block_frames_for, rate_line
 
-    rate, noise = args.rate or NOMINAL_RATE_HZ, args.noise or "arm"
+    rate, noise = args.rate or NOMINAL_RATE_HZ, noise_for(args.noise or "auto", args.arm)
     frames = args.block_frames or block_frames_for(rate)
     if args.kind == "IEM+phys":
         print(rate_line(rate, frames, detected=False, what="joint states"))

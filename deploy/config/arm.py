@@ -53,6 +53,19 @@ def with_description(cfg: CellConfig) -> CellConfig:
     return cfg
 
 
+def check_rating(cfg: CellConfig) -> None:
+    """Refuse a ``[gate] rated_mass_kg`` above the arm model's own rated payload (a named arm
+    model's datasheet): a file cannot lift what the arm can carry."""
+    from sim.description import BUILTINS
+
+    builtin = BUILTINS.get(cfg.arm.model)
+    if builtin is not None and cfg.gate.rated_mass_kg > builtin.rated_payload_kg:
+        raise _config_error(f"{cfg.source}: [gate] rated_mass_kg = {cfg.gate.rated_mass_kg:g} "
+                            f"is above the rated payload of [arm] model = {cfg.arm.model!r}, "
+                            f"{builtin.rated_payload_kg:g} kg; valid is at most that (remove "
+                            "the key to take it)")
+
+
 def with_rated_payload(cfg: CellConfig) -> CellConfig:
     """``cfg`` whose gate's ``rated_mass_kg`` is the arm model's rated payload (a named arm
     model's datasheet); an arm model from a file has none: the key must be set."""

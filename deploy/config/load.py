@@ -18,7 +18,13 @@ from pathlib import Path as FsPath
 from iem.errors import InvalidInputError
 from iem.user_files import read_toml
 
-from .arm import arm_model_of, with_description, with_end_effector, with_rated_payload
+from .arm import (
+    arm_model_of,
+    check_rating,
+    with_description,
+    with_end_effector,
+    with_rated_payload,
+)
 from .sections import (
     CHOICES,
     DERIVED_GATE_KEYS,
@@ -103,10 +109,9 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                                                  else set())
         retired = sorted(set(table) & set(RETIRED_GATE_KEYS)) if section == "gate" else []
         if retired:
-            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate, "
-                              "which writes when a write makes the controller's model better "
-                              "by its joint-torque error (write_margin, min_torque_error_nm; "
-                              "docs/configuration.md); remove them")
+            raise ConfigError(f"{where}: [gate] {', '.join(retired)}: not a setting of this gate: "
+                              f"{RETIRED_GATE_KEYS[retired[0]]}; remove "
+                              f"{'it' if len(retired) == 1 else 'them'}")
         bad = sorted(set(table) - names)
         if bad:
             raise ConfigError(f"{where}: unknown key(s) {bad} in [{section}]; valid keys are "
@@ -136,6 +141,8 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
     cfg = CellConfig(**built, source=where)
     if "rated_mass_kg" not in doc.get("gate", {}):
         cfg = with_rated_payload(cfg)
+    else:
+        check_rating(cfg)
     if not FsPath(cfg.arm.model).suffix or FsPath(cfg.arm.model).is_absolute():
         cfg = with_description(cfg)  # a relative description file: once load_config found it
     return cfg

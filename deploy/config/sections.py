@@ -23,10 +23,16 @@ from iem.signals.smoothing import DEFAULT_TAU_S
 DERIVED_GATE_KEYS = ("end_effector_mass_kg",)
 """``GateConfig`` fields that are not ``[gate]`` keys: the end effector's mass comes from
 ``[arm] end_effector``."""
-RETIRED_GATE_KEYS = ("max_mass_2sigma_kg", "max_com_2sigma_m", "min_change_mass_kg",
-                     "min_change_com_m")
-"""``[gate]`` keys of a gate with fixed bands, which this gate does not have: it writes when a
-write helps (``write_margin``, ``min_torque_error_nm``); a file that sets them is refused with
+BANDS = ("this gate writes when a write makes the controller's model better by its "
+         "joint-torque error (write_margin, min_torque_error_nm; docs/configuration.md)")
+RETIRED_GATE_KEYS = {
+    "max_mass_2sigma_kg": BANDS, "max_com_2sigma_m": BANDS, "min_change_mass_kg": BANDS,
+    "min_change_com_m": BANDS,
+    "empty_mass_kg": ("the empty load is judged as every write is: written when the mass's "
+                      "2-sigma band reaches zero and writing it makes the controller's model "
+                      "better by its joint-torque error (docs/configuration.md)"),
+}
+"""``[gate]`` keys this gate does not have, and why: a file that sets them is refused with
 that said."""
 
 
@@ -81,13 +87,15 @@ class ArmConfig:
     "franka_hand", "none" or the path of a payload-style TOML of the tool ("": the arm
     model's default, the hand on the Panda and the FR3); the arm file and the model must be
     made for it. ``noise``: IEM+phys's equation error when it trains a
-    model (:data:`deploy.model.training.NOISE_SOURCES`): "arm", the arm file's measured noise (a
-    conservative default without an arm file), or "sensor" (a simulated, exact arm)."""
+    model (:data:`deploy.model.training.NOISE_CHOICES`): "arm", the arm file's measured noise
+    (a conservative default without an arm file), "sensor" (a simulated, exact arm), or
+    "auto": "arm" with ``[model] arm``, else "sensor" (:func:`deploy.model.training.
+    noise_for`)."""
 
     model: str = ""
     flange: str = ""
     end_effector: str = ""
-    noise: str = "arm"
+    noise: str = "auto"
 
     def description(self):
         """The arm model (:func:`sim.description.arm_description`)."""
@@ -213,7 +221,7 @@ SECTIONS = {"link": LinkConfig, "model": ModelConfig, "arm": ArmConfig,
 CHOICES = {("link", "kind"): LINK_KINDS, ("link", "profile"): PROFILES,
            ("model", "kind"): MODEL_KINDS, ("log", "format"): LOG_FORMATS,
            ("log", "level"): LOG_LEVELS, ("log", "status_line"): STATUS_MODES,
-           ("arm", "noise"): ("arm", "sensor"),
+           ("arm", "noise"): ("auto", "arm", "sensor"),
            ("ros2", "joints"): ("auto", "fr3", "panda")}
 RANGES = {
     ("link", "silence_timeout_s"): (0.005, 60.0),
@@ -227,12 +235,14 @@ RANGES = {
     ("ros2", "set_load_timeout_s"): (0.05, 4.0),  # below the unit's WatchdogSec=5
 }
 RANGES.update({("gate", key): valid for key, valid in GATE_RANGES.items()
-               if key not in DERIVED_GATE_KEYS})
+               if key not in DERIVED_GATE_KEYS and not isinstance(valid[0], int)})
 INT_RANGES = {
     ("estimate", "block_frames"): (0, 100),  # frames per block point; 0: the link's rate / 100
     ("model", "seed"): (0, 2**63 - 1),  # numpy's seeds are non-negative; TOML ints are int64
     ("ros2", "domain_id"): (-1, 232),  # ROS 2's valid domain ids; -1: ROS_DOMAIN_ID
     ("host", "cpu_dma_latency_us"): (-1, 1_000_000),  # µs; -1: no limit (deploy.service.host)
+    **{("gate", key): valid for key, valid in GATE_RANGES.items()
+       if isinstance(valid[0], int)},  # counts (max_disagreements)
 }
 MAY_BE_EMPTY = {("ros2", "estimate_std_topic"), ("ros2", "flange_frame"),
                 ("ros2", "interface"), ("estimate", "initial_payload"), ("model", "arm"),

@@ -114,12 +114,13 @@ def load_or_train_model(config: CellConfig, resources: dict | None = None):
         raise ConfigError(f"{config.source}: [model] path = {mc.path!r}: the model file does "
                           "not exist and [model] train_if_missing is false; create one with "
                           "'iem train --out FILE' or set train_if_missing = true")
-    from .training import train_initial_model
+    from .training import noise_for, train_initial_model
 
     model = train_initial_model(mc.kind, mc.family, mc.excitation, mc.seed,
                                 log=lambda msg: log.info(msg, extra={"event": "trained"}),
                                 rate_hz=rate, block_frames=frames, arm_file=mc.arm or None,
-                                end_effector=config.arm.end_effector, noise=config.arm.noise,
+                                end_effector=config.arm.end_effector,
+                                noise=noise_for(config.arm.noise, mc.arm),
                                 description=config.arm.description())
     from firmware_bridge.links import link_kind
 

@@ -45,6 +45,24 @@ NOISE_SOURCES = ("arm", "sensor")
 by ``iem calibrate`` into the arm file; :data:`iem.physics.torque_noise.NOMINAL_ARM_NOISE`, a
 conservative default, for an arm that was not calibrated), the right choice on a real arm;
 ``sensor``, the sensor model's white noise alone: a simulated arm whose model is exact."""
+NOISE_CHOICES = ("auto", *NOISE_SOURCES)
+"""What a user may choose (``[arm] noise``, ``iem train --noise``): a source, or ``auto``
+(:func:`noise_for`)."""
+
+
+def noise_for(choice: str, arm_file) -> str:
+    """The noise source of ``choice`` (one of :data:`NOISE_CHOICES`) for a model trained on
+    ``arm_file`` (None or "": the nominal arm): ``auto`` is ``arm`` with an arm file (its
+    measured noise) and ``sensor`` without. Without a calibration the sensor's noise is the
+    one the data can test: on a real arm whose model errs, the model's own data verdict
+    (``nis``) then holds the gate's writes (``data_disagree``), where the conservative
+    default's wide band writes loads as biased as the arm's model; on an arm equal to its
+    model it writes what the data show."""
+    if choice not in NOISE_CHOICES:
+        raise InvalidInputError(f"noise {choice!r}; valid are {', '.join(NOISE_CHOICES)}")
+    if choice != "auto":
+        return choice
+    return "arm" if arm_file else "sensor"
 
 
 def make_model(kind: str, seed: int = 0, rate_hz: float = NOMINAL_RATE_HZ, arm_file=None,

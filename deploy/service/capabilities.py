@@ -40,4 +40,4 @@ def wire_check_for(link, kind: str | None = None):
                           f"the link {type(link).__name__} declares no wire profile to "
                           "check them against (firmware_bridge.links.WireProfiled: a "
                           "'profile' attribute)")
-    return wire_check_of(link)
+    return wire_check_of(link, kind)

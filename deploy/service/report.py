@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from deploy.writeback.checks import excludes_zero  # the gate's own rule for the empty load
 from firmware_bridge.links import JointStateSource
 
 log = logging.getLogger("iem.service")
@@ -35,12 +36,6 @@ def mass_std(estimate) -> float | None:
         return None
     s = float(np.asarray(std, dtype=float).reshape(-1)[0])
     return s if s >= 0.0 else math.nan
-
-
-def excludes_zero(mass: float, std: float | None) -> bool:
-    """Whether the mass's 2-sigma band lies above zero (``std`` None: no band, the mass
-    alone; NaN or inf: nothing known, never)."""
-    return float(mass) - 2.0 * (0.0 if std is None else std) > 0.0
 
 
 def status_text(service, elapsed: float, record) -> str:
@@ -69,7 +64,8 @@ def status_text(service, elapsed: float, record) -> str:
             + f"  in force {_load_text(commands.load)}"
             + f"  gate {verdict['reason'] or '-'}"
             + f"  drops {drops} lost {c.lost}"
-            + ("  SILENT" if service.silent else ""))
+            + ("  SILENT" if service.silent else "")
+            + ("  UNCHECKED: allow_without_uncertainty" if "warning" in verdict else ""))
 
 
 def summary_of(service) -> dict:

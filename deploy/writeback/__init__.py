@@ -3,13 +3,15 @@
 (:class:`GateConfig`), the load in force as the controller confirms it (:mod:`.load_state`),
 the rule that a write must make the controller's model better (:mod:`.write_rule`), the time
 window of stability (:mod:`.time_window`), the writer that sends what the gate lets through
-(:class:`LoadWriter`) and the wire's range check of a load (:func:`wire_check_of`).
+(:class:`LoadWriter`) and the wire's range check of a load (:func:`wire_check_of`); whether
+an estimate's mass is told from zero (:func:`excludes_zero`), as the gate and the status line
+judge it.
 
 It imports neither ``sim`` nor anything of ``deploy`` outside this folder: what it decides
 rests on the estimate, the settings and the controller's answers alone.
 """
 
-from .checks import WireCheck, check_estimate
+from .checks import WireCheck, check_estimate, excludes_zero
 from .gate import REASONS, Decision, SafetyGate
 from .load_state import LoadInForce, load_record, same_load
 from .settings import RANGES, GateConfig
@@ -20,4 +22,4 @@ from .writer import LoadWriter
 
 __all__ = ["RANGES", "REASONS", "Decision", "GateConfig", "LoadInForce", "LoadWriter",
            "RecentMotion", "SafetyGate", "TimeWindow", "WireCheck", "check_estimate",
-           "load_record", "same_load", "wire_check_of"]
+           "excludes_zero", "load_record", "same_load", "wire_check_of"]

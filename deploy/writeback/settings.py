@@ -17,7 +17,6 @@ RANGES: dict[str, tuple[float, float]] = {
     "stable_com_m": (0.0, 1.0),
     "write_margin": (0.01, 1.0),
     "min_torque_error_nm": (0.0, 100.0),
-    "empty_mass_kg": (0.0, 3.0),
     "max_inertia_2sigma_kgm2": (1e-6, 10.0),
     "max_age_s": (0.001, 60.0),
     "reach_m": (0.05, 5.0),
@@ -29,6 +28,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "max_nis": (1.0, 1e6),
     "refusal_retry_s": (0.1, 3600.0),
     "refusal_retry_max_s": (0.1, 3600.0),
+    "max_disagreements": (1, 100),
 }
 """The valid range of every numeric setting (``cell.toml``'s ``[gate]`` checks the same)."""
 
@@ -49,8 +49,6 @@ class GateConfig:
             this share of the least error the load in force has.
         min_torque_error_nm: a load in force that errs by less than this (N·m, at the worst
             joint and pose of the recent motion, beyond the estimate's band) is kept.
-        empty_mass_kg: the candidate is the empty load while the mass's upper 2-sigma bound
-            stays below this for the stability window.
         max_inertia_2sigma_kgm2: no write while the data determine the inertia and its
             2-sigma band is wider than this.
         max_age_s: no write of an estimate older than this at the decision.
@@ -63,6 +61,10 @@ class GateConfig:
         allow_without_uncertainty: write estimates that do not report ``std``, ``nis`` or
             ``ood`` (the paper's IEM); by default they are held back (``unreported``).
         refusal_retry_s, refusal_retry_max_s: the wait after a refusal, doubling, up to the max.
+        max_disagreements: a controller whose own report contradicts a load it had
+            confirmed this many times in a row is not written to again until it reports
+            another load (``controller_disagrees``); each such write waits the refusal's
+            back-off first.
     """
 
     rated_mass_kg: float = 3.0
@@ -73,7 +75,6 @@ class GateConfig:
     stable_com_m: float = 0.004
     write_margin: float = 1.0
     min_torque_error_nm: float = 0.015
-    empty_mass_kg: float = 0.2
     max_inertia_2sigma_kgm2: float = 0.05
     max_age_s: float = 1.0
     reach_m: float = 0.855
@@ -86,6 +87,7 @@ class GateConfig:
     allow_without_uncertainty: bool = False
     refusal_retry_s: float = 1.0
     refusal_retry_max_s: float = 10.0
+    max_disagreements: int = 5
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -95,6 +97,12 @@ class GateConfig:
                     raise InvalidInputError(f"GateConfig.{f.name} = {value!r}: valid is a bool")
                 continue
             lo, hi = RANGES[f.name]
+            if isinstance(lo, int) and isinstance(hi, int):
+                if isinstance(value, bool) or not isinstance(value, int) or not (
+                        lo <= value <= hi):
+                    raise InvalidInputError(f"GateConfig.{f.name} = {value!r} is out of "
+                                            f"range; valid is an integer from {lo} to {hi}")
+                continue
             if isinstance(value, bool) or not isinstance(value, int | float) or not (
                     lo <= value <= hi):
                 raise InvalidInputError(f"GateConfig.{f.name} = {value!r} is out of range; "

@@ -3,20 +3,21 @@ is never sent."""
 
 from __future__ import annotations
 
-import functools
 
-
-def wire_check_of(link):
-    """The range check of ``link``'s load command for the gate: a link that declares a DBC
-    wire profile (:class:`firmware_bridge.links.WireProfiled`: the CAN links, a replayed CAN
-    log) has one (:func:`firmware_bridge.protocol.payload_wire_error`); others (serial
-    msgpack floats, pylibfranka, ROS 2) have no ranges to check: None. (A CAN kind's link
-    that declares no profile is refused where the service opens it:
+def wire_check_of(link, kind: str | None = None):
+    """The range check of ``link``'s load command for the gate, as its link kind declares it
+    (:attr:`firmware_bridge.links.LinkKind.load_range`, checked by
+    :meth:`firmware_bridge.load_range.LoadRange.error`): a link that declares a DBC wire
+    profile (:class:`firmware_bridge.links.WireProfiled`: the CAN links, a replayed CAN log)
+    the profile's signals; a link of the serial, franka or ros2 kind any finite double; None
+    for a link of no known kind that declares no profile, or of a kind that carries no loads.
+    (A CAN kind's link that declares no profile is refused where the service opens it:
     :func:`deploy.service.capabilities.wire_check_for`.)
     """
-    from firmware_bridge.links import WireProfiled
-    from firmware_bridge.protocol import payload_wire_error
+    from firmware_bridge.links import LINKS, WireProfiled
+    from firmware_bridge.load_range import FLOAT64, of_profile
 
-    if not isinstance(link, WireProfiled):
-        return None
-    return functools.partial(payload_wire_error, profile=link.profile.name)
+    if isinstance(link, WireProfiled):
+        return of_profile(link.profile.name).error
+    declared = "" if kind is None else LINKS[kind].load_range
+    return FLOAT64.error if declared == "float64" else None

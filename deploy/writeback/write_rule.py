@@ -62,11 +62,19 @@ class RecentMotion:
         """A block point's pose at gate time ``t``."""
         if self.regressor is None or (self._poses and t - self._poses[-1][0] < POSE_PERIOD_S):
             return
-        q = np.asarray(q, dtype=float)
-        dq = np.asarray(dq, dtype=float)
-        if not (np.isfinite(q).all() and np.isfinite(dq).all()):
+        try:
+            q = np.asarray(q, dtype=float)
+            dq = np.asarray(dq, dtype=float)
+        except (TypeError, ValueError):
+            return  # not a pose: no bound from it
+        if not (q.ndim == 1 and q.shape == dq.shape and q.size and np.isfinite(q).all()
+                and np.isfinite(dq).all()):
             return
-        self._poses.append((t, np.asarray(self.regressor(q, dq), dtype=float)))
+        y = np.asarray(self.regressor(q, dq), dtype=float)
+        if y.ndim != 2 or y.shape[1] != 10 or not np.isfinite(y).all() or (
+                self._poses and y.shape != self._poses[-1][1].shape):
+            return
+        self._poses.append((t, y))
         while self._poses and self._poses[0][0] < t - MOTION_S:
             self._poses.popleft()
         self._stack = None

@@ -46,7 +46,7 @@ class LoadWriter:
 
     def answers(self, t: float) -> None:
         """Tell the load in force the link's newest answer to a load command and its newest
-        report of the load in force, if they are new."""
+        report of the load in force, if they are new (``t``: the gate's own time)."""
         if self.sink is None:
             return
         commands = self.gate.commands
@@ -69,15 +69,16 @@ class LoadWriter:
         """One estimate at gate time ``t``: the controller's answers, the gate's step (with
         the point's joint ``state``; ``busy``: the model did heavy work in it), and the send
         of a load it lets through. Returns the gate's decision (None: none was due)."""
-        self.answers(t)
+        self.answers(self.gate.clock(t))  # the load in force keeps the gate's own time
         decision = self.gate.step(t, smoothed, raw, state, busy)
         if decision is not None and decision.send:
             self.write(decision)
         return decision
 
     def write(self, decision: Decision) -> None:
-        """Send the load of a ``send`` decision and tell the load in force."""
-        t, load, commands = decision.t, decision.payload, self.gate.commands
+        """Send the load of a ``send`` decision and tell the load in force (at the gate's
+        own time)."""
+        t, load, commands = self.gate.clock.now, decision.payload, self.gate.commands
         if self.sink is None:  # decide only (a replay): as if a controller applied it
             self._offline += 1
             commands.sent_command(self._offline, load, t)

@@ -323,7 +323,7 @@ class PhysicsInformedEnsemble(PayloadTracking, BaseEstimator):
         return PayloadEstimate(t=t, phi=phi, std=std, cov=cov, bag=bag, learning=learning,
                                nis=self._innovation.nis, ood=False, unverified=unverified,
                                determined=self._determined(unverified),
-                               extra=extra)
+                               extra=extra, prior=shown.prior)
 
     def _reported(self, shown: Posterior) -> tuple[np.ndarray, np.ndarray]:
         """The standard deviations and covariance an estimate showing ``shown`` reports

@@ -315,6 +315,7 @@ class Posterior:
             estimate along the window's poses (``J J^T``, ``J`` the posterior covariance
             times :meth:`EquationWindow.arm_sensitivity`; zeros without). Not saved, as
             ``gain_var``.
+        prior: the prior's mean it was combined from (10; None: not known). Not saved.
     """
 
     mean: np.ndarray
@@ -325,6 +326,7 @@ class Posterior:
     equations: int = 0
     gain_var: np.ndarray = field(default_factory=lambda: np.zeros(10))
     arm_cov: np.ndarray = field(default_factory=lambda: np.zeros((10, 10)))
+    prior: np.ndarray | None = None
     _phi: np.ndarray | None = field(default=None, repr=False)
     _std: np.ndarray | None = field(default=None, repr=False)
 
@@ -400,4 +402,4 @@ def combine(mu_p: np.ndarray, c_p: np.ndarray, window: EquationWindow,
         J = cov @ K
         arm_cov = J @ J.T
     return Posterior(mean, cov, precision, inflation, eps, window.m, gain_var=gain_var,
-                     arm_cov=arm_cov)
+                     arm_cov=arm_cov, prior=np.array(mu_p, dtype=float))

@@ -14,6 +14,7 @@ from deploy.writeback.gate import SafetyGate
 from deploy.writeback.wire import wire_check_of
 from deploy.writeback.writer import LoadWriter
 from firmware_bridge.links import EstimatePublisher, PayloadSink, WireProfiled
+from firmware_bridge.load_range import FLOAT64, of_profile
 from firmware_bridge.protocol import profile as wire_profile
 from iem.base import BaseEstimator
 from iem.ensemble import IncrementalEnsemble
@@ -120,11 +121,11 @@ class _Profiled:
 def test_a_can_kind_needs_a_declared_wire_profile():
     assert isinstance(_Profiled(), WireProfiled) and not isinstance(_Sink(), WireProfiled)
     check = wire_check_for(_Profiled(), "virtual")
-    assert check is not None and check.keywords == {"profile": "classic"}
-    assert wire_check_of(_Profiled()).keywords == {"profile": "classic"}
+    assert check is not None and check.__self__ == of_profile("classic")
+    assert wire_check_of(_Profiled()).__self__ == of_profile("classic")
     with pytest.raises(ConfigError, match=r"kind 'socketcan'.*_Sink declares no wire profile"):
         wire_check_for(_Sink(), "socketcan")
-    assert wire_check_for(_Sink(), "serial") is None  # msgpack floats: no ranges
+    assert wire_check_for(_Sink(), "serial").__self__ is FLOAT64  # msgpack floats
     assert wire_check_for(_Sink()) is None
     assert wire_check_of(_Sink()) is None
 

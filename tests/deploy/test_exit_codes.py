@@ -84,6 +84,9 @@ def test_a_seed_out_of_range(tmp_path, capsys, seed, parts):
     ("[gate]\nrefusal_retry_s = 5.0\nrefusal_retry_max_s = 2.0\n",
      "refusal_retry_max_s = 2.0 is below refusal_retry_s = 5.0; valid is refusal_retry_max_s"),
     ("[gate]\nmax_nsi = 3\n", "unknown key(s) ['max_nsi'] in [gate]"),
+    ("[gate]\nrated_mass_kg = 50.0\n",
+     "[gate] rated_mass_kg = 50 is above the rated payload of [arm] model = 'panda', 3 kg"),
+    ("[gate]\nempty_mass_kg = 0.2\n", "[gate] empty_mass_kg: not a setting of this gate"),
     ("[link]\nkind = socketcan\n", "not valid TOML"),
 ])
 def test_bad_keys_and_values_are_config_errors(tmp_path, capsys, text, part):

@@ -2,8 +2,11 @@
 
 The plug-in service against the simulated controller (:mod:`deploy.bench.writeback.scenarios`:
 1 kHz in real time on python-can's virtual bus, the gate's defaults), on the ideal plant
-and on the realistic plant (``iem bench realistic``'s reality gap of the seed, the bare arm
-calibrated as that bench does, IEM+phys trained for the calibrated arm), per seed:
+(IEM+phys trained with the sensor's noise as its equations' error, as ``iem demo`` runs it),
+on the realistic plant (``iem bench realistic``'s reality gap of the seed, the bare arm
+calibrated as that bench does, IEM+phys trained for the calibrated arm) and with the default
+configuration (the ideal plant, IEM+phys as a cell of the shipped ``deploy/cell.toml``
+trains it for itself: no arm file, the default ``[arm] noise``), per seed:
 
 - ``tool_removed``: test-3w (1.615 kg) from the start, removed at the change; the controller
   starts at 0 kg;
@@ -40,9 +43,9 @@ from deploy.bench.writeback.scenarios import SCENARIOS, TIMING
 from deploy.bench.writeback.score import fmt, like, reason_shares, time_to_correct, worst, writes
 from iem.errors import InvalidInputError
 
-PLANTS = ("ideal", "realistic")
+PLANTS = ("ideal", "realistic", "default")
 ALL = (*SCENARIOS, "real")
-CORRECT_WITHIN_S = {"ideal": 2.0, "realistic": 5.0}
+CORRECT_WITHIN_S = {"ideal": 2.0, "realistic": 5.0, "default": 2.0}
 """tool_removed and tool_swapped: the correct load in force within this many s of the
 change."""
 LOST_WITHIN_S = 10.0
@@ -118,7 +121,12 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     """Every run, on the arm model ``description`` (None: the default), the gate rated for
     ``rated_mass_kg`` (None: the arm model's rated payload); the figures, with ``runs`` (the
     records, for the figures) beside them."""
-    from deploy.bench.writeback.scenarios import ideal_plant, realistic_plant, run_scenario
+    from deploy.bench.writeback.scenarios import (
+        default_plant,
+        ideal_plant,
+        realistic_plant,
+        run_scenario,
+    )
     from deploy.config import cell_config
 
     # an end effector beyond the rated payload fails before training
@@ -130,11 +138,12 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
     for seed in seeds:
         for kind in plants if sim else ():
             t0 = time.perf_counter()
-            plant = (ideal_plant(seed, log=log, description=description,
-                                 rated_mass_kg=rated_mass_kg)
-                     if kind == "ideal" else
-                     realistic_plant(seed, out_dir, log=log, description=description,
-                                     rated_mass_kg=rated_mass_kg))
+            if kind == "realistic":
+                plant = realistic_plant(seed, out_dir, log=log, description=description,
+                                        rated_mass_kg=rated_mass_kg)
+            else:
+                plant = (ideal_plant if kind == "ideal" else default_plant)(
+                    seed, log=log, description=description, rated_mass_kg=rated_mass_kg)
             setup.append({"plant": kind, "seed": seed, "calibration": plant.calibration,
                           "set_up_s": time.perf_counter() - t0})
             for name in sim:
@@ -155,7 +164,8 @@ def measure(seeds, plants, scenarios, quick: bool, out_dir, real_dir=None,
 
 def table(results: dict) -> str:
     """The table printed on stdout."""
-    lines = ["iem bench writeback: simulation only (the ideal and the realistic plant), "
+    lines = ["iem bench writeback: simulation only (the ideal and the realistic plant, the "
+             "default configuration), "
              "except 'real'; correct = within 0.05 kg and 10 mm of the truth; in force = "
              "the controller's own record; farther = a write whose load errs more in mass "
              "or CoM distance than the load before it",
@@ -232,8 +242,10 @@ def configure(parser) -> None:
                         "0,1,2): sensor noise, learners and the realistic plant's gap")
     parser.add_argument("--quick", action="store_true",
                         help="the first seed only, shorter scenarios")
-    parser.add_argument("--plant", choices=("ideal", "realistic", "both"), default=None,
-                        help="which plant (default both)")
+    parser.add_argument("--plant", choices=(*PLANTS, "both", "all"), default=None,
+                        help="which plant: ideal (its model trained with the sensor's noise), "
+                        "realistic, default (the ideal plant with the model the default "
+                        "configuration trains), both (ideal and realistic) or all (default)")
     parser.add_argument("--scenarios", default=",".join(ALL),
                         help=f"comma-separated, of {', '.join(ALL)} (default all)")
     parser.add_argument("--json", metavar="FILE", help="write every figure as JSON")
@@ -263,7 +275,8 @@ def run(args) -> int:
     if set(scenarios) == {"real"}:
         refuse_unused(args, ["--plant"], "with the real scenario alone: it runs on the "
                       "recording, not on a simulated plant")
-    plants = PLANTS if args.plant in (None, "both") else (args.plant,)
+    plants = {None: PLANTS, "all": PLANTS, "both": ("ideal", "realistic")}.get(
+        args.plant, (args.plant,))
     if args.out:
         require("matplotlib", "iem bench writeback --out (its figures)")
 

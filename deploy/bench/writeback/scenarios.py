@@ -46,6 +46,8 @@ class Plant:
     calibration: dict = field(default_factory=dict)
     description: object = None
     rated_mass_kg: float | None = None
+    noise: str | None = None
+    """The ``[arm] noise`` of the runs' cell (None: sensor without an arm file, else arm)."""
 
 
 @dataclass
@@ -84,6 +86,26 @@ def ideal_plant(seed: int, log=print, description=None,
     return Plant("ideal", seed, model, description=description, rated_mass_kg=rated_mass_kg)
 
 
+def default_plant(seed: int, log=print, description=None,
+                  rated_mass_kg: float | None = None) -> Plant:
+    """The ideal plant with the model a cell of the default configuration trains for itself
+    (``deploy/cell.toml`` as shipped, whose every key is the default: no arm file, the
+    default ``[arm] noise``, ``train_if_missing``), seeded ``seed``: what a new user's first
+    ``iem run`` writes with."""
+    from deploy.config import cell_config
+    from deploy.model.training import noise_for, train_initial_model
+
+    config = cell_config(description, rated_mass_kg,
+                         where="bench writeback (the default configuration)")
+    mc = config.model
+    model = train_initial_model(mc.kind, mc.family, mc.excitation, seed, log=log,
+                                arm_file=mc.arm or None, end_effector=config.arm.end_effector,
+                                noise=noise_for(config.arm.noise, mc.arm),
+                                description=description)
+    return Plant("default", seed, model, description=description,
+                 rated_mass_kg=rated_mass_kg, noise=config.arm.noise)
+
+
 def realistic_plant(seed: int, out_dir, log=print, description=None,
                     rated_mass_kg: float | None = None) -> Plant:
     """``iem bench realistic``'s plant of ``seed`` (its reality gap), the bare arm calibrated
@@ -116,7 +138,7 @@ def run_config(plant: Plant, model_file):
         link=virtual_link("writeback"),
         model={"path": str(model_file), "kind": "IEM+phys", "seed": plant.seed,
                "checkpoint_period_s": 3600.0, "arm": plant.arm_file or ""},
-        arm={"noise": "arm" if plant.arm_file else "sensor"})
+        arm={"noise": plant.noise or ("arm" if plant.arm_file else "sensor")})
 
 
 class _Lines(logging.Handler):

@@ -168,7 +168,7 @@ def test_relative_model_path_is_taken_from_the_config_folder(tmp_path):
     ("[link]\nchannel = ''\n", ["[link] channel", "''", "non-empty string"]),
     ("[gate]\nrated_mass_kg = 60.0\n",
      ["[gate] rated_mass_kg", "60.0", "out of range", "[0.01, 50]"]),
-    ("[gate]\nmin_change_mass_kg = 0.01\n", ["[gate] min_change_mass_kg", "remove them"]),
+    ("[gate]\nmin_change_mass_kg = 0.01\n", ["[gate] min_change_mass_kg", "remove it"]),
     ("[gate]\nend_effector_mass_kg = 0.7\n", ["unknown key", "'end_effector_mass_kg'"]),
     ("[link]\nsilence_timeout_s = 0.001\n",
      ["[link] silence_timeout_s", "0.001", "out of range", "[0.005, 60]"]),

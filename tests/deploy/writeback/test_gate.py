@@ -187,6 +187,83 @@ def test_no_payload_needs_the_upper_bound_below_the_threshold_for_the_whole_wind
     assert all(d.payload is not None for d in decisions if d.send)
 
 
+WIDE = np.r_[0.11, np.full(3, 0.01), np.full(6, 0.002)]
+"""The band of a model trained for an uncalibrated arm (noise "arm", no arm file)."""
+
+
+def test_a_removed_tool_is_cleared_by_the_write_rule_whatever_the_band():
+    """After the removal the estimate reads 0.015 +- 0.22 kg (2 sigma), its CoM 0.18 m out
+    (a CoM no near-zero mass determines): the empty load is written within the stability
+    window, where a fixed threshold of the upper bound (0.2 kg) never let it, and no CoM
+    check refuses it."""
+    gate = SafetyGate()
+    ctl = Controller(gate)
+    feed(gate, phi_of(), 0.0, 2.0, ctl, std=WIDE)
+    assert gate.in_force.mass == pytest.approx(P.mass)
+    removed = np.r_[0.015, 0.015 * np.array([0.05, 0.05, 0.17]), np.zeros(6)]
+    decisions = feed(gate, removed, 2.0, 5.0, ctl, std=WIDE)
+    sends = [d for d in decisions if d.send]
+    assert len(sends) == 1 and sends[0].payload is None and gate.in_force is None
+    assert sends[0].t - 2.0 <= GateConfig().stable_window_s + 0.1
+    assert "com_too_far" not in reasons(decisions)
+    assert set(reasons(decisions[decisions.index(sends[0]) + 1:])) == {"no_change"}
+
+
+def test_the_empty_load_is_written_only_when_it_helps():
+    """A 0.1 kg load in force and an estimate of 0.02 +- 0.22 kg: the empty load would not
+    surely cut the joint-torque error; held with the write rule's reason."""
+    gate = SafetyGate()
+    ctl = Controller(gate)
+    small = Payload("small", 0.1, (0.0, 0.0, 0.02), (1e-4, 0, 0, 1e-4, 0, 1e-4))
+    gate.commands.sent_command(1, small, 0.0)
+    gate.commands.acknowledged(1, 0.0)
+    near = np.r_[0.02, 0.0, 0.0, 0.0004, np.zeros(6)]
+    decisions = feed(gate, near, 0.0, 3.0, ctl, std=WIDE)
+    assert not ctl.applied and gate.in_force.mass == pytest.approx(0.1)
+    assert decisions[-1].reason in ("no_change", "uncertain")
+
+
+def test_a_mass_below_zero_is_judged_as_the_empty_load():
+    """A bare arm through a wrong end effector reads -0.7 +- 0.004 kg: no possible body; the
+    empty load, the possible load nearest to it, is the candidate: written while 1.615 kg
+    is in force (it surely cuts the error), then held (it is in force)."""
+    gate = SafetyGate()
+    ctl = Controller(gate)
+    feed(gate, phi_of(), 0.0, 2.0, ctl)
+    wrong = np.r_[-0.7, 0.0, 0.0, -0.01, np.zeros(6)]
+    decisions = feed(gate, wrong, 2.0, 5.0, ctl)
+    assert [p for _, p in ctl.applied][1:] == [None] and gate.in_force is None
+    assert set(reasons(decisions)) <= {"inconsistent", "send", "no_change"}
+    assert decisions[-1].reason == "no_change"
+
+
+def test_a_fixed_empty_mass_threshold_is_no_setting_any_more():
+    from deploy.config import ConfigError, config_from_dict
+
+    with pytest.raises(ConfigError, match=r"empty_mass_kg: not a setting of this gate: the "
+                                          r"empty load is judged as every write is"):
+        config_from_dict({"gate": {"empty_mass_kg": 0.2}}, where="cell.toml")
+
+
+def test_a_mass_is_told_from_zero_by_its_band():
+    from deploy.writeback import excludes_zero
+
+    assert excludes_zero(1.615, 0.11) and not excludes_zero(0.015, 0.11)
+    assert not excludes_zero(-0.7, 0.002)  # below zero: no body either
+    assert excludes_zero(0.3, None) and not excludes_zero(0.0, None)  # no band: the mass
+    assert not excludes_zero(1.0, math.inf) and not excludes_zero(1.0, math.nan)
+
+
+def test_a_silence_is_the_hold_reason_for_as_long_as_it_lasts():
+    gate = SafetyGate()
+    ctl = Controller(gate)
+    feed(gate, phi_of(), 0.0, 1.0, ctl)
+    gate.controller_silent(True)
+    silent = [gate.step(1.0 + 0.1 * k) for k in range(1, 31)]  # 3 s of silence ticks
+    assert {d.reason for d in silent if d is not None} == {"controller_silent"}
+    assert sum(d is not None for d in silent) == 30
+
+
 # -- commands lost, refused, reported -------------------------------------------------------------
 def test_a_lost_command_is_retried_with_an_unchanged_estimate():
     gate = SafetyGate()
