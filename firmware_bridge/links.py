@@ -248,7 +248,7 @@ class EstimatePublisher(Protocol):
 class WireProfiled(Protocol):
     """A link whose loads travel as the DBC signals of a wire profile (the CAN links, a
     replayed CAN log): the gate checks a load against the signals' ranges before it is sent
-    (:func:`firmware_bridge.protocol.payload_wire_error`).
+    (:func:`firmware_bridge.load_range.of_profile`).
 
     Attributes:
         profile: the link's :class:`~firmware_bridge.protocol.WireProfile`.
@@ -310,6 +310,14 @@ class LinkKind:
     load_report: str = ""
     arm_model: str | None = None
     load_range: str = ""
+
+    def wire_range(self, profile: str = "fd"):
+        """The :class:`~firmware_bridge.load_range.LoadRange` its load command can carry
+        (CAN wire profile ``profile`` for a ``"dbc"`` kind), or None for a kind that carries
+        no loads."""
+        from .load_range import of_declared
+
+        return of_declared(self.load_range, profile)
 
 
 LINKS: dict[str, LinkKind] = {
