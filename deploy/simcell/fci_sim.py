@@ -182,7 +182,7 @@ def _serve(conn, initial_q, refuse_while_moving: bool, kv) -> None:
         """franky-sim's robot server with the robot's clock and mode."""
 
         def send_state(self) -> None:
-            if ticks[0] < pause["until"]:
+            if time.monotonic() < pause["until"]:
                 return
             self._FrankaServer__message_id = ticks[0]  # the robot's time, in ms since start
             super().send_state()
@@ -272,7 +272,7 @@ def _serve(conn, initial_q, refuse_while_moving: bool, kv) -> None:
                     script.update(q=np.asarray(arg, dtype=float), k=0, hold=None, moving=True)
                     events.append((now(), "motion_start", "program"))
                 elif cmd == "pause":
-                    pause["until"] = ticks[0] + round(float(arg) * 1e3)
+                    pause["until"] = time.monotonic() + float(arg)
                 elif cmd == "events":
                     conn.send(("ok", list(events)))
                     continue
@@ -356,7 +356,9 @@ class FciSim:
         return self._call("play", np.asarray(q, dtype=float))
 
     def pause(self, seconds: float) -> dict:
-        """Send no state for ``seconds`` of the robot's time (a lost network)."""
+        """Send no state for ``seconds`` of the wall clock (a lost network: the robot's own
+        clock runs on, and its scene may step faster than real time while no state is
+        sent)."""
         return self._call("pause", float(seconds))
 
     def status(self) -> dict:

@@ -15,6 +15,7 @@ from firmware_bridge.controller_port import open_port
 from iem.payload import Payload
 from sim.paths import excitation_path
 from sim.payload import save_payload
+from tests.fci import STALL_RERUN
 
 from ..conftest import write_toml
 
@@ -191,6 +192,7 @@ def test_a_report_of_the_values_after_the_send_confirms_the_load():
     assert not await_answer(link, 4, TOOL, 0.2, sent_at=sent_at)["applied"]  # a number alone
 
 
+@STALL_RERUN
 def test_against_franky_sim_each_write_and_the_clear_read_back_as_written(tmp_path, capsys):
     """``[link] kind = "franka"`` through pylibfranka against franky-sim's FR3: the load in
     force printed is the one a robot state read after the command reports, equal to the

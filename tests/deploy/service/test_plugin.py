@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.fci import STALL_RERUN
+
 from ..conftest import REPO, model_kind, write_toml
 
 
@@ -131,6 +133,7 @@ def example_program() -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@STALL_RERUN
 def test_the_docs_example_runs_against_franky_sim(trained_fr3_phys_model_file, tmp_path):
     """The documented franky-control program, as written, against franky-sim's FR3: its
     hand picks a payload up (the scene mounts it when the hand closes), its motions feed
