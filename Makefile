@@ -11,7 +11,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev,ros2,sim,plots,franka]'
+	$(PY) -m pip install --quiet -e '.[dev,ros2,sim,plots,franka,franky]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-END_EFFECTOR_HELP = ("what the arm carries as part of itself: franka_hand, none, or a "
-                     "payload-style .toml of the tool, as set in Franka Desk (default: the arm "
-                     "model's, the hand on panda and fr3); an arm file or a model made for "
-                     "another is refused")
+END_EFFECTOR_HELP = ("what the arm carries as part of itself: franka_hand, none, a "
+                     "payload-style .toml of the tool, or Franka Desk's endeffector-config.json "
+                     "(as set in Desk; default: the arm model's, the hand on panda and fr3); an "
+                     "arm file or a model made for another is refused")
 
 
 def add_arm_model(parser) -> None:

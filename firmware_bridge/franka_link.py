@@ -24,14 +24,22 @@ How:
   F_x_Cload, load_inertia)`` (positional: the binding names no arguments; CoM in the flange
   frame, inertia about the CoM column-major, exactly
   :meth:`sim.payload.Payload.set_load_args`; clearing sends mass 0). Its outcome comes back
-  through ``last_ack`` as a :class:`~firmware_bridge.protocol.LoadAck`: applied, with the load
-  the robot reports in its next state (``m_load``, ``F_x_Cload``, ``I_load``); or refused
+  through ``last_ack`` as a :class:`~firmware_bridge.protocol.LoadAck`: applied, or refused
   (``applied=False``) with libfranka's error text when it raised ``CommandException`` (the
-  robot refuses ``setLoad`` while a controller runs: "command not possible in the current
+  robot refuses ``setLoad`` while a motion runs: "command not possible in the current
   mode"). libfranka waits up to 60 s for a command's reply; the link does not wait that long:
   a command that has not returned after ``load_timeout`` s (default 2 s, well below the
   unit's WatchdogSec=5) is acknowledged as refused with that reason, and its late outcome, if
   any, replaces it in ``last_ack``.
+- The load an acknowledgement carries is the one the robot reports in a state *read after*
+  ``set_load`` returned: a ``read_once`` begun before the command returned is not one, and
+  neither is, necessarily, the first begun after it: libfranka hands over the states queued
+  on its UDP socket in order, and the robot may have sent the next one before it applied the
+  command (franky-sim's was the old load in 0 or 1 of them). So an applied command's
+  acknowledgement waits for the first state read after it that reports the commanded load,
+  for at most :data:`SETTLE_STATES` states; past them it carries what the robot reports (it
+  holds another load: the load state reads the disagreement). A refusal carries the load of
+  the first state read after it.
 - The load in force: every robot state reports it (``m_load``, ``F_x_Cload``, ``I_load``,
   inertia about the CoM column-major; mass 0: none), and ``load_report`` is the last one's
   values (a :class:`~firmware_bridge.messages.LoadReport` without a sequence number: a
@@ -40,6 +48,12 @@ How:
   robot: ``NetworkException`` is :class:`~firmware_bridge.errors.ControllerSilent`,
   ``InvalidOperationException`` (FCI held elsewhere) and the rest are
   :class:`~firmware_bridge.errors.LinkError`.
+- Reconnecting: after ``read_once`` raised ``NetworkException`` (libfranka's UDP receive
+  timed out: no state for a second), the ``Robot`` is unusable (every later call raises
+  "Net Exception"). A link opened by address (:meth:`FrankaLink.open`) drops it and connects
+  anew every :data:`RECONNECT_S` s until it is back (``reconnects`` counts them); meanwhile
+  ``read`` waits out its own timeout and raises ``ControllerSilent`` naming the last error,
+  as for any silence. A link given a robot object cannot reconnect it and raises at once.
 
 pylibfranka is imported only when a robot is opened.
 """
@@ -63,6 +77,14 @@ LOAD_TIMEOUT_S = 2.0
 """Seconds a ``set_load`` may take before it is acknowledged as refused (timed out)."""
 RETRY_AFTER_ERROR_S = 0.1
 """Pause of the reader thread after ``read_once`` raised, s."""
+RECONNECT_S = 0.2
+"""Pause between attempts to connect again after the connection was lost, s."""
+SETTLE_STATES = 20
+"""States read after ``set_load`` returned that an applied command's acknowledgement waits
+for one reporting the commanded load, at most (20 ms of the robot's states)."""
+LOAD_REL_TOL = 1e-5
+"""Relative difference up to which a reported load value is the commanded one: the state
+carries single-precision floats (7 significant digits; franky-sim packs them so)."""
 
 
 def _franka_error(api, exc: Exception, name: str, what: str) -> LinkError:
@@ -92,9 +114,13 @@ class FrankaLink:
     """
 
     def __init__(self, robot, api, *, name: str = "Franka robot", silence_timeout: float = 0.1,
-                 load_timeout: float = LOAD_TIMEOUT_S, owns_robot: bool = True) -> None:
+                 load_timeout: float = LOAD_TIMEOUT_S, owns_robot: bool = True,
+                 connect=None) -> None:
         self.robot = robot
         self.api = api
+        self._connect = connect  # makes a new robot after a lost connection (None: cannot)
+        self.reconnects = 0
+        """Times the link connected anew after the connection was lost."""
         self.name = name
         self.rate_hz = NOMINAL_RATE_HZ
         self.silence_timeout = float(silence_timeout)
@@ -112,8 +138,10 @@ class FrankaLink:
         self._outcomes: queue.Queue = queue.Queue()
         self._running: tuple[int, float] | None = None  # (seq, started) of set_load in flight
         self._timed_out: set[int] = set()
-        self._waiting: list[tuple[int, bool, str, float]] = []  # outcomes waiting for a state
-        # received after the command returned (the load it reports)
+        self._waiting: list[list] = []  # [seq, applied, error, reads, args, states seen]:
+        # outcomes waiting for a state read after the command returned (the load it reports)
+        self._reads = 0  # read_once calls begun (the reader thread counts them)
+        self._lost: Exception | None = None  # the error that lost the connection
         self._load = None  # the load in the last state, as reported by the robot
         self._load_key: tuple | None = None
         self._load_t: float | None = None  # perf_counter() when that state was taken
@@ -140,30 +168,55 @@ class FrankaLink:
                                     "'iem-payload[franka]'") from exc
         config = pylibfranka.RealtimeConfig.kEnforce if realtime else \
             pylibfranka.RealtimeConfig.kIgnore
+        def connect():
+            return pylibfranka.Robot(address, config)
+
         try:
-            robot = pylibfranka.Robot(address, config)
+            robot = connect()
         except Exception as exc:  # any failure to connect; the class is named in the message
             raise _franka_error(pylibfranka, exc, f"Franka robot {address!r}",
                                 "connecting") from exc
-        return cls(robot, pylibfranka, name=f"Franka robot {address!r}", **options)
+        return cls(robot, pylibfranka, name=f"Franka robot {address!r}", connect=connect,
+                   **options)
 
     # -- threads ---------------------------------------------------------------------------
     def _read_loop(self) -> None:
         while not self._stop.is_set():
             robot = self.robot
             if robot is None:
-                return
+                if self._connect is None or not self._reconnect():
+                    return
+                continue
+            self._reads += 1
+            index = self._reads
             try:
                 item = robot.read_once()
             except Exception as exc:  # handed to the caller's thread, mapped by class there
-                item = exc
+                item = exc.with_traceback(None)  # its frames would keep the robot (and its
+                # connection, which the robot serves one client at a time) alive
             now = time.time()
             try:
-                self._states.put_nowait((item, now))
+                self._states.put_nowait((item, now, index))
             except queue.Full:
                 self.counters.overflow += 1
             if isinstance(item, Exception):
+                if self._connect is not None and isinstance(item, self.api.NetworkException):
+                    self._lost = item
+                    self.robot = None  # unusable now: dropped, its connection closed
                 self._stop.wait(RETRY_AFTER_ERROR_S)
+
+    def _reconnect(self) -> bool:
+        """Connect anew until it works or the link closes; False when it closed."""
+        while not self._stop.is_set():
+            try:
+                self.robot = self._connect()
+            except Exception as exc:  # the robot is not back yet; tried again
+                self._lost = exc.with_traceback(None)
+                self._stop.wait(RECONNECT_S)
+                continue
+            self.reconnects += 1
+            return True
+        return False
 
     def _command_loop(self) -> None:
         while not self._stop.is_set():
@@ -174,15 +227,24 @@ class FrankaLink:
             self._running = (seq, time.perf_counter())
             error, fatal = "", None
             try:
-                self.robot.set_load(*args)
+                self._set_load(args)
             except self.api.CommandException as exc:
                 error = str(exc) or type(exc).__name__
-            except self.api.NetworkException as exc:
+            except (self.api.NetworkException, ConnectionError) as exc:
                 error = f"{type(exc).__name__}: {exc}"
             except Exception as exc:  # anything else ends the run, from the caller's thread
-                error, fatal = f"{type(exc).__name__}: {exc}", exc
+                error, fatal = f"{type(exc).__name__}: {exc}", exc.with_traceback(None)
             self._running = None
-            self._outcomes.put((seq, not error, error, fatal, time.time()))
+            # reads begun from here on are after the command returned
+            self._outcomes.put((seq, not error, error, fatal, self._reads, args))
+
+    def _set_load(self, args) -> None:
+        """``set_load`` on the robot of now; no reference to it outlives the call (a dropped
+        robot must close its connection: the robot serves one client at a time)."""
+        robot = self.robot
+        if robot is None:
+            raise ConnectionError(f"no connection to the robot ({self._lost})")
+        robot.set_load(*args)
 
     # -- source ----------------------------------------------------------------------------
     def _joint_state(self, rs) -> JointState | None:
@@ -213,12 +275,12 @@ class FrankaLink:
         command running longer than ``load_timeout`` is acknowledged as refused now."""
         while True:
             try:
-                seq, applied, error, fatal, done = self._outcomes.get_nowait()
+                seq, applied, error, fatal, done, args = self._outcomes.get_nowait()
             except queue.Empty:
                 break
             if fatal is not None:
                 raise _franka_error(self.api, fatal, self.name, "set_load") from fatal
-            self._waiting.append((seq, applied, error, done))
+            self._waiting.append([seq, applied, error, done, args, 0])
         running = self._running
         if running is not None and running[0] not in self._timed_out \
                 and time.perf_counter() - running[1] > self.load_timeout:
@@ -234,29 +296,47 @@ class FrankaLink:
             if remaining <= 0:
                 return False
             try:
-                item, received = self._states.get(timeout=min(remaining, 0.05))
+                item, received, index = self._states.get(timeout=min(remaining, 0.05))
             except queue.Empty:
                 continue
             if isinstance(item, Exception):
+                if self._connect is not None and isinstance(item, self.api.NetworkException):
+                    continue  # reconnecting; read's own timeout says when it is a silence
                 raise _franka_error(self.api, item, self.name, "read_once") from item
             state = self._joint_state(item)
-            if self._waiting:  # a state received after set_load returned reports its load
-                done = [w for w in self._waiting if w[3] <= received]
-                self._waiting = [w for w in self._waiting if w[3] > received]
-                for seq, applied, error, _ in done:
-                    self._timed_out.discard(seq)
-                    self._ack(seq, applied, error)
+            if self._waiting:
+                self._settle_waiting(index)
             if state is not None:
                 self._ready.append((state, received))
         return True
+
+    def _settle_waiting(self, index: int) -> None:
+        """Acknowledge the finished commands that the state just read (``read_once`` number
+        ``index``) answers: it was read after the command returned, and reports the commanded
+        load or is the :data:`SETTLE_STATES`-th such state (a refusal: the first)."""
+        keep = []
+        for w in self._waiting:
+            seq, applied, error, done, args, seen = w
+            if index <= done:  # begun before the command returned
+                keep.append(w)
+                continue
+            w[5] = seen = seen + 1
+            if applied and seen < SETTLE_STATES and not load_matches(self._load_key, args):
+                keep.append(w)
+                continue
+            self._timed_out.discard(seq)
+            self._ack(seq, applied, error)
+        self._waiting = keep
 
     def read(self, timeout: float | None = None) -> JointState:
         """The next robot state; ``ControllerSilent`` after ``timeout`` s without one."""
         timeout = self.silence_timeout if timeout is None else float(timeout)
         if not self._take(time.perf_counter() + timeout):
             self.counters.silences += 1
+            lost = f"; connection lost ({self._lost}), reconnecting" \
+                if self.robot is None and self._lost is not None else ""
             raise ControllerSilent(f"{self.name}: no robot state for {timeout * 1e3:.0f} ms; "
-                                   f"{self.counters.summary()}")
+                                   f"{self.counters.summary()}{lost}")
         state, self.last_frame_time = self._ready.popleft()
         return state
 
@@ -317,13 +397,32 @@ class FrankaLink:
             if thread is not threading.current_thread():
                 thread.join(0.2)  # the reader may be inside read_once
         if self._owns_robot:
-            self.robot = None
+            self.robot = None  # its connection closes with it: the robot serves one client
+            self._lost = None
 
     def __enter__(self) -> FrankaLink:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def load_matches(reported, args) -> bool:
+    """Whether a state's load ``reported`` (``m_load``, ``F_x_Cload``, ``I_load``; None: no
+    state yet) is the commanded ``args`` (``set_load``'s mass, CoM, inertia), to the
+    state's single precision (:data:`LOAD_REL_TOL`); any empty load (mass 0) is the empty
+    load."""
+    if reported is None:
+        return False
+    mass = float(args[0])
+    if not _close(reported[0], mass):
+        return False
+    return mass == 0.0 or all(_close(a, b) for a, b in zip(
+        (*reported[1], *reported[2]), (*args[1], *args[2]), strict=True))
+
+
+def _close(a: float, b: float) -> bool:
+    return abs(float(a) - float(b)) <= LOAD_REL_TOL * max(abs(float(b)), 1e-3)
 
 
 def open_franka_link(kind: str, channel: str, *, profile: str = "fd",

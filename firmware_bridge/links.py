@@ -248,7 +248,7 @@ class EstimatePublisher(Protocol):
 class WireProfiled(Protocol):
     """A link whose loads travel as the DBC signals of a wire profile (the CAN links, a
     replayed CAN log): the gate checks a load against the signals' ranges before it is sent
-    (:func:`firmware_bridge.protocol.payload_wire_error`).
+    (:func:`firmware_bridge.load_range.of_profile`).
 
     Attributes:
         profile: the link's :class:`~firmware_bridge.protocol.WireProfile`.
@@ -289,6 +289,9 @@ class LinkKind:
             the wire profile's rate (``protocol.dbc``'s ``GenMsgCycleTime``).
         load_report: what a sink's ``load_report`` carries (one of :data:`LOAD_REPORTS`):
             ``"seq"``, ``"values"``, or ``""`` (it stays None).
+        arm_model: the one arm model the kind serves (libfranka >= 0.10 serves the FR3
+            only: ``"fr3"``), which ``[arm] model`` defaults to and may not differ from;
+            None: any.
         load_range: the range of the values its load command can carry
             (:mod:`firmware_bridge.load_range`): ``"dbc"`` (the CAN wire profile's signals),
             ``"float64"`` (any finite double), or ``""`` (a kind that carries no loads).
@@ -305,7 +308,16 @@ class LinkKind:
     recorded: bool = False
     fixed_rate_hz: float | None = None
     load_report: str = ""
+    arm_model: str | None = None
     load_range: str = ""
+
+    def wire_range(self, profile: str = "fd"):
+        """The :class:`~firmware_bridge.load_range.LoadRange` its load command can carry
+        (CAN wire profile ``profile`` for a ``"dbc"`` kind), or None for a kind that carries
+        no loads."""
+        from .load_range import of_declared
+
+        return of_declared(self.load_range, profile)
 
 
 LINKS: dict[str, LinkKind] = {
@@ -329,8 +341,14 @@ LINKS: dict[str, LinkKind] = {
     "franka": LinkKind("firmware_bridge.franka_link", "open_franka_link",
                        "a Franka Research 3 through pylibfranka (extra 'franka', libfranka >= "
                        "0.10; exclusive FCI); channel: the robot's IP",
-                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values",
+                       fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3",
                        load_range="float64"),
+    "program": LinkKind("firmware_bridge.program_link", "open_program_link",
+                        "the plug-in inside your own franky-control or pylibfranka program: "
+                        "states fed from its motion callback, loads through its robot's "
+                        "set_load between motions (deploy.service.PayloadPlugin; not iem run)",
+                        fixed_rate_hz=NOMINAL_RATE_HZ, load_report="values", arm_model="fr3",
+                        load_range="float64"),
     "ros2": LinkKind("firmware_bridge.ros2_link", "open_ros2_link",
                      "a Franka through franka_ros2 over Cyclone DDS (extra 'ros2'); channel: "
                      "the JointState topic", fixed_rate_hz=NOMINAL_RATE_HZ,

@@ -2,7 +2,8 @@
 
 A load travels as ten values: the mass (kg), the CoM in the flange frame (m) and the inertia
 about the CoM (kg·m², ``Ixx Ixy Ixz Iyy Iyz Izz``). Each link kind declares the range of its
-wire in the one table of link kinds (:attr:`firmware_bridge.links.LinkKind.load_range`):
+wire in the one table of link kinds (:attr:`firmware_bridge.links.LinkKind.load_range`; the
+range itself: :meth:`firmware_bridge.links.LinkKind.wire_range`):
 
 - ``"dbc"``: the CAN links (and a replayed CAN log): the DBC's signals of the profile's load
   command, each an integer of so many bits times a scale (:func:`of_profile`); a mass that
@@ -103,12 +104,10 @@ def of_profile(profile: str) -> LoadRange:
     return LoadRange(tuple(out), f"{command.frame.label}")
 
 
-def load_range(kind: str, profile: str = "fd") -> LoadRange | None:
-    """The range a link of ``kind`` declares (:attr:`firmware_bridge.links.LinkKind.
-    load_range`) with CAN wire profile ``profile``; None for a kind that writes no loads."""
-    from .links import link_kind
-
-    declared = link_kind(kind).load_range
+def of_declared(declared: str, profile: str = "fd") -> LoadRange | None:
+    """The range a link kind declares (:attr:`firmware_bridge.links.LinkKind.load_range`:
+    ``"dbc"``, ``"float64"`` or ``""``) with CAN wire profile ``profile``; None for a kind
+    that writes no loads. :meth:`firmware_bridge.links.LinkKind.wire_range` asks it."""
     if declared == "dbc":
         return of_profile(profile)
     return FLOAT64 if declared == "float64" else None

@@ -48,7 +48,7 @@ from .state_codec import STATE_FIELDS, STATE_INDEX, JointStateCodec
 __all__ = ["ACK_ERRORS", "ACK_STATUS", "DBC_PATH", "PAYLOAD_FIELDS", "PROFILES", "STATE_FIELDS",
            "STATE_INDEX", "Field", "FrameCodec", "Heartbeat", "HeartbeatCodec", "JointStateCodec",
            "LoadAck", "LoadAssembler", "LoadCodec", "LoadCommand", "WireProfile", "database",
-           "payload_wire_error", "profile"]
+           "profile"]
 
 DBC_PATH = FsPath(__file__).with_name("protocol.dbc")
 
@@ -135,17 +135,3 @@ def profile(name: str = "fd") -> WireProfile:
         data_bitrate=int(attrs["IemDataBitrateFD"].value) if name == "fd" else None,
         period_us=period_us,
     )
-
-
-def payload_wire_error(payload, profile: str) -> str | None:
-    """Why the load command of profile ``profile`` cannot carry ``payload``, or None if it can.
-
-    The DBC's signal ranges and steps (:func:`firmware_bridge.load_range.of_profile`),
-    checked as every link's declared range is, without encoding a frame: the message names
-    the signal, the value and the valid range. The safety gate asks this before it lets a
-    load through, so a load the wire cannot carry is refused there instead of failing in
-    ``send``.
-    """
-    from .load_range import of_profile
-
-    return of_profile(profile).error(payload)

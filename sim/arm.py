@@ -142,6 +142,10 @@ class ArmParams:
             raveled, 63), offsets marginalised (:mod:`sim.calibration.posterior`); None: not
             known (a nominal arm, a file from before it). An estimator carries it along
             its own poses (:class:`ArmDynamics`).
+        armature: ``(7,)`` each joint's armature, kg·m²: its drive's reflected rotor
+            inertia, a torque ``armature * ddq`` on its own joint (Pinocchio's
+            ``Model.armature``; ``iem calibrate --armature``); zeros: none (Franka's
+            link-side torque sensors see none).
     """
 
     link_params: np.ndarray
@@ -153,6 +157,7 @@ class ArmParams:
     source: str | None = field(default=None, repr=False)
     description: ArmDescription | None = field(default=None, repr=False)
     posterior: np.ndarray | None = field(default=None, repr=False)
+    armature: np.ndarray | None = None
 
     name: ClassVar[str] = "arm"
     """The kind recorded in the arm file."""
@@ -170,6 +175,11 @@ class ArmParams:
         if self.posterior is not None:
             object.__setattr__(self, "posterior", _posterior_array(self.posterior,
                                                                    self.friction))
+        object.__setattr__(self, "armature", _array(
+            "armature", np.zeros(7) if self.armature is None else self.armature, (7,)))
+        if np.any(self.armature < 0.0):
+            raise InvalidInputError(f"arm armature must be >= 0 kg·m², got "
+                                    f"{self.armature.tolist()}")
 
     @classmethod
     def nominal(cls, end_effector=None, description=None) -> ArmParams:
@@ -201,6 +211,8 @@ class ArmParams:
             state["noise"] = self.noise
         if self.description.name != DEFAULT_ARM_MODEL:
             state["description"] = self.description.record()
+        if np.any(self.armature):  # only when fitted: an arm without keeps its CRC
+            state["armature"] = self.armature.tolist()
         if self.posterior is not None:  # its lower triangle, row by row
             state["posterior"] = self.posterior[np.tril_indices(POSTERIOR_PARAMS)].tolist()
         return state
@@ -213,7 +225,8 @@ class ArmParams:
                    dict(state.get("report") or {}),
                    end_effector=str(state.get("end_effector") or "franka_hand"),
                    noise=state.get("noise"), description=described_by(state.get("description")),
-                   posterior=_unpacked(state.get("posterior")))
+                   posterior=_unpacked(state.get("posterior")),
+                   armature=state.get("armature"))
 
     @property
     def crc32(self) -> int:

@@ -212,7 +212,7 @@ def builtin_file(name: str) -> FsPath:
                 return cand / "panda.urdf"
         raise FileNotFoundError("example-robot-data's panda.urdf not found under any "
                                 "site-packages; install the package example-robot-data")
-    spec = find_spec("franky_sim")  # located, never imported (its import starts servers)
+    spec = find_spec("franky_sim")  # located: its server runs in deploy.simcell.FciSim only
     for folder in (spec.submodule_search_locations or []) if spec else []:
         cand = FsPath(folder) / "assets" / "fr3_clean.urdf"
         if cand.is_file():

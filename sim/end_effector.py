@@ -12,7 +12,10 @@ the commands that take ``--arm``) as one of:
   on the Panda and the FR3);
 - ``"none"``: a bare flange (the default on an arm model given by a file);
 - a path to a payload-style TOML file (:mod:`sim.payload`: mass, CoM in the flange frame,
-  inertia about the CoM) of the tool that is part of the arm.
+  inertia about the CoM) of the tool that is part of the arm;
+- a path to Franka Desk's end-effector file, ``endeffector-config.json``
+  (:mod:`sim.desk_file`: its ``mass``, ``centerOfMass`` and ``inertia``; a mass of 0 is a
+  bare flange).
 
 Body 7 of the arm model is then the arm's bodies from joint 7 to the flange plus the end
 effector (:meth:`EndEffector.body7`). :class:`EndEffector` holds one, as an inertia in the
@@ -31,6 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from iem.errors import InvalidInputError
+from iem.payload import Payload
 
 DEFAULT_END_EFFECTOR = "franka_hand"
 """The end effector of the nominal model and of files that record none."""
@@ -69,6 +73,19 @@ class EndEffector:
         if desc.carries_own(self.spec):
             return _own_hand(desc)  # the file's own, exactly as the file gives it
         return flange_placement(desc).act(self.inertia).toDynamicParameters()
+
+    def with_payload(self, payload, name: str = "end effector") -> Payload:
+        """This end effector and ``payload`` (a :class:`iem.payload.Payload` on the flange;
+        None: none) as one body: mass, CoM in the flange frame, inertia about that CoM (what
+        Desk's end-effector settings take for a tool with something added to it)."""
+        total = pin.Inertia.Zero() if self.inertia is None else self.inertia.copy()
+        if payload is not None:
+            total += pin.Inertia(payload.mass, np.asarray(payload.com), payload.inertia_matrix)
+        if not total.mass > 0.0:
+            raise InvalidInputError("an end effector and payload of no mass make no body")
+        i = total.inertia
+        return Payload(name=name, mass=float(total.mass), com=tuple(total.lever.tolist()),
+                       inertia=(i[0, 0], i[0, 1], i[0, 2], i[1, 1], i[1, 2], i[2, 2]))
 
     def body7(self, description=None) -> np.ndarray:
         """``(10,)`` parameters of body 7 carrying it: the arm's bodies from joint 7 to the
@@ -111,13 +128,21 @@ def end_effector(spec: str | None) -> EndEffector:
     if spec == "none":
         return EndEffector(spec, spec, None)
     path = FsPath(spec)
-    if path.suffix != ".toml":
+    if path.suffix not in (".toml", ".json"):
         raise InvalidInputError(f"end effector {spec!r} is not valid: give 'franka_hand', "
-                                f"'none', or the path of a payload-style .toml file of the "
-                                f"tool mounted on the flange")
-    from .payload import load_payload
+                                f"'none', the path of a payload-style .toml file of the "
+                                f"tool mounted on the flange, or Franka Desk's "
+                                f"endeffector-config.json (.json)")
+    if path.suffix == ".json":  # Desk's file: mass, centerOfMass, transformation, inertia
+        from .desk_file import read_desk_file
 
-    tool = load_payload(path)
+        tool = read_desk_file(path).payload
+        if tool is None:  # a massless end effector: a bare flange by another name
+            return EndEffector(str(path), f"{path.stem}:none", None)
+    else:
+        from .payload import load_payload
+
+        tool = load_payload(path)
     inertia = pin.Inertia(tool.mass, np.asarray(tool.com), tool.inertia_matrix)
     crc = zlib.crc32(np.round(tool.to_phi(), 12).tobytes())
     return EndEffector(str(path), f"{path.stem}:{crc:08x}", inertia)

@@ -59,7 +59,8 @@ class ArmModel:
             bodies with its default end effector, no friction, no offsets). With an arm,
             every torque this model gives (``rnea``, ``rnea_with_payload``,
             ``rnea_and_regressor``) is the measured ``tau_J`` of that arm: its bodies' RNEA
-            plus friction plus offsets; the payload regressor depends only on kinematics.
+            (with its armature) plus friction plus offsets; the payload regressor depends
+            only on kinematics.
         description: the arm model (:mod:`sim.description`; a name, a path or an
             :class:`~sim.description.ArmDescription`) when ``arm`` is None; None: the
             default.
@@ -77,6 +78,7 @@ class ArmModel:
             for j in range(1, 8):
                 self.model.inertias[j] = pin.Inertia.FromDynamicParameters(
                     np.asarray(arm.link_params[j - 1], dtype=float))
+            self.model.armature = np.asarray(arm.armature, dtype=float)  # in rnea and crba
         elif not self.description.carries_own(None):  # the end effector on body 7
             self.model.inertias[7] = pin.Inertia.FromDynamicParameters(
                 nominal_link_params(None, self.description)[6])

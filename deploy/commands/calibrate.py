@@ -70,7 +70,8 @@ def read_states(source, duration: float | None = None, silence_s: float = 1.0):
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
                       profile: str = "fd", link=None, format: str | None = None,
                       topic: str = DEFAULT_TOPIC, end_effector=None,
-                      rate_hz: float | None = None, log=print, description=None):
+                      rate_hz: float | None = None, log=print, description=None,
+                      armature: bool = False):
     """The arm calibrated from the recordings ``logs`` (of ``format``, None: detected per
     file; ``topic``: a rosbag2 bag's JointState topic; ``profile``: a CAN log's wire profile)
     and/or a live link (see the module docstring): ``interface``/``channel`` opened here, or
@@ -120,7 +121,8 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
     if not names:
         raise InvalidInputError("give at least one REC, or --interface/--channel/--duration")
     rate = traffic_rate(parts, names, rate_hz, log)
-    return calibrate_with_noise(parts, CalibrationSettings(recorded_rate_hz=rate),
+    return calibrate_with_noise(parts, CalibrationSettings(recorded_rate_hz=rate,
+                                                           armature=armature),
                                 source=", ".join(names), end_effector=end_effector,
                                 description=description)
 
@@ -153,6 +155,8 @@ def print_report(arm, out, log=print) -> None:
         log(f"  joint {j + 1}: {b:.4f} -> {a:.4f}")
     log("friction phi1 (N·m) " + " ".join(f"{v:.3f}" for v in arm.friction[:, 0]))
     log("offsets (N·m)       " + " ".join(f"{v:+.3f}" for v in arm.offset))
+    if arm.armature.any():
+        log("armature (kg·m²)    " + " ".join(f"{v:.3f}" for v in arm.armature))
     log(f"end effector: {arm.end_effector}")
     if arm.noise is not None:
         n = arm.noise
@@ -188,6 +192,10 @@ def configure(parser) -> None:
                         help="seconds of live traffic to record")
     add_end_effector(parser)
     add_arm_model(parser)
+    parser.add_argument("--armature", action="store_true",
+                        help="fit each joint's armature (its drive's rotor inertia): for a "
+                        "torque read from motor currents or a simulator's applied torque "
+                        "(franky-sim's); not for Franka's link-side torque sensors")
     add_rate(parser)
 
 
@@ -217,7 +225,7 @@ def run(args) -> int:
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
                             duration=args.duration, **recording_options(args),
                             end_effector=args.end_effector, rate_hz=args.rate,
-                            description=arm_description_of(args))
+                            description=arm_description_of(args), armature=args.armature)
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

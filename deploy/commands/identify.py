@@ -1,6 +1,7 @@
 """``iem identify``: commissioning identification of a payload from recorded traffic.
 
-``iem identify --loaded REC --bare REC [--arm ARM] --out P.toml [--json S.json]``
+``iem identify --loaded REC --bare REC [--arm ARM] --out P.toml [--json S.json]
+[--desk-json FILE]``
 
 Each recording is a CAN log (``.blf``, ``.log``, ``.asc``, ``.trc``, as ``iem record`` writes
 them), decoded by :class:`firmware_bridge.replay.ReplaySource` exactly as the live link decodes
@@ -15,7 +16,10 @@ result is written as the project's payload TOML
 (:func:`sim.payload.save_payload`: mass, CoM in the flange frame, inertia about the CoM) and,
 with ``--json``, a summary holding ``payload {mass, com, inertia}`` and ``std {mass, com,
 inertia}`` in the same units, plus the ten parameters, their standard deviations, which of
-them the data determine, and the run's figures.
+them the data determine, and the run's figures. With ``--arm``, ``--desk-json FILE`` also
+writes Franka Desk's ``endeffector-config.json`` (:mod:`sim.desk_file`) of the declared end
+effector and the payload as one body (a gripper with a camera added: Desk's end-effector
+settings for what is mounted now), which ``--end-effector`` and ``[arm] end_effector`` take.
 
 Errors (a missing or unreadable recording, recordings of different motions, too little
 excitation, a load in the bare one) end with ``iem: error: ...`` and exit status 2; nothing is
@@ -94,6 +98,12 @@ def configure(parser) -> None:
     parser.add_argument("--out", required=True, metavar="P.toml",
                         help="payload file to write (mass, CoM, inertia about the CoM)")
     parser.add_argument("--json", metavar="S.json", help="write the summary as JSON")
+    parser.add_argument("--desk-json", metavar="FILE",
+                        help="also write Franka Desk's endeffector-config.json of what the "
+                        "flange carries now: the declared end effector (--end-effector, with "
+                        "--arm) and the identified payload as one body; its transformation "
+                        "(the TCP) is the declared end effector's (its Desk file's, the "
+                        "Franka Hand's), else the identity: the dynamics do not tell it")
     add_recording_options(parser, "wire profile CAN logs were recorded with (default fd)")
     add_rate(parser, help="joint states a second of both recordings (default: each one's "
              "detected from its time stamps, the median step)")
@@ -140,6 +150,10 @@ def run(args) -> int:
     if args.bare is not None:
         refuse_unused(args, ["--end-effector"], "with --bare: the bare recording carries the "
                       "arm and its end effector; it says what an --arm file is for")
+        if args.desk_json:
+            raise InvalidInputError("--desk-json needs --arm (and --end-effector): the Desk "
+                                    "file holds the declared end effector with the payload, "
+                                    "and a bare recording declares none")
     description = arm_description_of(args)
     joints = description.joint_names
     read = recording_options(args)
@@ -166,10 +180,27 @@ def run(args) -> int:
     _write(args.out, payload_to_toml(payload, phi_std=result.std))
     if args.json:
         _write(args.json, json.dumps(summary, indent=2) + "\n")
+    if args.desk_json:
+        _write(args.desk_json, desk_text(payload, args.end_effector, description, name))
     print_result(result, summary)
-    print(f"  wrote {args.out}" + (f" and {args.json}" if args.json else "")
+    print(f"  wrote {args.out}" + "".join(f" and {f}" for f in (args.json, args.desk_json) if f)
           + f" ({decoded - start:.2f} s decoding, {done - decoded:.2f} s identifying)")
     return 0
+
+
+def desk_text(payload, end_effector, description, name: str) -> str:
+    """Franka Desk's ``endeffector-config.json`` (:mod:`sim.desk_file`) of the end effector
+    ``end_effector`` (a spec; None: the arm model's) with ``payload`` on it, as one body."""
+    from sim.desk_file import base_of, desk_document
+    from sim.end_effector import end_effector_of
+
+    ee = end_effector_of(end_effector, description)
+    body = ee.with_payload(payload, name=name)
+    ident = "".join(c if c.isalnum() or c in "-_." else "-" for c in name).lstrip("-") or "tool"
+    if ident.startswith("ee-"):
+        ident = ident[3:] or "tool"
+    doc = desk_document(body, base=base_of(ee.spec), id=ident, name=f"{ee.label} + {name}")
+    return json.dumps(doc, indent=2) + "\n"
 
 
 def _write(path, text: str) -> None:

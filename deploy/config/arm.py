@@ -21,16 +21,20 @@ def _config_error(text: str):
 
 
 def arm_model_of(arm: ArmConfig, link: LinkConfig, ros2: Ros2Config, where: str) -> ArmConfig:
-    """``[arm]`` with its model named: "" resolved by the link (:class:`ArmConfig`); the
-    ``franka`` link refuses another arm model than the FR3."""
+    """``[arm]`` with its model named: "" resolved by the link (:class:`ArmConfig`); a link
+    kind that serves one arm model (the ``franka`` and ``program`` links: libfranka serves
+    the FR3 only) refuses another."""
+    from firmware_bridge.links import link_kind
+
+    only = link_kind(link.kind).arm_model
     model = arm.model
     if not model:
-        model = "fr3" if link.kind == "franka" or (link.kind == "ros2"
-                                                  and ros2.joints == "fr3") else "panda"
-    if link.kind == "franka" and model != "fr3":
-        raise _config_error(f"{where}: [arm] model = {model!r} with [link] kind = 'franka': "
-                            "libfranka (>= 0.10, pylibfranka) serves the FR3 only; set model = "
-                            "'fr3', or serve a Panda through another link")
+        model = only or ("fr3" if link.kind == "ros2" and ros2.joints == "fr3" else "panda")
+    if only is not None and model != only:
+        raise _config_error(f"{where}: [arm] model = {model!r} with [link] kind = "
+                            f"{link.kind!r}: libfranka (>= 0.10, pylibfranka) serves the FR3 "
+                            f"only; set model = {only!r}, or serve a Panda through another "
+                            "link")
     return replace(arm, model=model)
 
 

@@ -134,10 +134,10 @@ def config_from_dict(doc: dict, where: str = "config") -> CellConfig:
                           "a log file (.blf, .log, .asc or .trc)")
     built["arm"] = arm_model_of(built["arm"], link, built["ros2"], where)
     ee = built["arm"].end_effector
-    if ee not in ("", "franka_hand", "none") and not ee.endswith(".toml"):
+    if ee not in ("", "franka_hand", "none") and not ee.endswith((".toml", ".json")):
         raise ConfigError(f"{where}: [arm] end_effector = {ee!r} is not valid; valid are "
-                          "'franka_hand', 'none' or the path of a payload-style .toml file of "
-                          "the tool on the flange")
+                          "'franka_hand', 'none', the path of a payload-style .toml file of "
+                          "the tool on the flange, or Franka Desk's endeffector-config.json")
     cfg = CellConfig(**built, source=where)
     if "rated_mass_kg" not in doc.get("gate", {}):
         cfg = with_rated_payload(cfg)

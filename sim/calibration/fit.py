@@ -1,41 +1,53 @@
 """Steps 4 and 6 of the calibration: the maximum a posteriori of the bodies, the friction and
-the offsets by Levenberg-Marquardt (:func:`fit_map`), and the guard that leaves no joint
-fitting worse than the nominal model (:func:`never_worse`)."""
+the offsets (and, where asked, each joint's armature) by Levenberg-Marquardt
+(:func:`fit_map`), and the guard that leaves no joint fitting worse than the nominal model
+(:func:`never_worse`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..friction import friction_jacobian, friction_torque
-from .prior import FRICTION_BOUNDS, CalibrationSettings
+from .prior import ARMATURE_BOUNDS, FRICTION_BOUNDS, CalibrationSettings
 
 
 class _MapProblem:
     """The posterior's cost of :func:`fit_map` in prior-scaled unknowns: ``theta`` (70), then
-    per joint its friction (``k``) and offset; its residual and its damped normal equations."""
+    per joint its friction (``k``) and its joint-local linear terms: the offset, and the
+    armature where ``ddq`` is given (its torque ``armature * ddq``); its residual and its
+    damped normal equations."""
 
     def __init__(self, W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off,
-                 s: CalibrationSettings) -> None:
+                 s: CalibrationSettings, ddq=None, sd_arm=None) -> None:
         self.W, self.dq, self.tau = W, dq, tau
-        self.sd_phi, self.sd_off = sd_phi, sd_off
+        self.sd_phi = sd_phi
         self.n, self.k = dq.shape[0], phi0.shape[1]
         self.w = 1.0 / s.sigma_tau
         k = self.k
-        self.sd = np.concatenate((sd_theta, np.column_stack((sd_phi, sd_off)).ravel()))
-        self.x0 = np.concatenate((theta0, np.column_stack((phi0, np.zeros(7))).ravel()))
-        bounds = np.vstack((FRICTION_BOUNDS[:k], [[-np.inf, np.inf]]))
+        columns, sds = [np.ones_like(dq)], [sd_off]
+        if ddq is not None:
+            columns.append(ddq)
+            sds.append(sd_arm)
+        self.L = np.stack(columns, axis=-1)  # (N, 7, c): the local terms' columns
+        self.sd_loc = np.column_stack(sds)  # (7, c)
+        self.c = c = self.L.shape[-1]
+        self.sd = np.concatenate((sd_theta, np.column_stack((sd_phi, self.sd_loc)).ravel()))
+        self.x0 = np.concatenate((theta0, np.column_stack((phi0, np.zeros((7, c)))).ravel()))
+        bounds = np.vstack((FRICTION_BOUNDS[:k], [[-np.inf, np.inf]], ARMATURE_BOUNDS[:c - 1]))
         self.lo = np.concatenate((np.full(70, -np.inf), np.tile(bounds[:, 0], 7)))
         self.hi = np.concatenate((np.full(70, np.inf), np.tile(bounds[:, 1], 7)))
         self.A = (W * (sd_theta * self.w)).transpose(1, 2, 0)  # (7, 70, N), constant
         self.AtA = np.einsum("jan,jbn->ab", self.A, self.A)
 
     def split(self, x):
-        joint = x[70:].reshape(7, self.k + 1)
-        return x[:70], joint[:, :self.k], joint[:, self.k]
+        """``(theta, friction, local terms (7, c))`` of ``x``."""
+        joint = x[70:].reshape(7, self.k + self.c)
+        return x[:70], joint[:, :self.k], joint[:, self.k:]
 
     def residual(self, x):
-        theta, phi, off = self.split(x)
-        return self.tau - self.W @ theta - friction_torque(self.dq, phi) - off
+        theta, phi, local = self.split(x)
+        return (self.tau - self.W @ theta - friction_torque(self.dq, phi)
+                - np.einsum("njc,jc->nj", self.L, local))
 
     def cost(self, x, r):
         return float(self.w * self.w * np.sum(r * r) + np.sum(((x - self.x0) / self.sd) ** 2))
@@ -44,11 +56,11 @@ class _MapProblem:
         """``(lhs, rhs)`` of the Gauss-Newton step at ``x`` (friction linearised there), the
         prior's identity included."""
         n, k, w, A = self.n, self.k, self.w, self.A
-        m = k + 1
+        m = k + self.c
         _, phi, _ = self.split(x)
         G = np.empty((n, 7, m))
         G[..., :k] = friction_jacobian(self.dq, phi) * self.sd_phi
-        G[..., k] = self.sd_off
+        G[..., k:] = self.L * self.sd_loc
         G = (G * w).transpose(1, 0, 2)  # (7, N, m)
         lhs = np.zeros((70 + 7 * m, 70 + 7 * m))
         lhs[:70, :70] = self.AtA
@@ -82,13 +94,16 @@ def _damped_step(p: _MapProblem, x, c: float, lhs, rhs, lam: float, nu: float):
         nu *= 2.0
 
 
-def fit_map(W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off, s: CalibrationSettings):
+def fit_map(W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off, s: CalibrationSettings,
+            ddq=None, sd_arm=None):
     """The MAP of ``(theta, friction, offsets)`` on the signals ``W (N, 7, 70)``, ``dq``,
-    ``tau`` (``(N, 7)``), by Levenberg-Marquardt in prior-scaled unknowns inside
-    :data:`~sim.calibration.prior.FRICTION_BOUNDS`: a step is taken only if it lowers the
+    ``tau`` (``(N, 7)``), and of each joint's armature (prior ``0 +- sd_arm``) where its
+    acceleration ``ddq`` is given, by Levenberg-Marquardt in prior-scaled unknowns inside
+    :data:`~sim.calibration.prior.FRICTION_BOUNDS` and
+    :data:`~sim.calibration.prior.ARMATURE_BOUNDS`: a step is taken only if it lowers the
     posterior's cost, the damping grows until it does. Returns ``(theta, friction, offsets,
-    iterations)``."""
-    p = _MapProblem(W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off, s)
+    armature (zeros where not fitted), iterations)``."""
+    p = _MapProblem(W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off, s, ddq, sd_arm)
     x = p.x0.copy()
     r = p.residual(x)
     c = p.cost(x, r)
@@ -105,8 +120,9 @@ def fit_map(W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off, s: CalibrationSe
         nu = 2.0
         if small:
             break
-    theta, phi, off = p.split(x)
-    return theta.copy(), phi.copy(), off.copy(), it
+    theta, phi, local = p.split(x)
+    armature = local[:, 1].copy() if p.c > 1 else np.zeros(7)
+    return theta.copy(), phi.copy(), local[:, 0].copy(), armature, it
 
 
 AMPLITUDES = (0, 3, 4, 5, 6)

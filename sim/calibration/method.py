@@ -84,8 +84,10 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
             raise
         cond = float("inf")  # a cross-validation fold: the prior holds what it lacks
 
-    theta, phi, off, iterations = fit_map(W, dq, tau, theta0, phi0, sd_theta, sd_phi,
-                                          sd_off, s)
+    theta, phi, off, armature, iterations = fit_map(
+        W, dq, tau, theta0, phi0, sd_theta, sd_phi, sd_off, s,
+        *((ddq, np.full(7, s.armature_std)) if s.armature else ()))
+    tau = tau - armature * ddq  # known from here on: what the bodies and friction leave
     # the constrained MAP, in the metric of the posterior of theta (friction, offsets fixed)
     w = 1.0 / s.sigma_tau
     A_theta = W.reshape(-1, 70) * w
@@ -108,7 +110,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
         "base_parameters": int(basis.shape[1]),
         "condition_number": cond,
         "iterations": iterations,
-        "rms_before": joint_rms(tau - (W @ theta0)).tolist(),
+        "rms_before": joint_rms(tau + armature * ddq - (W @ theta0)).tolist(),
         "rms_after": joint_rms(tau - (W @ params.ravel()) - friction_torque(dq, phi)
                                - off).tolist(),
         "consistency": "lmi" if fixed is not None else "shrink toward nominal",
@@ -118,7 +120,7 @@ def calibrate_segments(parts, settings: CalibrationSettings = DEFAULT_SETTINGS,
         "settings": {k: getattr(s, k) for k in s.__dataclass_fields__},
     }
     return ArmParams(params, phi, off, report, end_effector=ee.label,
-                     description=kinematics.description, posterior=cov)
+                     description=kinematics.description, posterior=cov, armature=armature)
 
 
 def _payload_warning(params: np.ndarray, theta0: np.ndarray, sd_theta: np.ndarray) -> list:

@@ -37,6 +37,12 @@ class CalibrationSettings:
         stribeck_std: prior standard deviation of the Stribeck excess, N·m.
         stribeck_vs_std: prior standard deviation of the Stribeck velocities, rad/s.
         offset_std: prior standard deviation of the offsets, N·m.
+        armature: fit each joint's armature (its drive's reflected rotor inertia, a torque
+            ``armature * ddq`` on its own joint): a torque read from motor currents, or a
+            simulator's applied torque, carries it; Franka's link-side torque sensors do not
+            (fitted on the real Panda recording it comes out near zero and the held-out
+            noise grows: hence off by default).
+        armature_std: its prior standard deviation, kg·m² (centre 0).
         recorded_rate_hz: the joint states' rate, Hz (None: detected from each recording's
             time stamps, :func:`iem.signals.rate.detect_rate`). The other settings are in
             seconds and Hz, not samples, so they hold at any rate the offline chain accepts
@@ -58,6 +64,8 @@ class CalibrationSettings:
     stribeck_std: float = 0.2
     stribeck_vs_std: float = 0.1
     offset_std: float = 0.5
+    armature: bool = False
+    armature_std: float = 0.2
     recorded_rate_hz: float | None = None
 
 
@@ -108,3 +116,6 @@ FRICTION_BOUNDS = np.array([
 """Bounds of the fitted friction, per column: the fit stays where the model means what it
 says (a sigmoid that rises with speed, dissipative viscous friction, a Stribeck velocity
 inside the motion's speeds)."""
+
+ARMATURE_BOUNDS = np.array([[0.0, 2.0]])
+"""Bounds of a fitted armature, kg·m²: a rotor's inertia is not negative."""

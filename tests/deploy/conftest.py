@@ -67,6 +67,13 @@ def trained_fr3_phys_model_file(tmp_path_factory) -> Path:
     return _trained_file("IEM+phys", tmp_path_factory, "fr3")
 
 
+@pytest.fixture(scope="session")
+def trained_fr3_model_file(tmp_path_factory) -> Path:
+    """The paper's IEM for the FR3 (no uncertainty: a gate that allows it writes once the
+    estimate is stable, whatever the arm's friction does to it)."""
+    return _trained_file("IEM", tmp_path_factory, "fr3")
+
+
 @pytest.fixture
 def fr3_phys_model_file(trained_fr3_phys_model_file, tmp_path) -> Path:
     return _private_copy(trained_fr3_phys_model_file, tmp_path, "model-fr3.msgpack")

@@ -15,11 +15,11 @@ from sim.arm import ArmParams, load_arm, save_arm
 
 def test_config_declares_the_end_effector_and_the_noise(tmp_path):
     cfg = config_from_dict({})
-    assert cfg.arm.end_effector == "franka_hand" and cfg.arm.noise == "arm"
+    assert cfg.arm.end_effector == "franka_hand" and cfg.arm.noise == "auto"
     assert config_from_dict({"arm": {"end_effector": "none"}}).arm.end_effector == "none"
     with pytest.raises(ConfigError, match=r"end_effector = 'robotiq' is not valid.*franka_hand"):
         config_from_dict({"arm": {"end_effector": "robotiq"}})
-    with pytest.raises(ConfigError, match=r"noise = 'white' is not valid.*'arm', 'sensor'"):
+    with pytest.raises(ConfigError, match=r"noise = 'white' is not valid.*'auto', 'arm', 'sensor'"):
         config_from_dict({"arm": {"noise": "white"}})
 
 

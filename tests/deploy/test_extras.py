@@ -151,5 +151,5 @@ def test_the_extras_are_declared_in_pyproject():
     core = " ".join(project["dependencies"])
     for module, extra in EXTRAS.items():
         assert module not in core, f"{module} is core; it belongs to the extra {extra!r}"
-    assert "'.[dev,ros2,sim,plots,franka]'" in (REPO / "Makefile").read_text()  # franka: the
+    assert "'.[dev,ros2,sim,plots,franka,franky]'" in (REPO / "Makefile").read_text()  # franka: the
     # real binding the franka link's fake is checked against (test_pylibfranka_binding.py)

@@ -72,7 +72,9 @@ class Robot:
 
     ``refuse``: the text of the ``CommandException`` ``set_load`` raises (None: accepts);
     ``hold``: an event ``set_load`` waits for before it returns (a slow TCP command);
-    ``fail``: ``"network"`` or ``"exclusive"`` makes ``read_once`` raise.
+    ``fail``: ``"network"`` or ``"exclusive"`` makes ``read_once`` raise;
+    ``stale``: states that still report the load before each ``set_load`` (the robot sent
+    them before it applied the command: libfranka hands over queued states in order).
     """
 
     def __init__(self, robot_ip_address: str = "172.16.0.2",
@@ -85,6 +87,9 @@ class Robot:
         self.plant.reset(self.path.q[0])
         self.k = 0
         self.load = (0.0, [0.0] * 3, [0.0] * 9)
+        self.stale = 0
+        self._old: tuple | None = None  # the load the stale states still report
+        self._stale_left = 0
         self.skip_next = 0
         self.fail: str | None = None
         self.refuse: str | None = None
@@ -113,6 +118,9 @@ class Robot:
             self.k += 1
         self.skip_next = 0
         m, c, i = self.load
+        if self._stale_left > 0:
+            self._stale_left -= 1
+            m, c, i = self._old
         return RobotState(s.q, s.dq, s.tau_J, round(s.t * 1000), m, c, i)
 
     def set_load(self, *args) -> None:
@@ -124,6 +132,7 @@ class Robot:
             self.hold.wait()
         if self.refuse is not None:
             raise CommandException(self.refuse)
+        self._old, self._stale_left = self.load, self.stale
         self.load = (float(load_mass), list(F_x_Cload), list(load_inertia))
 
 

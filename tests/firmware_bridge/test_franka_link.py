@@ -73,6 +73,53 @@ def test_set_load_gets_column_major_inertia_and_the_ack_reads_it_back(fake, link
     assert ack_of(link, fake, seq).load is None and fake.load[0] == 0.0
 
 
+@pytest.mark.parametrize("stale", [1, 3])
+def test_the_ack_reports_the_load_of_a_state_read_after_the_command(fake, link, stale):
+    """libfranka hands over the states queued on its socket in order: the first read after
+    set_load returned may have left the robot before it applied the command. The ack waits
+    for a state that reports the commanded load (``iem set-load`` printed the load before
+    its own command from such a state)."""
+    fake.stale = stale
+    p = default_test_payload()
+    ack = ack_of(link, fake, link.send(p))
+    assert ack.applied and ack.load is not None and ack.load.mass == p.mass
+    np.testing.assert_allclose(ack.load.com, p.com)
+    ack = ack_of(link, fake, link.send(None))  # the clear reads back as the empty load
+    assert ack.applied and ack.load is None
+
+
+def test_an_ack_whose_load_never_shows_carries_what_the_robot_reports(fake, link):
+    """The robot applied the command but its states go on reporting another load (another
+    client set one): after SETTLE_STATES states the ack carries what the robot reports."""
+    from firmware_bridge.franka_link import SETTLE_STATES
+
+    fake.stale = 10 * SETTLE_STATES
+    ack = ack_of(link, fake, link.send(default_test_payload()), states=4 * SETTLE_STATES)
+    assert ack.applied and ack.load is None  # the empty load the states still report
+
+
+def test_a_lost_connection_is_made_again(fake):
+    """After libfranka's UDP receive timed out the Robot is unusable; a link that can connect
+    drops it and connects anew; reads resume, and read's own timeout marks the silence."""
+    robots = [fake]
+
+    def connect():
+        robots.append(Robot(udp_timeout=0.5))
+        robots[-1].release(5)
+        return robots[-1]
+
+    link = FrankaLink(fake, franka_fake.module(), silence_timeout=0.2, connect=connect)
+    try:
+        fake.fail = "network"
+        fake.release()
+        with pytest.raises(ControllerSilent, match="no robot state for 100 ms"):
+            link.read(0.1)
+        state = link.read(2.0)
+        assert link.reconnects == 1 and len(robots) == 2 and state.cycle == 0
+    finally:
+        link.close()
+
+
 def test_a_refusal_comes_back_as_an_ack_with_the_error_text(fake, link):
     fake.refuse = "libfranka: Set Load command rejected: command not possible in the current mode"
     seq = link.send(default_test_payload())

@@ -6,6 +6,8 @@
 - ``serial``: the serial link on a pty, the controller's serial port at the other end;
 - ``socketcan``: vcan0, where the kernel has AF_CAN (skipped here otherwise);
 - ``franka``: the pylibfranka fake (:mod:`tests.firmware_bridge.franka_fake`);
+- ``program``: a program's robot in this process: each published state fed as the motion's
+  callback would, the motion over after it (``apply`` then writes the kept command);
 - ``ros2``: Cyclone DDS in this process on loopback (unicast peer 127.0.0.1, no multicast),
   a JointState writer and a SetLoad service at the other end (skipped without the ``ros2``
   extra);
@@ -147,6 +149,74 @@ def _franka(tmp_path, monkeypatch):
     return lambda: FrankaHarness(robots)
 
 
+class _Duration:
+    def __init__(self, t: float) -> None:
+        self._t = t
+
+    def to_sec(self) -> float:
+        return self._t
+
+
+class _ProgramState:
+    """The fields of a franky ``RobotState`` the program link reads (numpy arrays)."""
+
+    def __init__(self, s: JointState, load) -> None:
+        import numpy as np
+
+        self.q, self.dq, self.tau_J = s.q, s.dq, s.tau_J
+        self.time = _Duration(s.t)
+        mass, com, inertia = load
+        self.m_load = mass
+        self.F_x_Cload = np.array(com).reshape(3, 1)
+        self.I_load = np.reshape(inertia, (3, 3), order="F")
+
+
+class _ProgramRobot:
+    """A program's robot: ``set_load`` holds the load its states then report."""
+
+    def __init__(self) -> None:
+        self.load = (0.0, [0.0] * 3, [0.0] * 9)
+        self.last = None
+
+    def set_load(self, mass, com, inertia) -> None:
+        self.load = (float(mass), list(com), list(inertia))
+
+    def state(self) -> _ProgramState:
+        return _ProgramState(self.last, self.load)
+
+
+class ProgramHarness(Harness):
+    """The program link in this process: ``publish`` feeds states as a motion's callback
+    does and ends the motion (``apply``: no command kept yet); ``serve`` is the program's
+    ``apply`` between motions."""
+
+    kind, channel = "program", "program"
+    bad_channel = ("program", BridgeConfigError)  # iem run cannot open it
+
+    def __init__(self) -> None:
+        from firmware_bridge.program_link import ProgramLink
+
+        self.robot = _ProgramRobot()
+        self.link = ProgramLink(self.robot, lambda robot: robot.state())
+        self._next = 0
+
+    def publish(self, n: int) -> list[JointState]:
+        out = synthetic_states(n, 1, self._next)
+        for s in out:
+            self.robot.last = s
+            self.link.feed(_ProgramState(s, self.robot.load))
+        self._next += n
+        self.link.apply()  # the motion is over; nothing kept yet
+        return out
+
+    def serve(self) -> None:
+        self.link.apply()
+
+
+def _program(tmp_path, monkeypatch):
+    return ProgramHarness
+
+
 class Ros2Harness(Harness):
     """The ros2 link on loopback DDS: a reliable JointState writer, a SetLoad service
     (``firmware_bridge.ros2_peers``) and a FrankaRobotState writer reporting the load the
@@ -242,6 +312,7 @@ HARNESSES = {
     "slcan": _slcan,
     "serial": _serial,
     "franka": _franka,
+    "program": _program,
     "ros2": _ros2,
     "replay": _replay,
     "recording-csv": _recording_csv,

@@ -26,8 +26,8 @@ def test_unknown_kinds_name_the_valid_ones():
         open_bus("pcan", "x")
     with pytest.raises(BridgeConfigError, match="slcan needs a channel"):
         open_bus("slcan", "")
-    assert set(LINKS) == {"virtual", "socketcan", "slcan", "serial", "franka", "ros2", "replay",
-                          "recording"}
+    assert set(LINKS) == {"virtual", "socketcan", "slcan", "serial", "franka", "program", "ros2",
+                          "replay", "recording"}
 
 
 def test_socketcan_failure_is_a_link_error_with_a_hint():

@@ -349,3 +349,53 @@ def test_the_arms_sensitivity_is_its_torques_derivative_along_the_posterior(arm)
     want = (tau(1.0) - tau(-1.0)) / 2.0
     np.testing.assert_allclose(dyn.sensitivity(q, dq, ddq) @ z, want, rtol=1e-5,
                                atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def rotor_arm():
+    """An arm whose drives add their rotors' inertia (armature) to its joint torques, as a
+    torque from motor currents (or franky-sim's applied torque) does; its calibration motion
+    with small white noise."""
+    from dataclasses import replace
+
+    truth = replace(ArmParams.nominal(), armature=np.array([0.2, 0.2, 0.2, 0.2, 0.07, 0.07,
+                                                            0.07]))
+    path = calibration_path(20.0)
+    model = ArmModel(arm=truth)
+    tau = np.array([model.rnea(q, dq, ddq) for q, dq, ddq in zip(path.q, path.dq, path.ddq,
+                                                                  strict=True)])
+    tau += np.random.default_rng(5).normal(0.0, 0.02, tau.shape)
+    return truth, (path.t, path.q, path.dq, tau)
+
+
+def test_the_armature_is_fitted_where_asked(rotor_arm):
+    """``armature=True`` (``iem calibrate --armature``) recovers each joint's (joint 1's
+    trades with body 1's inertia about its axis, which acts on that joint alone: the
+    torque is what is checked there), and the arm's torques carry it (Pinocchio's
+    armature); without it the armature's torque is left in the residual."""
+    truth, traffic = rotor_arm
+    arm = calibrate(*traffic, settings=Settings(armature=True))
+    np.testing.assert_allclose(arm.armature[1:], truth.armature[1:], atol=0.01)
+    without = calibrate(*traffic)
+    assert not without.armature.any()
+    assert max(arm.report["rms_after"]) < 0.03  # the noise, 0.02
+    assert max(without.report["rms_after"]) > 2 * max(arm.report["rms_after"])
+    _, q, dq, ddq, tau = prepare(*traffic)
+    model = ArmModel(arm=arm)
+    fitted = np.array([model.rnea(a, b, c) for a, b, c in zip(q, dq, ddq, strict=True)])
+    assert np.sqrt(np.mean((tau - fitted) ** 2, axis=0)).max() < 0.03
+
+
+def test_an_arm_without_armature_keeps_its_state_and_crc():
+    """The arm file records an armature only when it has one: files made before keep their
+    state, and the model files that name them by CRC stay valid."""
+    from dataclasses import replace
+
+    arm = ArmParams.nominal()
+    assert "armature" not in arm.to_state()
+    rotor = replace(arm, armature=np.full(7, 0.1))
+    assert rotor.to_state()["armature"] == [0.1] * 7 and rotor.crc32 != arm.crc32
+    back = ArmParams.from_state(rotor.to_state())
+    np.testing.assert_array_equal(back.armature, rotor.armature)
+    with pytest.raises(Exception, match="armature must be >= 0"):
+        replace(arm, armature=np.full(7, -0.1))

@@ -209,3 +209,34 @@ def test_twenty_seconds_of_plant_traffic_meet_the_targets(tmp_path, seed, gap, c
               f"{s['time_s']['identify']:.2f} s)")
     for group, target in TARGETS.items():
         assert err[group] <= target, (group, err)
+
+
+def test_desk_json_holds_the_end_effector_and_the_payload_as_one_body(short_logs, tmp_path,
+                                                                       capsys):
+    """``--desk-json``: Franka Desk's endeffector-config.json of what the flange carries now,
+    the declared end effector (the Franka Hand, with its end-effector frame) and the payload
+    identified on it, as one body; it reads back as an end effector; with --bare it is
+    refused (no end effector is declared there)."""
+    from sim.arm import save_arm
+    from sim.desk_file import FRANKA_HAND_TRANSFORMATION, read_desk_file
+    from sim.end_effector import end_effector
+
+    loaded, bare = short_logs
+    arm = tmp_path / "arm.msgpack"
+    save_arm(RealityGap(seed=11).modelled_only().realise(), arm)
+    out, desk = tmp_path / "camera.toml", tmp_path / "endeffector-config.json"
+    assert main(["identify", "--loaded", str(loaded), "--arm", str(arm), "--out", str(out),
+                 "--desk-json", str(desk)]) == 0
+    payload, hand = load_payload(out), end_effector("franka_hand")
+    written = read_desk_file(desk)
+    assert written.id == "camera" and written.transformation == FRANKA_HAND_TRANSFORMATION
+    assert written.payload.mass == pytest.approx(hand.mass + payload.mass, rel=1e-12)
+    moment = hand.mass * hand.inertia.lever + payload.mass * np.asarray(payload.com)
+    np.testing.assert_allclose(written.payload.mass * np.asarray(written.payload.com), moment,
+                               atol=1e-12)
+    both = end_effector(str(desk))  # [arm] end_effector and --end-effector take it
+    assert both.mass == pytest.approx(written.payload.mass)
+    capsys.readouterr()
+    assert main(["identify", "--loaded", str(loaded), "--bare", str(bare), "--out", str(out),
+                 "--desk-json", str(desk)]) == 2
+    assert "--desk-json needs --arm" in capsys.readouterr().err

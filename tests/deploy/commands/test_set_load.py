@@ -15,6 +15,7 @@ from firmware_bridge.controller_port import open_port
 from iem.payload import Payload
 from sim.paths import excitation_path
 from sim.payload import save_payload
+from tests.fci import STALL_RERUN
 
 from ..conftest import write_toml
 
@@ -189,3 +190,38 @@ def test_a_report_of_the_values_after_the_send_confirms_the_load():
     assert not await_answer(link, 4, TOOL, 0.2, sent_at=sent_at)["applied"]
     link.load_report = LoadReport(t=sent_at + 0.01, seq=4, load=None, has_values=False)
     assert not await_answer(link, 4, TOOL, 0.2, sent_at=sent_at)["applied"]  # a number alone
+
+
+@STALL_RERUN
+def test_against_franky_sim_each_write_and_the_clear_read_back_as_written(tmp_path, capsys):
+    """``[link] kind = "franka"`` through pylibfranka against franky-sim's FR3: the load in
+    force printed is the one a robot state read after the command reports, equal to the
+    written values (to the state's single precision) and to what the robot holds; so is
+    the clear. (The answer once came from the newest state before the command: it printed
+    ``none`` after a write and the load before after ``--clear``.)"""
+    pytest.importorskip("pylibfranka", reason="the franka extra (pylibfranka) is not installed")
+    pytest.importorskip("franky_sim", reason="franky-sim is not installed")
+    from deploy.simcell import FciSim
+    from iem.payload import Payload
+
+    other = Payload("other", 1.34, (0.0, 0.0, 0.072), (3.5e-3, 6.7e-4, -3.7e-4, 3.5e-3,
+                                                        3.7e-4, 4.0e-3))
+    with FciSim() as scene:
+        config = write_toml(tmp_path / "cell.toml", {
+            "link": {"kind": "franka", "channel": scene.host, "silence_timeout_s": 0.5},
+            "log": {"status_line": "off"}})
+        for load in (TOOL, other, None, None, TOOL):
+            args = ["--clear"] if load is None else [str(payload_file(tmp_path, load))]
+            code = main(["set-load", *args, "--config", str(config), "--json"])
+            out = json.loads(capsys.readouterr().out)
+            assert code == 0 and out["applied"], out
+            held = scene.status()["m_load"]
+            if load is None:
+                assert out["load_in_force"] is None and held == 0.0
+                continue
+            force = out["load_in_force"]
+            assert force["mass"] == pytest.approx(load.mass, rel=1e-6)
+            assert force["com"] == pytest.approx(list(load.com), rel=1e-6, abs=1e-9)
+            assert force["inertia"] == pytest.approx(list(load.set_load_args()[2]), rel=1e-5,
+                                                     abs=1e-9)
+            assert held == pytest.approx(load.mass)

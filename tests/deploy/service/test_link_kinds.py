@@ -60,7 +60,7 @@ WRITE_TESTS = {"virtual": "test_a_simulated_controller_behind_each_link",
                "slcan": "test_a_simulated_controller_behind_each_link",
                "serial": "test_a_simulated_controller_behind_each_link",
                "socketcan": "test_socketcan", "franka": "test_franka_with_the_pylibfranka_fake",
-               "ros2": "test_ros2_service.py"}
+               "ros2": "test_ros2_service.py", "program": "test_plugin.py"}
 """Where each sink kind's writes are checked (the ros2 link, against its loopback stand-ins,
 has a file of its own)."""
 

@@ -7,7 +7,6 @@ a band, as IEM+phys gives them."""
 
 import logging
 import math
-from functools import partial
 
 import numpy as np
 import pytest
@@ -440,10 +439,10 @@ kg·m² is beyond the CAN signal's range (±0.524 kg·m²)."""
 
 @pytest.mark.parametrize("profile", ["fd", "classic"])
 def test_a_load_the_wire_cannot_carry_is_refused(profile):
-    from firmware_bridge.protocol import payload_wire_error
+    from firmware_bridge.load_range import of_profile
 
     assert BAR.is_consistent()
-    gate = SafetyGate(wire_check=partial(payload_wire_error, profile=profile))
+    gate = SafetyGate(wire_check=of_profile(profile).error)
     decisions = feed(gate, BAR.to_phi(), 0.0, 1.0)
     assert set(reasons(decisions)) == {"out_of_wire_range"}
     assert "Ixx" in decisions[0].detail and "0.524287" in decisions[0].detail
@@ -452,10 +451,11 @@ def test_a_load_the_wire_cannot_carry_is_refused(profile):
 
 def test_the_wire_check_agrees_with_cantools_own_encoder():
     """Independent truth: cantools encodes the DBC's LoadCommandFD with its range checks on
-    exactly when payload_wire_error finds nothing to say."""
+    exactly when the profile's wire range finds nothing to say."""
     from cantools.database.errors import EncodeError as CantoolsEncodeError
 
-    from firmware_bridge.protocol import PAYLOAD_FIELDS, database, payload_wire_error
+    from firmware_bridge.load_range import of_profile
+    from firmware_bridge.protocol import PAYLOAD_FIELDS, database
 
     message = database().get_message_by_name("LoadCommandFD")
     rng = np.random.default_rng(3)
@@ -472,7 +472,7 @@ def test_the_wire_check_agrees_with_cantools_own_encoder():
             fits = True
         except (CantoolsEncodeError, ValueError):
             fits = False
-        error = payload_wire_error(load, "fd")
+        error = of_profile("fd").error(load)
         if round(mass / 1e-4) == 0:  # 0 on the wire means "no load": refused, valid in DBC
             assert error is not None and "rounds to 0" in error
             continue

@@ -366,10 +366,10 @@ def test_rating_and_com_are_judged_at_the_bands_worst():
 @pytest.mark.parametrize("kind", ["virtual", "serial", "franka", "ros2"])
 @pytest.mark.parametrize("inertia", [1e4, 1e300])
 def test_an_absurd_inertia_is_refused_on_every_link(kind, inertia):
-    from firmware_bridge.load_range import load_range
+    from firmware_bridge.links import link_kind
 
     heavy = np.r_[1.0, 0.0, 0.0, 0.05, inertia, 0.0, 0.0, inertia, 0.0, inertia]
-    gate = SafetyGate(wire_check=load_range(kind).error, regressor=_regressor())
+    gate = SafetyGate(wire_check=link_kind(kind).wire_range().error, regressor=_regressor())
     decisions = run(gate, Controller(gate), [(k * DT, heavy, est(heavy, k * DT))
                                              for k in range(100)])
     assert {d.reason for d in decisions} == {"inconsistent"}
@@ -378,16 +378,15 @@ def test_an_absurd_inertia_is_refused_on_every_link(kind, inertia):
 
 def test_every_link_that_writes_declares_its_wire_range_checked_by_one_code():
     from firmware_bridge.links import LINKS
-    from firmware_bridge.load_range import FLOAT64, LoadRange, load_range
-    from firmware_bridge.protocol import payload_wire_error
+    from firmware_bridge.load_range import FLOAT64, LoadRange, of_profile
 
     for kind, spec in LINKS.items():
         if spec.sink:
-            assert isinstance(load_range(kind), LoadRange), kind
+            assert isinstance(spec.wire_range(), LoadRange), kind
     nan = Payload("nan", 1.0, (0.0, 0.0, 0.05), (0.004, 0, 0, 0.004, 0, 0.003))
     object.__setattr__(nan, "mass", math.inf)
     assert "Mass" in FLOAT64.error(nan)
-    assert "Mass" in load_range("virtual").error(nan) == payload_wire_error(nan, "fd")
+    assert "Mass" in LINKS["virtual"].wire_range().error(nan) == of_profile("fd").error(nan)
 
 
 def test_an_inertia_the_data_do_not_determine_is_written_as_the_priors():
