@@ -40,6 +40,7 @@ from iem.errors import PathError
 from iem.types import vec7
 
 from .joint_path import N_JOINTS, RATE_HZ, Path
+from .paths import fourier_series
 from .robot import arm_model
 
 __all__ = ["DESIGN_RATE_HZ", "HARMONICS", "LIMIT_FRACTION", "RANGE_MARGIN", "RESTARTS",
@@ -132,13 +133,13 @@ class _Shapes:
         """``(q, dq, ddq)`` of the shape ``x`` scaled into the limits, at times ``t``; the
         peaks are taken on a 200 Hz grid while designing, on ``t`` itself if ``exact``."""
         a, b = self.coefficients(x)
-        f, df, ddf = _fourier(a, b, self.omega, t if exact else self.t_check)
+        f, df, ddf = fourier_series(a, b, self.omega, t if exact else self.t_check)
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.nan_to_num(np.minimum.reduce([
                 self.room / np.abs(f).max(axis=0),
                 self.dq_cap / np.abs(df).max(axis=0),
                 self.ddq_cap / np.abs(ddf).max(axis=0)]), nan=0.0, posinf=0.0)
-        f, df, ddf = _fourier(a * scale, b * scale, self.omega, t)
+        f, df, ddf = fourier_series(a * scale, b * scale, self.omega, t)
         return self.start + f, df, ddf
 
 
@@ -146,16 +147,6 @@ def _null(C: np.ndarray) -> np.ndarray:
     """An orthonormal basis of the null space of ``C`` (columns)."""
     _, s, vt = np.linalg.svd(C)
     return vt[int(np.sum(s > 1e-12 * s[0])):].T
-
-
-def _fourier(a, b, omega: float, t: np.ndarray):
-    kw = omega * np.arange(1, a.shape[0] + 1)
-    phase = np.outer(t, kw)
-    s, c = np.sin(phase), np.cos(phase)
-    f = s @ a + c @ b
-    df = c @ (a * kw[:, None]) - s @ (b * kw[:, None])
-    ddf = -(s @ (a * kw[:, None] ** 2) + c @ (b * kw[:, None] ** 2))
-    return f, df, ddf
 
 
 def excite_path(seconds: float, start=None, *, model=None, harmonics: int = HARMONICS,

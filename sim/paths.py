@@ -115,8 +115,10 @@ def _constrained_coefficients(rng: np.random.Generator, harmonics: int) -> tuple
     return a, b
 
 
-def _fourier(a, b, omega: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``f, f', f''`` of the series at times ``t``, each ``(N, 7)``."""
+def fourier_series(a, b, omega: float,
+                   t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``f, f', f''`` of the series ``sum_k a_k sin(k omega t) + b_k cos(k omega t)`` at
+    times ``t``, each ``(N, 7)`` (the excitation path's and :mod:`sim.excite`'s)."""
     kw = omega * np.arange(1, a.shape[0] + 1)
     phase = np.outer(t, kw)
     s, c = np.sin(phase), np.cos(phase)
@@ -164,7 +166,7 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
     a, b = _constrained_coefficients(np.random.default_rng(seed), int(harmonics))
     # scale on one period at 1 kHz (the peaks repeat every period)
     one = t[: round(t[-1] / n_periods * RATE_HZ) + 1]
-    f, df, ddf = _fourier(a, b, omega, one)
+    f, df, ddf = fourier_series(a, b, omega, one)
     peak = np.abs(f).max(axis=0)
     room = np.minimum(q0 - m.q_min, m.q_max - q0) * 0.9
     scale = np.minimum.reduce([
@@ -172,7 +174,7 @@ def excitation_path(duration: float = 20.0, seed: int = 0, *,
         LIMIT_FRACTION * m.dq_max / np.abs(df).max(axis=0),
         LIMIT_FRACTION * m.ddq_max / np.abs(ddf).max(axis=0),
     ])
-    f, df, ddf = _fourier(a * scale, b * scale, omega, t)
+    f, df, ddf = fourier_series(a * scale, b * scale, omega, t)
     return Path(name=name, t=t, q=q0 + f, dq=df, ddq=ddf).check_limits(m)
 
 
