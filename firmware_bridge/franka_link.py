@@ -252,8 +252,7 @@ class FrankaLink:
         key = (float(rs.m_load), tuple(rs.F_x_Cload), tuple(rs.I_load))
         if key != self._load_key:  # built only when the robot reports another load
             self._load_key = key
-            self._load = None if key[0] == 0.0 else Payload.from_set_load(
-                key[0], list(key[1]), list(key[2]), name="robot")
+            self._load = reported_load(key)
         self._load_t = time.perf_counter()
         t = float(rs.time.to_sec())
         cycle = round(t * NOMINAL_RATE_HZ) % CYCLE_MOD
@@ -405,6 +404,14 @@ class FrankaLink:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def reported_load(key) -> Payload | None:
+    """The load a robot state reports, from its ``(m_load, F_x_Cload, I_load)`` (I_load's 9
+    values column-major); None for the empty load (mass 0)."""
+    mass, com, inertia = key
+    return None if mass == 0.0 else Payload.from_set_load(mass, list(com), list(inertia),
+                                                           name="robot")
 
 
 def load_matches(reported, args) -> bool:

@@ -40,7 +40,7 @@ from iem.payload import Payload
 from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent
-from .franka_link import SETTLE_STATES, load_matches
+from .franka_link import SETTLE_STATES, load_matches, reported_load
 from .links import BUFFERED_CYCLES, LinkCounters
 from .messages import LoadAck, LoadReport
 from .reassembly import CYCLE_MOD, Sequencer
@@ -143,8 +143,7 @@ class ProgramLink:
         key = _values(state)
         if key != self._load_key:
             self._load_key = key
-            self._load = None if key[0] == 0.0 else Payload.from_set_load(
-                key[0], list(key[1]), list(key[2]), name="robot")
+            self._load = reported_load(key)
         self._load_t = time.perf_counter()
 
     def read(self, timeout: float | None = None) -> JointState:
@@ -208,9 +207,7 @@ class ProgramLink:
     def _ack(self, seq: int, applied: bool, error: str, state) -> LoadAck:
         load = self._load
         if state is not None:
-            key = _values(state)
-            load = None if key[0] == 0.0 else Payload.from_set_load(
-                key[0], list(key[1]), list(key[2]), name="robot")
+            load = reported_load(_values(state))
         ack = LoadAck(seq=seq, applied=applied, load=load, t=time.perf_counter(),
                       error=error)
         self.last_ack = self.acks[seq] = ack
