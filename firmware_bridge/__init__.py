@@ -17,7 +17,8 @@ The plug-in's only way to the robot. Modules, one concept each:
 - :mod:`.serial_link`: msgpack over pyserial, framed with COBS + CRC32 (the wire:
   :mod:`.serial_wire`).
 - :mod:`.franka_link`: a Franka Research 3 through pylibfranka (extra ``franka``; libfranka
-  >= 0.10, exclusive FCI).
+  >= 0.10, exclusive FCI); :mod:`.franka_process` keeps pylibfranka in a child process (its
+  ``read_once`` holds the interpreter lock while it waits).
 - :mod:`.controller_port`: the controller's end of a link (the simulated controller,
   :mod:`deploy.simcell.controller`, stands behind it).
 - :mod:`.slcan_adapter`, :mod:`.pty_pair`: an emulated slcan adapter on a pty, for

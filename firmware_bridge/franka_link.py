@@ -14,6 +14,12 @@ What it works with, stated plainly:
 
 How:
 
+- The robot: a link opened by address talks to it through
+  :class:`~firmware_bridge.franka_process.RobotProcess`, pylibfranka in a child process:
+  ``read_once`` blocks without releasing Python's global interpreter lock, so a reader
+  thread in this process would hold it most of the time and starve the estimator (and hold
+  it for a whole second when the network is lost). The child reads every state; this
+  process reads them from a pipe.
 - Source: a reader thread calls ``Robot.read_once()`` (it blocks until the robot's next
   state) and queues each ``RobotState``; ``read(timeout)`` waits at most ``timeout`` s for the
   next one, else raises ``ControllerSilent``. The joint state is ``q``, ``dq`` and ``tau_J``
@@ -69,14 +75,13 @@ from iem.payload import Payload
 from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
+from .franka_process import RETRY_AFTER_ERROR_S, RobotProcess
 from .links import BUFFERED_CYCLES, LinkCounters
 from .messages import LoadAck, LoadReport
 from .reassembly import CYCLE_MOD, Sequencer
 
 LOAD_TIMEOUT_S = 2.0
 """Seconds a ``set_load`` may take before it is acknowledged as refused (timed out)."""
-RETRY_AFTER_ERROR_S = 0.1
-"""Pause of the reader thread after ``read_once`` raised, s."""
 RECONNECT_S = 0.2
 """Pause between attempts to connect again after the connection was lost, s."""
 SETTLE_STATES = 20
@@ -158,7 +163,8 @@ class FrankaLink:
 
     @classmethod
     def open(cls, address: str, *, realtime: bool = False, **options) -> FrankaLink:
-        """Connect to the robot at ``address``. ``realtime=False`` passes
+        """Connect to the robot at ``address`` (pylibfranka in a child process,
+        :class:`~firmware_bridge.franka_process.RobotProcess`). ``realtime=False`` passes
         ``RealtimeConfig.kIgnore``: reading states needs no real-time kernel."""
         try:
             import pylibfranka
@@ -166,10 +172,8 @@ class FrankaLink:
             raise BridgeConfigError("the franka link needs pylibfranka (Franka Research 3, "
                                     "libfranka >= 0.10): install the extra, pip install "
                                     "'iem-payload[franka]'") from exc
-        config = pylibfranka.RealtimeConfig.kEnforce if realtime else \
-            pylibfranka.RealtimeConfig.kIgnore
         def connect():
-            return pylibfranka.Robot(address, config)
+            return RobotProcess(address, pylibfranka, realtime=realtime)
 
         try:
             robot = connect()
@@ -203,6 +207,7 @@ class FrankaLink:
                 if self._connect is not None and isinstance(item, self.api.NetworkException):
                     self._lost = item
                     self.robot = None  # unusable now: dropped, its connection closed
+                    _release(robot)
                 self._stop.wait(RETRY_AFTER_ERROR_S)
 
     def _reconnect(self) -> bool:
@@ -396,14 +401,24 @@ class FrankaLink:
             if thread is not threading.current_thread():
                 thread.join(0.2)  # the reader may be inside read_once
         if self._owns_robot:
-            self.robot = None  # its connection closes with it: the robot serves one client
-            self._lost = None
+            robot, self.robot = self.robot, None  # its connection closes with it: the robot
+            self._lost = None  # serves one client
+            _release(robot)
 
     def __enter__(self) -> FrankaLink:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _release(robot) -> None:
+    """End a dropped robot's connection now where it can be ended (a
+    :class:`~firmware_bridge.franka_process.RobotProcess` ends its process; pylibfranka's
+    ``Robot`` closes when nothing refers to it)."""
+    close = getattr(robot, "close", None)
+    if close is not None:
+        close()
 
 
 def reported_load(key) -> Payload | None:

@@ -47,7 +47,9 @@ import contextlib
 import fcntl
 import multiprocessing as mp
 import os
+import queue
 import tempfile
+import threading
 import time
 from pathlib import Path as FsPath
 
@@ -255,10 +257,26 @@ def _serve(conn, initial_q, refuse_while_moving: bool, kv) -> None:
                 "q": list(st.q), "m_load": float(robot.m_load), "held": grip["held"],
                 "queued": len(grip["queue"])}
 
+    # Commands arrive through a thread of their own: the scene's loop never waits in a
+    # ``recv`` for the rest of a message (a parent sends a long path in pieces, and its
+    # next piece may wait on a state this loop would not send meanwhile).
+    inbox: queue.Queue = queue.Queue()
+
+    def receive() -> None:
+        while True:
+            try:
+                inbox.put(conn.recv())
+            except (EOFError, OSError):
+                inbox.put(("gone", None))  # the parent ended
+                return
+
+    threading.Thread(target=receive, name="commands", daemon=True).start()
     try:
         while True:
-            while conn.poll():
-                cmd, arg = conn.recv()
+            while not inbox.empty():
+                cmd, arg = inbox.get_nowait()
+                if cmd == "gone":
+                    return
                 if cmd == "stop":
                     conn.send(("ok", None))
                     return

@@ -183,21 +183,29 @@ def test_without_pylibfranka_the_extra_is_named(monkeypatch):
         open_link("franka", "172.16.0.2")
 
 
-def test_open_link_uses_pylibfranka_robot_and_realtime_config(monkeypatch):
+def test_open_link_connects_through_a_robot_process_without_realtime(monkeypatch):
+    """``open_link("franka", address)`` makes the robot a
+    :class:`~firmware_bridge.franka_process.RobotProcess` for that address (pylibfranka in a
+    child process), with ``realtime=False`` (``RealtimeConfig.kIgnore``), and reads from
+    it. The process itself is tested against franky-sim; here a fake robot stands in for it,
+    so nothing is sent to the address."""
+    import firmware_bridge.franka_link as franka_link
+
     made = []
 
-    class Robot_(Robot):
-        def __init__(self, address, config):
-            super().__init__(address, config)
-            made.append(self)
+    def process(address, api, *, realtime):
+        made.append((address, api, realtime))
+        robot = Robot(address, "kIgnore")
+        made.append(robot)
+        return robot
 
-    module = franka_fake.module()
-    module.Robot = Robot_
-    monkeypatch.setitem(sys.modules, "pylibfranka", module)
+    monkeypatch.setattr(franka_link, "RobotProcess", process)
+    monkeypatch.setitem(sys.modules, "pylibfranka", franka_fake.module())
     link = open_link("franka", "172.16.0.2", profile="fd", silence_timeout=0.3)
     try:
-        assert (made[0].address, made[0].config) == ("172.16.0.2", "kIgnore")
-        made[0].release()
+        address, api, realtime = made[0]
+        assert (address, realtime) == ("172.16.0.2", False) and api is sys.modules["pylibfranka"]
+        made[1].release()
         assert link.read().cycle == 0 and link.silence_timeout == 0.3
     finally:
         link.close()

@@ -171,3 +171,34 @@ def test_a_lost_network_is_a_silence_and_the_link_connects_again(link, scene):
         except ControllerSilent:
             assert time.monotonic() < deadline, "the link did not come back"
     assert link.reconnects >= 1 and np.isfinite(state.tau_J).all()
+
+
+def test_reading_states_never_stops_the_other_threads(link, scene):
+    """pylibfranka's ``read_once`` waits for the next state without releasing Python's
+    interpreter lock: read in this process, the link's reader thread would hold the lock for
+    libfranka's whole 1 s receive timeout while the states stop, and every other thread (the
+    estimator) with it. The link reads in a process of its own, so this thread keeps running
+    through a 2 s loss of the network: the longest gap between two of its loop turns stays
+    far below that second (the turns take microseconds; 0.5 s leaves room for a busy
+    machine)."""
+    import contextlib
+    import threading
+
+    stop = threading.Event()
+
+    def consume():
+        while not stop.is_set():
+            with contextlib.suppress(ControllerSilent):
+                link.read(0.3)
+
+    reader = threading.Thread(target=consume, daemon=True)
+    reader.start()
+    try:
+        scene.pause(2.0)
+        last, longest, end = time.perf_counter(), 0.0, time.perf_counter() + 2.5
+        while (now := time.perf_counter()) < end:
+            longest, last = max(longest, now - last), now
+        assert longest < 0.5, f"this thread stood still {longest:.2f} s while states stopped"
+    finally:
+        stop.set()
+        reader.join(2.0)
