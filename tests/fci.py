@@ -1,12 +1,15 @@
 """What the tests against franky-sim's FR3 share (:class:`deploy.simcell.FciSim`).
 
-franky-sim's server steps its MuJoCo scene and sends the robot's state in one Python loop;
-now and then, on this machine and unloaded, that loop stops sending for over a second, and
-libfranka's UDP receive times out (``libfranka: UDP receive: Timeout``): in about one run in
-eight of two of these tests, never in a script that repeats their steps ten times. That is
-the simulator's stall, not this project's link (which reports it as a lost connection and
-reconnects, as its own test shows). :data:`STALL_RERUN` re-runs a test that failed on it,
-and on nothing else, at most twice.
+libfranka's UDP receive times out (``libfranka: UDP receive: Timeout``) when no robot state
+arrived for a second. In these tests that happened about one run in eight, and the cause
+was one process holding Python's interpreter lock: pylibfranka's ``read_once`` waits for the
+next state without releasing it, so a reader thread in the test's process kept the thread
+sending a long motion to the scene from writing the rest of it, while the scene's loop
+waited for that rest and sent no state. The ``franka`` link now reads in a process of its
+own and the scene receives in a thread of its own; three runs of these tests in a row
+passed without a re-run. :data:`STALL_RERUN` stays as a guard against the scene's 1 kHz
+loop stopping for a second on a machine loaded beyond that: it re-runs a test that failed on
+exactly those words, and on nothing else, at most twice.
 """
 
 from __future__ import annotations
