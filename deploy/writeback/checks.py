@@ -117,9 +117,9 @@ def read(estimate) -> tuple[Reading | None, tuple[str, str] | None]:
         if cov is None:
             return None, ("malformed", f"cov is {_shape(e.cov)}, valid is a 10x10 covariance "
                                        "or None")
-        why = _cov_error(cov, std)
-        if why:
-            return None, ("malformed", why)
+    why, sigma, cov = _UNCERTAINTY(std, cov)
+    if why:
+        return None, ("malformed", why)
     nis = e.nis
     if nis is not None:
         if not _real(nis):
@@ -143,10 +143,53 @@ def read(estimate) -> tuple[Reading | None, tuple[str, str] | None]:
         prior = _array(prior, (10,))
         if prior is None or not np.isfinite(prior).all():
             return None, ("malformed", "prior is not 10 finite numbers; valid is those or None")
-    sigma, cov = _one_uncertainty(std, cov)
     return Reading(float(e.t), std, sigma, cov, nis, None if e.ood is None else bool(e.ood),
                    None if e.unverified is None else bool(e.unverified), determined, prior,
                    e.extra if isinstance(e.extra, dict) else {}), None
+
+
+class _LastUncertainty:
+    """``(why, sigma, cov)`` of a checked ``std`` and ``cov`` (either None): why ``cov`` is
+    no covariance that agrees with ``std`` (:func:`_cov_error`; then no sigma, no cov), else
+    :func:`_one_uncertainty`'s pair (read-only). A model's estimates between two refreshes of
+    its posterior report the same ``std`` and ``cov``: the pair last checked is remembered
+    (copies, compared by value), so each is checked once, and the answer is the one the
+    checks give."""
+
+    def __init__(self) -> None:
+        self._last = None  # (std, cov, answer)
+
+    def __call__(self, std: np.ndarray | None, cov: np.ndarray | None) -> tuple:
+        last = self._last
+        if last is not None and _same(std, last[0]) and _same(cov, last[1]):
+            return last[2]
+        why = None if cov is None else _cov_error(cov, std)
+        if why:
+            answer = (why, None, None)
+        else:
+            sigma, raised = _one_uncertainty(std, cov)
+            answer = (None, _frozen(sigma), _frozen(raised))
+        self._last = (_frozen(std), _frozen(cov), answer)
+        return answer
+
+
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """Both None, or the same values (NaN never the same)."""
+    if a is None or b is None:
+        return a is b
+    return a.shape == b.shape and bool((a == b).all())
+
+
+def _frozen(a: np.ndarray | None) -> np.ndarray | None:
+    """A read-only copy of ``a`` (None: None)."""
+    if a is None:
+        return None
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+_UNCERTAINTY = _LastUncertainty()
 
 
 def _cov_error(cov: np.ndarray, std: np.ndarray | None) -> str | None:

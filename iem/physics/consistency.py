@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidInputError
-from .small_linalg import cholesky, solve, sym_inv
+from .small_linalg import cholesky, cholesky_inverse, solve
 
 EPS = 1e-9
 """Smallest eigenvalue a projected pseudo-inertia gets (kg, kg·m²)."""
@@ -142,19 +142,20 @@ def project_steps(phi, weight=None, eps: float = EPS, rtol: float = 1e-6,
 
 def _barrier(mu, W, eps, rtol, max_newton, x):
     """``min 0.5 (x - mu)^T W (x - mu) - t log det(J(x) - eps E)`` for t -> 0 (a generator:
-    yields after each Newton step, returns the point)."""
+    yields after each Newton step, returns the point). The Cholesky factor of the slack at
+    the point the line search accepts is the one the next Newton step inverts (one
+    factorisation per point)."""
     eye = eps * np.eye(4)
 
-    def slack(x):
-        return (x @ _BF).reshape(4, 4) - eye
-
-    def cost(x, t):
+    def factor(x):  # the slack's lower Cholesky factor, None where it is not positive definite
         try:
-            L = cholesky(slack(x))
+            return cholesky((x @ _BF).reshape(4, 4) - eye)
         except np.linalg.LinAlgError:
-            return np.inf
+            return None
+
+    def cost(x, t, L):
         d = x - mu
-        return 0.5 * d @ W @ d - 2.0 * t * np.log(np.diag(L)).sum()
+        return 0.5 * d @ W @ d - 2.0 * t * np.log(L.diagonal()).sum()
 
     d0 = x - mu
     dist0 = 0.5 * d0 @ W @ d0
@@ -162,11 +163,14 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
         return x
     t = dist0 / 4.0
     steps = 0
+    L = factor(x)
     while steps < max_newton:
         f_x = None  # cost(x, t), kept from the line search that accepted x
         for _ in range(50):  # Newton on the barrier problem for this t
+            if L is None:
+                return x
             try:
-                K = sym_inv(slack(x))  # x is feasible: the slack is positive definite
+                K = cholesky_inverse(L)  # x is feasible: the slack is positive definite
             except np.linalg.LinAlgError:
                 return x
             grad = W @ (x - mu) - t * (_BF @ K.ravel())
@@ -181,12 +185,17 @@ def _barrier(mu, W, eps, rtol, max_newton, x):
             yield
             if dec <= rtol * dist0 or steps >= max_newton:
                 break
-            f0, a = (cost(x, t) if f_x is None else f_x), 1.0
-            while a > 1e-10 and not (f_x := cost(x + a * step, t)) <= f0 - 0.25 * a * dec:
+            f0, a = (cost(x, t, L) if f_x is None else f_x), 1.0
+            while a > 1e-10:
+                trial = x + a * step
+                L_trial = factor(trial)
+                f_x = np.inf if L_trial is None else cost(trial, t, L_trial)
+                if f_x <= f0 - 0.25 * a * dec:
+                    break
                 a *= 0.5
             if a <= 1e-10:
                 break
-            x = x + a * step  # the point f_x was computed at (the same expression)
+            x, L = trial, L_trial  # the point f_x was computed at, and its factor
         if 4.0 * t <= rtol * dist0:
             break
         t *= 0.05

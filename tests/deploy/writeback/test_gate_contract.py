@@ -250,3 +250,24 @@ def _regressor():
     """A payload regressor of the shape the arm model's has (7 joints)."""
     Y = np.linspace(-1.0, 1.0, 70).reshape(7, 10)
     return lambda q, dq: Y * (1.0 + float(np.sum(q) + np.sum(dq)) * 0.0)
+
+
+def test_a_covariance_is_checked_by_value_each_time_it_changes():
+    """Estimates between two refreshes share one covariance, checked once; a covariance of
+    other values (a new array, or the same array changed in place) is checked again, and
+    a bad one is refused whatever was read before it."""
+    from deploy.writeback.checks import read
+
+    std = np.full(10, 1e-3)
+    cov = np.diag(std ** 2)
+    good = replace(GOOD, std=std, cov=cov)
+    for _ in range(2):
+        reading, broken = read(good)
+        assert broken is None and np.array_equal(reading.sigma, std)
+    skew = cov.copy()
+    skew[0, 1] = 1e-7  # not symmetric
+    assert read(replace(good, cov=skew))[1][0] == "malformed"
+    assert read(good)[1] is None
+    cov[0, 1] = 1e-7  # the same array, changed in place
+    reading, broken = read(good)
+    assert reading is None and "not symmetric" in broken[1]
