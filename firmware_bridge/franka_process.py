@@ -273,12 +273,25 @@ class RobotProcess:
 
 
 # -- the child ---------------------------------------------------------------------------------
+def _end_with_parent() -> None:
+    """Linux: have the kernel end this process when the thread that started it ends (a parent
+    killed while pylibfranka connects or waits holds no pipe this process would notice)."""
+    import ctypes
+    import signal
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    if os.getppid() == 1:  # the parent ended before the request
+        os._exit(0)
+
+
 def _child(argv: list[str]) -> int:
     if not argv or argv[0].startswith("-"):
         sys.stderr.write("usage: python -m firmware_bridge.franka_process ADDRESS "
                          "[--realtime]\n")
         return 2
     address, realtime = argv[0], "--realtime" in argv[1:]
+    _end_with_parent()
     out = sys.stdout.buffer
     lock = threading.Lock()
 
@@ -287,6 +300,32 @@ def _child(argv: list[str]) -> int:
             out.write(_HEADER.pack(kind, len(body)) + body)
             out.flush()
 
+    holder: list = []  # the robot, once connected
+
+    def commands() -> None:
+        stream = sys.stdin.buffer
+        while True:
+            frame = _read_frame(stream)
+            if frame is None or frame[0] == QUIT:
+                os._exit(0)  # the parent is gone or done; the reader may be inside read_once
+            if frame[0] != SET_LOAD:
+                continue
+            seq, mass, *values = _LOAD.unpack(frame[1])
+            try:
+                if not holder:
+                    raise ConnectionError("not connected to the robot yet")
+                holder[0].set_load(mass, values[:3], values[3:])
+                error = b""
+            except Exception as exc:  # its class and words go to the parent
+                error = _error_body(exc)
+            try:
+                emit(OUTCOME, _SEQ.pack(seq) + error)
+            except OSError:
+                os._exit(0)
+
+    # listening from the start: a parent that ends while the robot is being connected ends
+    # this process too
+    threading.Thread(target=commands, name="commands", daemon=True).start()
     import pylibfranka
 
     config = pylibfranka.RealtimeConfig.kEnforce if realtime else \
@@ -296,28 +335,8 @@ def _child(argv: list[str]) -> int:
     except Exception as exc:  # its class and words go to the parent
         emit(CONNECT_FAILED, _error_body(exc))
         return 1
+    holder.append(robot)
     emit(CONNECTED)
-
-    def commands() -> None:
-        stream = sys.stdin.buffer
-        while True:
-            frame = _read_frame(stream)
-            if frame is None or frame[0] == QUIT:
-                os._exit(0)  # the reader may be inside read_once
-            if frame[0] != SET_LOAD:
-                continue
-            seq, mass, *values = _LOAD.unpack(frame[1])
-            try:
-                robot.set_load(mass, values[:3], values[3:])
-                error = b""
-            except Exception as exc:  # its class and words go to the parent
-                error = _error_body(exc)
-            try:
-                emit(OUTCOME, _SEQ.pack(seq) + error)
-            except OSError:
-                os._exit(0)
-
-    threading.Thread(target=commands, name="commands", daemon=True).start()
     try:
         while True:
             try:

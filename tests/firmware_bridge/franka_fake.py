@@ -10,6 +10,7 @@ one blocks until the robot's next state, and raises ``NetworkException`` after
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 import types
@@ -134,6 +135,22 @@ class Robot:
             raise CommandException(self.refuse)
         self._old, self._stale_left = self.load, self.stale
         self.load = (float(load_mass), list(F_x_Cload), list(load_inertia))
+
+
+def install(monkeypatch, module) -> None:
+    """Make ``module`` (a fake of pylibfranka, :func:`module`) the one ``open_link("franka",
+    ...)`` connects through, in this process: as ``sys.modules["pylibfranka"]``, and in place of
+    the child process a link opened by address runs pylibfranka in
+    (:class:`firmware_bridge.franka_process.RobotProcess`), which would import the real binding
+    and connect to the address."""
+    import firmware_bridge.franka_link as franka_link
+
+    def in_process(address, api, *, realtime):
+        config = api.RealtimeConfig.kEnforce if realtime else api.RealtimeConfig.kIgnore
+        return api.Robot(address, config)
+
+    monkeypatch.setitem(sys.modules, "pylibfranka", module)
+    monkeypatch.setattr(franka_link, "RobotProcess", in_process)
 
 
 def module() -> types.SimpleNamespace:

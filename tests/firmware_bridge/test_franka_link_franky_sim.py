@@ -202,3 +202,40 @@ def test_reading_states_never_stops_the_other_threads(link, scene):
     finally:
         stop.set()
         reader.join(2.0)
+
+
+def test_the_robot_process_ends_with_the_process_that_started_it(scene):
+    """pylibfranka's child process (:class:`firmware_bridge.franka_process.RobotProcess`)
+    ends when the program that started it is killed, rather than holding the FCI, which the
+    robot gives one client at a time."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    program = ("import sys, time, pylibfranka\n"
+               "from firmware_bridge.franka_process import RobotProcess\n"
+               f"robot = RobotProcess({scene.host!r}, pylibfranka)\n"
+               "robot.read_once()\n"
+               "print(robot.pid, flush=True)\n"
+               "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        child = int(parent.stdout.readline())
+        os.kill(child, 0)  # running, reading states
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            return
+        with open(f"/proc/{child}/stat") as f:  # a zombie has ended: reaped by init
+            if f.read().split(")")[-1].split()[0] == "Z":
+                return
+        time.sleep(0.05)
+    os.kill(child, signal.SIGKILL)
+    raise AssertionError("the robot process outlived its parent by 10 s")

@@ -22,7 +22,6 @@ see its check fail.
 from __future__ import annotations
 
 import itertools
-import sys
 import time
 
 import pytest
@@ -145,7 +144,7 @@ def _franka(tmp_path, monkeypatch):
         return robots[-1]
 
     module.Robot = robot
-    monkeypatch.setitem(sys.modules, "pylibfranka", module)
+    franka_fake.install(monkeypatch, module)
     return lambda: FrankaHarness(robots)
 
 

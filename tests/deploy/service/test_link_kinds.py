@@ -14,7 +14,6 @@ the controller's own record of what it applied and holds, each against the true 
 from __future__ import annotations
 
 import itertools
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -183,7 +182,7 @@ def test_franka_with_the_pylibfranka_fake(tmp_path, fr3_phys_model_file, monkeyp
 
     module = franka_fake.module()
     module.Robot = robot
-    monkeypatch.setitem(sys.modules, "pylibfranka", module)
+    franka_fake.install(monkeypatch, module)
     summary = run_service(tmp_path, fr3_phys_model_file,
                           {"kind": "franka", "channel": "172.16.0.2"})
     assert summary["cycles"] > 0
