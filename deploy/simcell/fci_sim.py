@@ -29,9 +29,11 @@ user of a real FR3 gets:
 - **Network loss.** :meth:`FciSim.pause` stops the state stream for a while (libfranka's
   UDP receive times out after 1 s).
 
-Truth is logged in the robot's time (:meth:`FciSim.events`): payloads mounted and removed,
-motions begun and ended (the robot's program's or a client's), every ``setLoad`` applied
-(with the values) or refused, and the pose every 0.1 s.
+Truth is logged in the robot's time (:meth:`FciSim.events`): payloads mounted (with the pose
+and the joint torque that holds the payload's weight there, by MuJoCo's own Jacobian of its
+CoM: :func:`holding_torque`) and removed, motions begun and ended (the robot's program's or
+a client's), every ``setLoad`` applied (with the values) or refused, and the pose every
+0.1 s.
 
 Every scene takes an inter-process lock (:data:`LOCK_FILE` in the system's temporary
 folder) for its life: two on one 2-core machine starve each other's 1 kHz loop. One that
@@ -125,6 +127,42 @@ def _principal(inertia6):
     return np.maximum(w, 0.0), quat
 
 
+def put_payload(model, bid: int, p) -> None:
+    """Give body ``bid`` of a compiled MuJoCo ``model`` the payload ``p`` (a
+    :func:`payload_dict`; None: nothing, mass 0).
+
+    The body was compiled with its inertial frame at its own origin, so MuJoCo marked it
+    ``body_sameframe`` and places its CoM at the body's origin whatever ``body_ipos`` and
+    ``body_iquat`` say later: the flag is cleared, so that the CoM and the inertia's axes are
+    where the payload has them."""
+    import mujoco
+
+    model.body_sameframe[bid] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
+    if p is None:
+        model.body_mass[bid] = 0.0
+        model.body_inertia[bid] = 0.0
+        return
+    diag, quat = _principal(p["inertia"])
+    model.body_mass[bid] = p["mass"]
+    model.body_ipos[bid] = p["com"]
+    model.body_inertia[bid] = diag
+    model.body_iquat[bid] = quat
+
+
+def holding_torque(model, data, bid: int, dofs) -> list[float]:
+    """The joint torque that holds body ``bid``'s weight at ``data.qpos`` (N·m, on ``dofs``):
+    ``J_com^T (-m g)``, with ``J_com`` MuJoCo's Jacobian of the body's CoM. ``data`` is a
+    scratch ``MjData`` (its kinematics are recomputed here)."""
+    import mujoco
+
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    jacp = np.zeros((3, model.nv))
+    mujoco.mj_jacBodyCom(model, data, jacp, None, bid)
+    force = -float(model.body_mass[bid]) * np.asarray(model.opt.gravity, dtype=float)
+    return [float(v) for v in (jacp[:, dofs].T @ force)]
+
+
 def _check_franky_sim(frs, sims) -> None:
     """The franky-sim internals this module uses are there (the pinned version's)."""
     from importlib.metadata import version
@@ -200,21 +238,24 @@ def _serve(conn, initial_q, refuse_while_moving: bool, kv) -> None:
     server.init()
     model = sim.model
     bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "iem_payload")
+    arm_dofs = [int(model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT,
+                                                       f"robot0_fr3_joint{i}")])
+                for i in range(1, 8)]
     rs = server.robot_servers[0]
     client = {"motion": 0, "next_pose": 0}
 
+    scratch = mujoco.MjData(model)  # the truth's own kinematics, apart from the simulation's
+
     def set_payload(p) -> None:
+        put_payload(model, bid, p)
         if p is None:
-            model.body_mass[bid] = 0.0
-            model.body_inertia[bid] = 0.0
             events.append((now(), "unmount", None))
             return
-        diag, quat = _principal(p["inertia"])
-        model.body_mass[bid] = p["mass"]
-        model.body_ipos[bid] = p["com"]
-        model.body_inertia[bid] = diag
-        model.body_iquat[bid] = quat
-        events.append((now(), "mount", p))
+        scratch.qpos[:] = sim.data.qpos
+        q = [float(v) for v in robot.inner_state.q]
+        events.append((now(), "mount", {**p, "q": q,
+                                        "gravity_torque": holding_torque(model, scratch, bid,
+                                                                         arm_dofs)}))
 
     def pre_step(_sim) -> None:
         ticks[0] += 1
