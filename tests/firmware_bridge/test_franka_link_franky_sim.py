@@ -239,6 +239,8 @@ def test_the_robot_process_ends_with_the_process_that_started_it(scene):
         time.sleep(0.05)
     os.kill(child, signal.SIGKILL)
     raise AssertionError("the robot process outlived its parent by 10 s")
+
+
 def test_the_scene_holds_the_payload_where_its_file_puts_it(scene, payload):
     """The weight of a payload mounted in the scene pulls at the CoM its file gives, in the
     flange frame: the joint torque holding it, by MuJoCo's Jacobian of the payload body's
