@@ -646,6 +646,30 @@ def test_an_input_beyond_its_bags_training_makes_the_prior_less_sure():
     assert np.trace(cov_far) > 10 * np.trace(near[1])
 
 
+def test_a_prior_from_the_ensemble_carries_the_arms_leftover_and_a_payload_file_does_not():
+    """The learners learnt on the arm model's simulations: on a calibrated arm their error is
+    at least what the arm model's leftover reads as payload (the arm noise's ``bias_std``),
+    so the ensemble's prior carries it on its diagonal, after the prior's scale; a payload
+    started from a file keeps its own covariance, and an arm without a measured leftover
+    leaves the ensemble's as it is."""
+    from iem.physics.torque_noise import NOMINAL_ARM_NOISE
+
+    bias = np.array([0.05, 0.01, 0.02, 0.03, 1e-3, 2e-3, 3e-3, 4e-3, 5e-3, 6e-3])
+    plain = {**NOMINAL_ARM_NOISE.to_dict(), "bias_std": [0.0] * 10}
+    with_bias = {**plain, "bias_std": bias.tolist()}
+    x, f = DATA.X[0].copy(), DATA.F[0]
+    mean0, cov0 = _trained(torque_noise=plain)._prior(x, f)
+    model = _trained(torque_noise=with_bias)
+    mean1, cov1 = model._prior(x, f)
+    np.testing.assert_array_equal(mean1, mean0)
+    np.testing.assert_allclose(cov1 - cov0, np.diag(bias ** 2), rtol=1e-9, atol=1e-15)
+    phi, std = test_payloads()["test-3w"].to_phi(), np.full(10, 0.01)
+    model.start_from(phi, std)
+    started = _trained(torque_noise=plain)
+    started.start_from(phi, std)
+    np.testing.assert_allclose(model._prior()[1], started._prior()[1], rtol=1e-12)
+
+
 def test_a_reused_slot_forgets_the_retired_bags_calibration():
     model = _trained()
     ens = model.ensemble_model
