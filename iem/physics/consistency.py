@@ -171,11 +171,11 @@ def _interior_point(mu, W, LW, eps, rtol, max_newton, lam, vec, clipped, dist0):
     ``Z >= 0``, with ``a = J^*(Z) = _BF @ Z.ravel()`` (the adjoint of ``J``): any ``Z >= 0``
     bounds the optimum from below, so the method stops at the first iterate whose gap
     ``f(x) - g(Z)`` is at most ``rtol min(f(x), dist0)``: a certified bound on ``f(x)``
-    above the optimum.
-    Every iterate is strictly feasible (``S > 0``). The steps are Newton's on the perturbed
-    optimality conditions ``W (x - mu) = J^*(Z)``, ``S Z = sigma nu E`` (``nu = <S, Z> / 4``)
-    in the HKM symmetrisation, with Mehrotra's predictor and corrector (one 10x10
-    factorisation, two solves), each step cut to :data:`_STEP` of the way to the boundary.
+    above the optimum. Every iterate is strictly feasible (``S > 0``). The steps are
+    Newton's on the perturbed optimality conditions ``W (x - mu) = J^*(Z)``,
+    ``S Z = sigma nu E`` (``nu = <S, Z> / 4``) in the HKM symmetrisation, with Mehrotra's
+    predictor and corrector (one 10x10 factorisation, two solves), each step cut to
+    :data:`_STEP` of the way to the boundary.
     The start is ``J(mu)`` with its eigenvalues raised to :data:`_START` of its largest
     absolute one (well inside the set, where the first steps are long), and ``Z = t S^-1``
     with the ``t`` that best balances ``W (x - mu)`` (least squares in ``W^-1``)."""
