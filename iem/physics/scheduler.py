@@ -2,8 +2,8 @@
 
 Per sample IEM+phys may form an equation, test it and add it to its window, refresh its
 posterior (at most every ``refresh_every`` equations) and project the posterior's mean onto
-consistent parameters (up to 200 Newton steps). Offline (a replay, a benchmark:
-``project_budget`` 0) each is done at once, in the sample that needs it.
+consistent parameters (up to 200 Newton steps, most often about five). Offline (a replay, a
+benchmark: ``project_budget`` 0) each is done at once, in the sample that needs it.
 :class:`RefreshScheduler` decides, per sample, what is done now and what waits:
 
 - On a live link (``project_budget > 0``, set by :meth:`iem.base.Estimator.go_live`:
@@ -32,10 +32,11 @@ from .posterior import Posterior
 
 __all__ = ["LIVE_PROJECT_BUDGET", "SPREAD_WAIT", "RefreshScheduler"]
 
-LIVE_PROJECT_BUDGET = 20
+LIVE_PROJECT_BUDGET = 10
 """Newton steps of the consistency projection per block point on a live link
-(``project_budget``, set by :meth:`PhysicsInformedEnsemble.go_live`): well under a
-millisecond; the longest projection (200 steps) is then spread over about 10 points (0.1 s),
+(``project_budget``, set by :meth:`PhysicsInformedEnsemble.go_live`): about 60 µs a step,
+so well under a millisecond. A payload just outside the consistent set takes about five
+steps (one point); the longest projection (200 steps) is spread over 20 points (0.2 s),
 instead of stalling one point for several milliseconds."""
 SPREAD_WAIT = 3
 """Samples a due posterior refresh may wait for one without other heavy work (spread)."""

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["chi_square", "cholesky", "cholesky_inverse", "cholesky_solve", "eigh", "solve",
-           "sym_inv"]
+__all__ = ["chi_square", "cholesky", "cholesky_inverse", "cholesky_solve", "eigh", "eigvalsh",
+           "solve", "sym_inv", "tri_inv"]
 
 
 _LAPACK = None
@@ -51,10 +51,17 @@ def sym_inv(A: np.ndarray) -> np.ndarray:
 def cholesky_inverse(L: np.ndarray) -> np.ndarray:
     """``A^-1 = L^-T L^-1`` from the lower Cholesky factor ``L`` of ``A`` (:func:`cholesky`):
     :func:`sym_inv` of a matrix whose factor is already made."""
+    Li = tri_inv(L)
+    return Li.T @ Li
+
+
+def tri_inv(L: np.ndarray) -> np.ndarray:
+    """``L^-1`` of a lower-triangular ``L`` (a Cholesky factor; LAPACK ``dtrtri``), lower
+    triangular; ``LinAlgError`` if it is singular."""
     Li, info = _lapack().dtrtri(L, lower=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"singular Cholesky factor (LAPACK dtrtri info {info})")
-    return Li.T @ Li
+    return Li
 
 
 def cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -91,3 +98,13 @@ def eigh(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise np.linalg.LinAlgError(f"eigenvalues did not converge (LAPACK dsyevd info "
                                     f"{info})")
     return w, v
+
+
+def eigvalsh(A: np.ndarray) -> np.ndarray:
+    """Eigenvalues (ascending) of the symmetric ``A`` (its lower triangle is read), as
+    ``numpy.linalg.eigvalsh`` (LAPACK ``dsyevd`` without vectors)."""
+    w, _, info = _lapack().dsyevd(A, compute_v=0, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"eigenvalues did not converge (LAPACK dsyevd info "
+                                    f"{info})")
+    return w

@@ -50,8 +50,8 @@ Method (offline, so the filters may be non-causal):
 6. **Physical consistency.** The weighted least-squares cost is ``(phi - phi_hat)^T H (phi -
    phi_hat) + const``, ``H`` the posterior precision, so the constrained least squares under
    the pseudo-inertia LMI ``J(phi) >= eps E`` is exactly the weighted projection
-   :func:`iem.physics.consistency.project` (a log-barrier Newton method, checked against SLSQP in
-   its tests): no separate convex-programming dependency.
+   :func:`iem.physics.consistency.project` (a primal-dual interior-point method, checked against
+   SLSQP and Clarabel in its tests): no separate convex-programming dependency.
 7. **Uncertainty.** ``cov = H^-1`` (the lead marginalised out), ``std`` its diagonal's root,
    with the residual variance measured on the
    data and inflated by the residuals' own autocorrelation (filtered noise and model error are
