@@ -194,8 +194,9 @@ def test_weighted_projection_is_within_its_stated_tolerance_of_clarabels(rtol):
     """The weighted projection's promise: a consistent point (``J >= eps E``) whose distance
     exceeds the optimum's by at most ``rtol`` times the smaller of its own and the clipped
     point's distance, checked against Clarabel's optimum; and so (the distance is strongly
-    convex in ``W``) within ``sqrt(2 rtol dist0)`` of it in the ``W`` norm. Payload-sized bodies just outside the
-    set (the online estimates' case) and far outside it, under badly scaled metrics."""
+    convex in ``W``) within ``sqrt(2 rtol dist0)`` of it in the ``W`` norm. Payload-sized
+    bodies just outside the set (the online estimates' case) and far outside it, under badly
+    scaled metrics."""
     rng = np.random.default_rng(7)
     cases = [p for p in _random_bodies(rng, 60) if not is_consistent(p, EPS)][:8]
     cases += [p for p in _random_phi(rng, 20) if not is_consistent(p, EPS)][:8]
