@@ -17,7 +17,13 @@ with pylibfranka's signatures and exception classes:
   (:class:`ProcessState`: ``time``, ``q``, ``dq``, ``tau_J``, ``m_load``, ``F_x_Cload``,
   ``I_load``), as the doubles pylibfranka gave, so values are the same as in-process.
 - ``set_load(mass, F_x_Cload, I_load)``: run by the child's command thread; it returns or
-  raises what the child's ``set_load`` returned or raised.
+  raises what the child's ``set_load`` returned or raised. The child hands the lock between
+  its threads every :data:`CHILD_SWITCH_INTERVAL_S`: at Python's default (5 ms) the reader,
+  back in ``read_once`` within microseconds of each state, kept the command thread waiting
+  for the lock 130-200 ms at the median and up to 1.5 s (franky-sim, 40 calls), so a load
+  sent while the arm moved could land after the motion, and the link's 2 s bound on
+  ``set_load`` was sometimes reached; at 0.5 ms the same calls took 3.1 ms (max 5.1), about
+  franky-sim's own 0.8 ms plus the pipes.
 - Errors cross as pylibfranka's class name and message and are raised in the parent as that
   class of the given ``api`` module. After a ``NetworkException`` from ``read_once`` (no
   state within libfranka's timeout) the child's robot is unusable, as in-process: the child
@@ -46,6 +52,9 @@ CONNECT_TIMEOUT_S = 30.0
 """Longest wait for the child to connect to the robot (or fail to), s."""
 CLOSE_TIMEOUT_S = 2.0
 """How long ``close`` waits for the child to end before it is terminated, s."""
+CHILD_SWITCH_INTERVAL_S = 0.0005
+"""The child's ``sys.setswitchinterval``, s: well under the robot's 1 ms cycle, so the
+command thread gets the lock from the reader between two states."""
 
 _HEADER = struct.Struct("<cI")  # kind, body length
 _STATE = struct.Struct("<35d")  # t, q[7], dq[7], tau_J[7], m_load, F_x_Cload[3], I_load[9]
@@ -291,6 +300,7 @@ def _child(argv: list[str]) -> int:
                          "[--realtime]\n")
         return 2
     address, realtime = argv[0], "--realtime" in argv[1:]
+    sys.setswitchinterval(CHILD_SWITCH_INTERVAL_S)
     _end_with_parent()
     out = sys.stdout.buffer
     lock = threading.Lock()
