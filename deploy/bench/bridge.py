@@ -231,7 +231,8 @@ def measure_slcan_pty(profile: str = "fd", cycles: int = 3000, latency_cycles: i
     return {"cycles_per_s": rate, "latency_us": latency}
 
 
-def measure(profile: str = "fd", cycles: int = 20000, slcan_cycles: int = 3000) -> dict:
+def measure(profile: str = "fd", cycles: int = 20000, slcan_cycles: int = 3000,
+            ros2_cycles: int = 10000) -> dict:
     from firmware_bridge.busload import profile_load
 
     loads = {}
@@ -244,19 +245,20 @@ def measure(profile: str = "fd", cycles: int = 20000, slcan_cycles: int = 3000) 
         "virtual": measure_virtual(profile, cycles, min(2000, cycles)),
         "slcan_pty": measure_slcan_pty(profile, slcan_cycles, min(1000, slcan_cycles)),
         "bus_load": loads,
-        "ros2": measure_ros2(),
+        "ros2": measure_ros2(ros2_cycles),
     }
 
 
-def measure_ros2() -> dict:
-    """The ros2 row (:func:`firmware_bridge.ros2_peers.measure_loopback`), or why not."""
+def measure_ros2(cycles: int = 10000) -> dict:
+    """The ros2 row (:func:`firmware_bridge.ros2_peers.measure_loopback`: ``cycles`` messages
+    at 1 kHz for the latency, twice that for the rate), or why not."""
     try:
         import cyclonedds  # noqa: F401
     except ImportError:
         return {"skipped": "install the 'ros2' extra (cyclonedds)"}
     from firmware_bridge.ros2_peers import measure_loopback
 
-    return measure_loopback()
+    return measure_loopback(rate_cycles=2 * cycles, latency_cycles=cycles)
 
 
 def configure(parser) -> None:
@@ -266,6 +268,9 @@ def configure(parser) -> None:
                         help="cycles for the virtual-bus throughput (default 20000)")
     parser.add_argument("--slcan-cycles", type=int, default=3000,
                         help="cycles for the slcan throughput (default 3000)")
+    parser.add_argument("--ros2-cycles", type=int, default=10000,
+                        help="messages at 1 kHz for the ros2 row's latency, twice as many for "
+                        "its rate (default 10000)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
 
 
@@ -274,7 +279,7 @@ def _met(ok: bool) -> str:
 
 
 def run(args) -> int:
-    fig = measure(args.profile, args.cycles, args.slcan_cycles)
+    fig = measure(args.profile, args.cycles, args.slcan_cycles, args.ros2_cycles)
     print(f"bridge, {args.profile} profile")
     for key, label in (("virtual", "virtual bus"), ("slcan_pty", "slcan over a pty")):
         f = fig[key]

@@ -76,7 +76,8 @@ def test_service_estimates_from_1khz_joint_states_and_publishes(model_file):
         assert m.header.frame_id == "panda_link8"  # the arm model's flange
 
 
-@pytest.mark.parametrize("refusals", [0, 2])
+# without refusals (slow: the run with refusals covers it, and counts what is refused)
+@pytest.mark.parametrize("refusals", [pytest.param(0, marks=pytest.mark.slow), 2])
 def test_identifies_and_writes_back_through_set_load(model_file, tmp_path, refusals, caplog):
     """The simulated controller (MuJoCo plant at 1 kHz, new task path once) in another
     process behind ROS 2: JointStates on /franka/joint_states and a SetLoad service in
