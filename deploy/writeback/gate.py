@@ -40,7 +40,10 @@ estimate makes the controller's model better. In order, it holds:
    candidate is what is in force: holding is fine; ``uncertain``: a write's worst case, in
    joint torque along the recent motion, is more than ``write_margin`` of the least error the
    load in force has: the write is not sure to help;
-7. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago.
+7. ``rate_limited``: the last write was less than ``1 / max_rate_hz`` s ago. A write the
+   controller refused does not count: it changed nothing, and the refusal's back-off paces
+   its retry (a Franka refuses while the arm moves; the retry lands within
+   ``refusal_retry_max_s`` of the motion's end).
 
 Otherwise ``send``; its detail names the groups the data do not determine: an inertia the
 data do not determine is written as the estimate's prior has it. Every decision is counted by
@@ -308,7 +311,8 @@ class SafetyGate:
         helps = self._helps(phi, reading, candidate)
         if helps is not None:
             return Decision(t, helps[0], candidate, helps[1])
-        if now - self._last_send_t < 1.0 / c.max_rate_hz:
+        if (not self.commands.newest_refused
+                and now - self._last_send_t < 1.0 / c.max_rate_hz):
             return Decision(t, "rate_limited", candidate)
         return self._send(t, candidate, reading)
 

@@ -111,6 +111,7 @@ class LoadInForce:
         self._in_row = {"lost": 0, "refused": 0, "controller_disagrees": 0}
         self._answered = -math.inf  # when the link took the newest acknowledgement
         self._newest_sent: int | None = None  # the newest command's sequence number
+        self._refused_seq: int | None = None  # the newest command the controller refused
         self._settled: int | None = None  # the newest command acknowledged or reported
         self._ours = False  # the load in force is one of our commands, confirmed
         self.gave_up: str | None = None
@@ -167,6 +168,7 @@ class LoadInForce:
         else:
             self.refused += 1
             self.pending = None
+            self._refused_seq = int(seq)
             self._start_backoff("refused", t, f"the controller refused command {seq}"
                                               f"{f' ({error})' if error else ''}")
         wait = self.retry_wait() if ours else None
@@ -258,6 +260,12 @@ class LoadInForce:
             if left > 0:
                 return why, f"{detail}; retry in {left:.1f} s"
         return None
+
+    @property
+    def newest_refused(self) -> bool:
+        """Whether the controller refused the newest command sent (it kept its load: the
+        command changed nothing)."""
+        return self._newest_sent is not None and self._refused_seq == self._newest_sent
 
     def retry_wait(self) -> float | None:
         """The wait of the back-off running now, s (None: none runs)."""

@@ -53,7 +53,8 @@ class GateConfig:
             2-sigma band is wider than this.
         max_age_s: no write of an estimate older than this at the decision.
         reach_m: the arm's reach, for the torque bound before any motion is seen.
-        max_rate_hz: at most this many writes per second.
+        max_rate_hz: at most this many writes per second (a write the controller refused
+            does not count: the refusal's back-off paces its retry).
         ack_timeout_s: a command unanswered this long is lost.
         ack_retry_s, ack_retry_max_s: the wait after a lost command, doubling, up to the max.
         decision_period_s: how often the gate decides.

@@ -327,6 +327,32 @@ def test_a_refused_load_keeps_the_old_one_and_is_retried_with_back_off():
     assert times[2] - times[1] > times[1] - times[0] - 0.06  # doubled wait
 
 
+@pytest.mark.parametrize("answer", ["refused", "lost"])
+def test_a_refused_write_is_retried_at_its_back_off_not_the_rate_limit(answer):
+    """A refused write changed nothing: its retry waits the refusal's back-off (0.25 s),
+    not the rate limit (1 write a second). A lost one may have been applied: the rate limit
+    still counts it (and its own back-off, 0.5 s, is shorter)."""
+    gate = SafetyGate(GateConfig(refusal_retry_s=0.25, refusal_retry_max_s=0.25,
+                                 ack_timeout_s=0.05, ack_retry_s=0.5, max_rate_hz=1.0))
+    seq, times = 0, []
+    for k in range(round(2.0 / DT)):
+        t = round(k * DT, 9)
+        gate.commands.tick(t)
+        d = gate.step(t, phi_of(), est(phi_of(), t))
+        if d is not None and d.send:
+            seq += 1
+            times.append(t)
+            gate.commands.sent_command(seq, d.payload, t)
+            if answer == "refused":
+                gate.commands.refused_command(seq, t + 0.01, "the arm moves")
+    gaps = np.diff(times)
+    assert len(gaps) >= 1
+    if answer == "refused":
+        assert len(times) >= 4 and np.all(gaps < 0.5), times  # every back-off, 0.25 s
+    else:
+        assert np.all(gaps >= 1.0), times  # the rate limit, not the 0.5 s back-off
+
+
 @pytest.mark.parametrize("error", ["EncodeError: Ixx does not fit", "LinkError: bus-off"])
 def test_a_send_error_is_survived_and_retried(error):
     gate = SafetyGate()
