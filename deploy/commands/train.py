@@ -39,8 +39,10 @@ def configure(parser) -> None:
     parser.add_argument("--family", default=DEPLOY_FAMILY, choices=sorted(FAMILIES),
                         help=f"training payload family (default {DEPLOY_FAMILY}: the paper's "
                              "container configurations and 77 random tools)")
-    parser.add_argument("--excitation", default="builtin", metavar="CSV",
-                        help="excitation path CSV (default: the built-in 20 s path)")
+    parser.add_argument("--excitation", "--path", dest="excitation", default="builtin",
+                        metavar="CSV", help="excitation path CSV, as 'iem excite' writes it "
+                        "and 'iem sim-controller --path' reads it (default: the built-in 20 s "
+                        "path)")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the learners (an integer from 0 to 2**63-1)")
     add_rate(parser, None, f"IEM+phys: joint states a second the link or the recordings "

@@ -25,6 +25,15 @@ def test_writes_a_motion_the_path_readers_take(tmp_path, capsys):
     assert max(np.array(report["dq_peak"]) / np.array(report["dq_max"])) <= 0.75 + 1e-9
 
 
+def test_iem_train_path_trains_on_the_motion(tmp_path, capsys):
+    """``iem train --path`` (also ``--excitation``) takes the CSV ``iem excite`` wrote."""
+    out, model = tmp_path / "excite.csv", tmp_path / "model.msgpack"
+    assert main(["excite", "--seconds", "4", "--out", str(out), "--restarts", "1"]) == 0
+    capsys.readouterr()
+    assert main(["train", "--path", str(out), "--out", str(model), "--family", "paper"]) == 0
+    assert "trained IEM+phys on 'excite' (4 s" in capsys.readouterr().out and model.exists()
+
+
 def test_a_bad_start_pose_is_an_error_naming_the_joint(tmp_path, capsys):
     out = tmp_path / "x.csv"
     assert main(["excite", "--seconds", "4", "--out", str(out),
