@@ -39,6 +39,7 @@ from firmware_bridge.link_harness import (
 from firmware_bridge.links import LINKS
 from iem.errors import IemError, PayloadError
 from iem.types import JointState
+from tests.franky_state import RobotState
 
 from .conftest import synthetic_states
 from .hil import vcan_unavailable
@@ -148,28 +149,6 @@ def _franka(tmp_path, monkeypatch):
     return lambda: FrankaHarness(robots)
 
 
-class _Duration:
-    def __init__(self, t: float) -> None:
-        self._t = t
-
-    def to_sec(self) -> float:
-        return self._t
-
-
-class _ProgramState:
-    """The fields of a franky ``RobotState`` the program link reads (numpy arrays)."""
-
-    def __init__(self, s: JointState, load) -> None:
-        import numpy as np
-
-        self.q, self.dq, self.tau_J = s.q, s.dq, s.tau_J
-        self.time = _Duration(s.t)
-        mass, com, inertia = load
-        self.m_load = mass
-        self.F_x_Cload = np.array(com).reshape(3, 1)
-        self.I_load = np.reshape(inertia, (3, 3), order="F")
-
-
 class _ProgramRobot:
     """A program's robot: ``set_load`` holds the load its states then report."""
 
@@ -180,8 +159,8 @@ class _ProgramRobot:
     def set_load(self, mass, com, inertia) -> None:
         self.load = (float(mass), list(com), list(inertia))
 
-    def state(self) -> _ProgramState:
-        return _ProgramState(self.last, self.load)
+    def state(self) -> RobotState:
+        return RobotState(self.last, self.load)
 
 
 class ProgramHarness(Harness):
@@ -203,7 +182,7 @@ class ProgramHarness(Harness):
         out = synthetic_states(n, 1, self._next)
         for s in out:
             self.robot.last = s
-            self.link.feed(_ProgramState(s, self.robot.load))
+            self.link.feed(RobotState(s, self.robot.load))
         self._next += n
         self.link.apply()  # the motion is over; nothing kept yet
         return out

@@ -12,30 +12,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from tests.fci import STALL_RERUN
+from tests.franky_state import RobotState as State
 
 from ..conftest import REPO, model_kind, write_toml
-
-
-class Duration:
-    def __init__(self, t: float) -> None:
-        self._t = t
-
-    def to_sec(self) -> float:
-        return self._t
-
-
-class State:
-    """A franky ``RobotState``'s fields the plug-in reads (numpy arrays)."""
-
-    def __init__(self, s, load) -> None:
-        self.q, self.dq, self.tau_J, self.time = s.q, s.dq, s.tau_J, Duration(s.t)
-        self.m_load = load[0]
-        self.F_x_Cload = np.reshape(load[1], (3, 1))
-        self.I_load = np.reshape(load[2], (3, 3), order="F")
 
 
 class Robot:
