@@ -71,7 +71,7 @@ import threading
 import time
 from collections import deque
 
-from iem.payload import Payload
+from iem.payload import Payload, set_load_values
 from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent, LinkError
@@ -361,13 +361,9 @@ class FrankaLink:
         """Queue ``set_load`` for the command thread; return the command's number at once."""
         if payload is not None:
             payload.check()
-            mass, com, inertia = payload.set_load_args()
-        else:
-            mass, com, inertia = 0.0, [0.0, 0.0, 0.0], [0.0] * 9
         self._seq = self._seq % 255 + 1
         self.acks.pop(self._seq, None)
-        self._jobs.put((self._seq, (float(mass), [float(v) for v in com],
-                                    [float(v) for v in inertia])))
+        self._jobs.put((self._seq, set_load_values(payload)))
         return self._seq
 
     def wait_ack(self, seq: int, timeout: float = 1.0) -> LoadAck:

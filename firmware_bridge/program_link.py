@@ -36,7 +36,7 @@ from collections import deque
 
 import numpy as np
 
-from iem.payload import Payload
+from iem.payload import Payload, set_load_values
 from iem.types import NOMINAL_RATE_HZ, JointState
 
 from .errors import AckTimeout, BridgeConfigError, ControllerSilent
@@ -193,13 +193,9 @@ class ProgramLink:
         refused at once while a motion feeds states."""
         if payload is not None:
             payload.check()
-            mass, com, inertia = payload.set_load_args()
-        else:
-            mass, com, inertia = 0.0, [0.0, 0.0, 0.0], [0.0] * 9
         self._seq = self._seq % 255 + 1
         self.acks.pop(self._seq, None)
-        self._kept = (self._seq, (float(mass), [float(v) for v in com],
-                                  [float(v) for v in inertia]))
+        self._kept = (self._seq, set_load_values(payload))
         if self._moving:
             self._ack(self._seq, False, MOVING, None)
         return self._seq

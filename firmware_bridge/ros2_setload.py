@@ -32,7 +32,7 @@ import queue
 import threading
 import time
 
-from iem.payload import Payload
+from iem.payload import Payload, set_load_values
 
 from .errors import AckTimeout
 from .messages import LoadAck
@@ -52,11 +52,9 @@ def load_ack(seq: int, applied: bool, load, error: str = "") -> LoadAck:
 def set_load_fields(payload: Payload | None) -> tuple[float, list[float], list[float]]:
     """``mass, center_of_mass, load_inertia`` (column-major, about the CoM) of ``payload``;
     zeros clear the load (None)."""
-    if payload is None:
-        return 0.0, [0.0] * 3, [0.0] * 9
-    payload.check()
-    mass, com, inertia = payload.set_load_args()
-    return float(mass), [float(v) for v in com], [float(v) for v in inertia]
+    if payload is not None:
+        payload.check()
+    return set_load_values(payload)
 
 
 class SetLoadClient:

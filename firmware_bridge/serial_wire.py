@@ -26,7 +26,7 @@ import zlib
 
 import msgpack
 
-from iem.payload import Payload
+from iem.payload import Payload, set_load_values
 from iem.types import N_JOINTS, JointState
 
 from .errors import DecodeError
@@ -204,10 +204,7 @@ def _load(mass, com, inertia) -> Payload | None:
 
 
 def _load_args(load) -> list:
-    if load is None:
-        return [0.0, [0.0, 0.0, 0.0], [0.0] * 9]
-    mass, com, inertia = load.set_load_args()
-    return [float(mass), [float(v) for v in com], [float(v) for v in inertia]]
+    return list(set_load_values(load))
 
 
 def encode_joint_state(state: JointState) -> bytes:

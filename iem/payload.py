@@ -158,3 +158,12 @@ class Payload:
 
 
 # -- files ---------------------------------------------------------------------------------
+
+
+def set_load_values(payload: Payload | None) -> tuple[float, list[float], list[float]]:
+    """libfranka's ``setLoad`` arguments of ``payload`` (:meth:`Payload.set_load_args`) as
+    plain floats; None, the empty load: mass 0 and zeros."""
+    if payload is None:
+        return 0.0, [0.0] * 3, [0.0] * 9
+    mass, com, inertia = payload.set_load_args()
+    return float(mass), [float(v) for v in com], [float(v) for v in inertia]

@@ -32,7 +32,7 @@ from pathlib import Path as FsPath
 import numpy as np
 
 from iem.errors import PayloadError
-from iem.payload import Payload
+from iem.payload import Payload, set_load_values
 
 MECHANICAL = ("mass", "centerOfMass", "transformation", "inertia")
 """The fields the plug-in needs, in Desk's names."""
@@ -167,10 +167,7 @@ def desk_document(payload: Payload | None, *, base: DeskEndEffector | None = Non
     """The ``endeffector-config.json`` of the body ``payload`` (None: massless): the
     transformation, display fields and other keys of ``base`` (a Desk file read) when given,
     else the identity transformation; ``id`` and ``name`` replace the base's."""
-    if payload is None:
-        mass, com, inertia = 0.0, [0.0] * 3, [0.0] * 9
-    else:
-        mass, com, inertia = payload.set_load_args()
+    mass, com, inertia = set_load_values(payload)
     doc = dict(base.extra) if base is not None else {}
     for key, value in (("id", id or (base and base.id)), ("name", name or (base and base.name)),
                        ("color", base and base.color)):

@@ -37,6 +37,7 @@ import time
 
 from firmware_bridge.errors import BridgeConfigError
 from firmware_bridge.messages import ACK_ERRORS, Heartbeat, LoadAck, LoadCommand
+from iem.payload import set_load_values
 
 from .path_player import PathPlayer
 from .payload_schedule import PayloadSchedule
@@ -141,7 +142,7 @@ class SimController:
         if ok:
             self.plant.set_controller_load(load)
             self.load_seq = cmd.seq
-            mass, com, _ = _set_load_args(load)
+            mass, com, _ = set_load_values(load)
             self.applied.append({"t": k * self.period, "seq": cmd.seq, "mass": mass,
                                  "com": com})
         self.commands.append((cmd, ok))
@@ -235,12 +236,12 @@ class SimController:
         load = self.plant.controller_load
         in_force = None
         if load is not None:
-            mass, com, inertia = _set_load_args(load)
+            mass, com, inertia = set_load_values(load)
             in_force = {"mass": mass, "com": com, "inertia": inertia}
         carried = self.plant.payload
         payload = None
         if carried is not None:
-            mass, com, inertia = _set_load_args(carried)
+            mass, com, inertia = set_load_values(carried)
             payload = {"name": carried.name, "mass": mass, "com": com, "inertia": inertia}
         mounted = list(self.schedule.mounted)
         if not (mounted and mounted[0]["t"] == 0.0):  # no change at 0: the start's payload
@@ -261,9 +262,3 @@ class SimController:
                 "send_failures": list(getattr(port, "send_failures", []))}
 
 
-def _set_load_args(load) -> tuple[float, list[float], list[float]]:
-    """libfranka's ``setLoad`` arguments of ``load`` as plain floats (None: mass 0, zeros)."""
-    if load is None:
-        return 0.0, [0.0] * 3, [0.0] * 9
-    mass, com, inertia = load.set_load_args()
-    return float(mass), [float(v) for v in com], [float(v) for v in inertia]

@@ -34,7 +34,7 @@ import logging
 import math
 from dataclasses import dataclass
 
-from iem.payload import Payload
+from iem.payload import Payload, set_load_values
 
 log = logging.getLogger("iem.gate")
 
@@ -336,7 +336,6 @@ def load_record(load) -> dict | str | None:
     the CoM, column-major, as ``setLoad`` takes them)."""
     if load is None or load == UNKNOWN:
         return load
-    mass, com, inertia = load.set_load_args()
-    return {"mass": float(mass), "com": [float(v) for v in com],
-            "inertia": [float(v) for v in inertia]}
+    mass, com, inertia = set_load_values(load)
+    return {"mass": mass, "com": com, "inertia": inertia}
 
