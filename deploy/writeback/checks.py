@@ -1,7 +1,7 @@
 """The safety gate's checks of one estimate on its own: its contract (types, shapes, signs,
 one uncertainty), what it is (finite, a possible rigid body of that mass within the arm's
-reach, within the robot's rating with the end effector and within the CoM radius at the
-band's worst, within the wire's ranges) and what the model says of it (its verdicts, the
+reach, within the robot's rating with the end effector at the band's worst, its CoM within
+the radius, within the wire's ranges) and what the model says of it (its verdicts, the
 agreement of the data, the inertia's band). The gate (:mod:`deploy.writeback.gate`) adds
 what depends on time and on the controller: the age, the load in force, commands, stability,
 whether a write helps, and rate. Every check returns a reason and its detail, never raises,
@@ -242,8 +242,9 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
     breaks the triangle inequality, or more than a body of that mass within the arm's reach
     can have), ``over_rated`` (the payload and the declared end effector together beyond
     the arm's rated payload), ``com_too_far``, ``out_of_wire_range`` or ``malformed`` (not
-    10 values). The rating, the CoM's radius and the inertia's bound are judged at the
-    2-sigma band's worst."""
+    10 values). The rating and the inertia's bound are judged at the 2-sigma band's worst;
+    the CoM's radius at the value written (its band is the write rule's to judge, by the
+    torque it can cost: :mod:`deploy.writeback.write_rule`)."""
     c = config
     if phi.shape != (10,):
         return "malformed", f"phi has shape {phi.shape}, valid is (10,)"
@@ -262,9 +263,8 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
             f"mass {payload.mass:.3f}{_pm(band[0])} kg + end effector "
             f"{c.end_effector_mass_kg:.3f} kg > rated {c.rated_mass_kg:g} kg")
     radius = float(np.linalg.norm(payload.com))
-    worst_radius = radius + _com_band(phi, band, cov)
-    if worst_radius > c.max_com_radius_m:
-        return "com_too_far", (f"CoM {radius:.3f}{_pm(worst_radius - radius)} m from the "
+    if radius > c.max_com_radius_m:
+        return "com_too_far", (f"CoM {radius:.3f}{_pm(_com_band(phi, band, cov))} m from the "
                                f"flange > {c.max_com_radius_m:g} m")
     bound = inertia_bound(phi, band, c.reach_m)
     if bound is not None:

@@ -19,8 +19,8 @@ estimate makes the controller's model better. In order, it holds:
    (not a possible rigid body, or more inertia than a body of its mass within the arm's
    reach can have), ``over_rated`` (the payload and the declared end effector beyond the
    arm's rated payload), ``com_too_far``, ``out_of_wire_range``
-   (:func:`deploy.writeback.checks.check_estimate`; the rating, the CoM and the inertia at
-   the 2-sigma band's worst);
+   (:func:`deploy.writeback.checks.check_estimate`; the rating and the inertia at the
+   2-sigma band's worst, the CoM's radius at the value written);
 3. ``ack_missing``: a command awaits its answer; ``lost``: a command went unanswered for
    ``ack_timeout_s``: the load in force stays as it was and the write is retried after a
    back-off (``ack_retry_s`` doubling up to ``ack_retry_max_s``); ``refused``: the

@@ -344,9 +344,12 @@ def test_the_rules_use_the_larger_of_cov_and_std():
     assert broken is None and reading.cov is None and np.isinf(reading.sigma[4:]).all()
 
 
-def test_rating_and_com_are_judged_at_the_bands_worst():
-    """2.9 kg +- 0.4 kg (2 sigma) against a 3 kg rating: over_rated; a CoM 0.14 m out whose
-    band reaches past 0.15 m: com_too_far."""
+def test_the_rating_is_judged_at_the_bands_worst_the_com_at_the_value_written():
+    """2.9 kg +- 0.4 kg (2 sigma) against a 3 kg rating: over_rated. A CoM 0.16 m out:
+    com_too_far, with its band in the detail. A light tool (0.6 kg, CoM 0.062 m out) whose
+    first moment is known to 0.042 kg·m (1 sigma; its CoM's 2-sigma band 0.14 m, reaching
+    past 0.15 m) is written: the CoM's radius is judged at the value written, and what its
+    band can cost is the write rule's to judge, by the joint torque."""
     near = Payload("2.9", 2.9, (0.0, 0.0, 0.05), (0.004, 0, 0, 0.004, 0, 0.003)).to_phi()
     std = np.r_[0.2, STD[1:]]
     gate = SafetyGate()
@@ -354,12 +357,23 @@ def test_rating_and_com_are_judged_at_the_bands_worst():
                                              for k in range(100)])
     assert {d.reason for d in decisions} == {"over_rated"}
     assert "+0.400 at 2 sigma" in decisions[0].detail
-    far = Payload("far", 1.0, (0.0, 0.0, 0.14), (0.004, 0, 0, 0.004, 0, 0.003)).to_phi()
+    far = Payload("far", 1.0, (0.0, 0.0, 0.16), (0.004, 0, 0, 0.004, 0, 0.003)).to_phi()
     std = np.r_[0.002, 0.01, 0.01, 0.01, STD[4:]]
     gate = SafetyGate()
     decisions = run(gate, Controller(gate), [(k * DT, far, est(far, k * DT, std=std))
                                              for k in range(100)])
     assert {d.reason for d in decisions} == {"com_too_far"}
+    assert "0.160 (+0.020 at 2 sigma) m from the flange > 0.15 m" in decisions[0].detail
+    light = Payload("light-tool", 0.6, (0.03, -0.02, 0.05),
+                    (0.00068, 0, 0, 0.00082, 0, 0.0005)).to_phi()
+    std = np.r_[0.068, 0.02, 0.02, 0.042, STD[4:]]
+    assert gate_checks._com_band(light, 2.0 * std) > 0.14
+    gate = SafetyGate()
+    ctl = Controller(gate)
+    decisions = run(gate, ctl, [(k * DT, light, est(light, k * DT, std=std))
+                                for k in range(100)])
+    assert "com_too_far" not in {d.reason for d in decisions}
+    assert len(ctl.applied) == 1 and ctl.applied[0][1].mass == pytest.approx(0.6)
 
 
 # -- physical limits on every link ------------------------------------------------------------
