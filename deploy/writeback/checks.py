@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from iem.payload import Payload
+from iem.physics.consistency import project
 from iem.types import PayloadEstimate
 
 if TYPE_CHECKING:
@@ -28,6 +29,10 @@ if TYPE_CHECKING:
 
 WireCheck = Callable[[Payload], "str | None"]
 """A link's range check of a load: why its wire format cannot carry it, or None."""
+
+_PRIOR_EPS = 1e-6
+"""A prior made a possible body is at least this second moment per kilogram in every direction
+(m²: a millimetre's), not just inside the boundary of the set."""
 
 COV_AGREES = 1e-6
 """The covariance's diagonal must agree with the standard deviations this closely (relative,
@@ -408,13 +413,19 @@ def _band_unusable(sigma: np.ndarray, reading: Reading, config: GateConfig) -> s
 def with_prior_inertia(phi: np.ndarray, reading: Reading) -> np.ndarray:
     """``phi`` with the inertia about its CoM taken from the estimate's prior where the data
     do not determine the inertia (as the write says); ``phi`` itself otherwise, or when the
-    prior has no body to take an inertia from (then :func:`check_estimate` judges ``phi``)."""
+    prior has no body to take an inertia from (then :func:`check_estimate` judges ``phi``).
+    A prior that is not a possible rigid body (a learnt prior need not be: its inertia about
+    its own CoM may break the triangle inequality) gives the inertia of the nearest one
+    (:func:`iem.physics.consistency.project`, unweighted)."""
     determined, prior = reading.determined, reading.prior
     if determined is None or "inertia" in determined or prior is None:
         return phi
-    if not (phi[0] > 0.0 and prior[0] > 0.0):
+    if not (phi[0] > 0.0 and prior[0] > 0.0 and np.isfinite(prior).all()):
         return phi
-    inertia = Payload.from_phi(prior).inertia
+    body = Payload.from_phi(prior)
+    if body.consistency_violations():
+        body = Payload.from_phi(project(prior, eps=_PRIOR_EPS * float(prior[0])))
+    inertia = body.inertia
     mass, com = float(phi[0]), tuple(float(v) for v in phi[1:4] / phi[0])
     return Payload("estimate", mass, com, inertia).to_phi()
 

@@ -421,6 +421,30 @@ def test_an_inertia_the_data_do_not_determine_is_written_as_the_priors():
     assert "no prior" in decisions[-1].detail
 
 
+def test_a_prior_that_is_no_body_gives_the_nearest_bodys_inertia():
+    """A learnt prior whose inertia about its CoM breaks the triangle inequality (as an
+    ensemble's can: its outputs are not constrained): the write takes the inertia of the
+    nearest possible body, and goes out; the prior's own inertia would be `inconsistent`
+    for ever."""
+    light = Payload("light-tool", 0.6, (0.03, -0.02, 0.05), (6.8e-4, 0, 0, 8.2e-4, 0, 5e-4))
+    prior = light.to_phi()
+    prior[4:] = Payload("p", 0.6, (0.03, -0.02, 0.05), (1e-3, 0, 0, 1e-3, 0, 5e-4)).to_phi()[4:]
+    prior[9] += 2.2e-3  # Izz about the CoM 2.7e-3 > Ixx + Iyy
+    assert not Payload.from_phi(prior).is_consistent()
+    std = np.r_[STD[:4], np.full(6, np.inf)]
+    phi = light.to_phi()
+    gate = SafetyGate()
+    ctl = Controller(gate)
+    decisions = run(gate, ctl, [(k * DT, phi, est(phi, k * DT, std=std, determined=(
+        "mass", "com"), prior=prior)) for k in range(200)])
+    assert "inconsistent" not in {d.reason for d in decisions}
+    written = ctl.applied[0][1]
+    assert written.is_consistent() and written.mass == pytest.approx(0.6)
+    assert written.com == pytest.approx(light.com)
+    eig = np.linalg.eigvalsh(written.inertia_matrix)
+    assert eig[0] + eig[1] >= eig[2] and eig[2] == pytest.approx(2.7e-3, rel=0.05)  # kept
+
+
 # -- the rating from the arm model ----------------------------------------------------------
 def test_a_rating_lifted_in_the_file_is_refused_naming_both():
     from deploy.config import ConfigError, config_from_dict
