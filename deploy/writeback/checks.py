@@ -247,7 +247,8 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
     breaks the triangle inequality, or more than a body of that mass within the arm's reach
     can have), ``over_rated`` (the payload and the declared end effector together beyond
     the arm's rated payload), ``com_too_far``, ``out_of_wire_range`` or ``malformed`` (not
-    10 values). The rating and the inertia's bound are judged at the 2-sigma band's worst;
+    10 values); ``uncertain`` while the mass's band reaches zero (the gate writes the empty
+    load once it has for its stability window). The rating and the inertia's bound are judged at the 2-sigma band's worst;
     the CoM's radius at the value written (its band is the write rule's to judge, by the
     torque it can cost: :mod:`deploy.writeback.write_rule`)."""
     c = config
@@ -271,6 +272,9 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
     if radius > c.max_com_radius_m:
         return "com_too_far", (f"CoM {radius:.3f}{_pm(_com_band(phi, band, cov))} m from the "
                                f"flange > {c.max_com_radius_m:g} m")
+    if band[0] > 0.0 and not payload.mass - band[0] > 0.0:
+        return "uncertain", (f"mass {payload.mass:.3f}{_pm(band[0])} kg: not told from the "
+                             "empty load yet (no inertia is judged of a mass that may be none)")
     bound = inertia_bound(phi, band, c.reach_m)
     if bound is not None:
         return "inconsistent", bound

@@ -20,7 +20,8 @@ estimate makes the controller's model better. In order, it holds:
    reach can have), ``over_rated`` (the payload and the declared end effector beyond the
    arm's rated payload), ``com_too_far``, ``out_of_wire_range``
    (:func:`deploy.writeback.checks.check_estimate`; the rating and the inertia at the
-   2-sigma band's worst, the CoM's radius at the value written);
+   2-sigma band's worst, the CoM's radius at the value written), and is ``uncertain`` while
+   the mass's band reaches zero but has not for the whole window;
 3. ``ack_missing``: a command awaits its answer; ``lost``: a command went unanswered for
    ``ack_timeout_s``: the load in force stays as it was and the write is retried after a
    back-off (``ack_retry_s`` doubling up to ``ack_retry_max_s``); ``refused``: the

@@ -445,6 +445,24 @@ def test_a_prior_that_is_no_body_gives_the_nearest_bodys_inertia():
     assert eig[0] + eig[1] >= eig[2] and eig[2] == pytest.approx(2.7e-3, rel=0.05)  # kept
 
 
+def test_a_mass_whose_band_reaches_zero_is_uncertain_until_the_empty_load_is_written():
+    """A bare arm at start (the empty load in force): 0.02 +- 0.1 kg (2 sigma) is not
+    told from the empty load. Before the stability window has passed it is held
+    `uncertain` (a warning that passes), not `inconsistent` (an error: an inertia judged at
+    a lightest mass of 0 kg), and nothing is written."""
+    bare = Payload("bare", 0.02, (0.0, 0.0, 0.05), (1e-4, 0, 0, 1e-4, 0, 1e-4)).to_phi()
+    std = np.r_[0.05, np.full(3, 0.005), np.full(6, 1e-3)]
+    gate = SafetyGate()
+    gate.commands.report(None, None, True, 0.0)
+    ctl = Controller(gate)
+    decisions = run(gate, ctl, [(k * DT, bare, est(bare, k * DT, std=std))
+                                for k in range(100)])
+    early = {d.reason for d in decisions if d.t < 0.9 * WINDOW}
+    assert early == {"uncertain"}, early
+    assert "not told from the empty load" in decisions[0].detail
+    assert not ctl.applied and "inconsistent" not in {d.reason for d in decisions}
+
+
 # -- the rating from the arm model ----------------------------------------------------------
 def test_a_rating_lifted_in_the_file_is_refused_naming_both():
     from deploy.config import ConfigError, config_from_dict
