@@ -268,13 +268,14 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
         return "over_rated", (
             f"mass {payload.mass:.3f}{_pm(band[0])} kg + end effector "
             f"{c.end_effector_mass_kg:.3f} kg > rated {c.rated_mass_kg:g} kg")
+    if band[0] > 0.0 and not payload.mass - band[0] > 0.0:
+        return "uncertain", (f"mass {payload.mass:.3f}{_pm(band[0])} kg: not told from the "
+                             "empty load yet (no CoM or inertia is judged of a mass that may "
+                             "be none)")
     radius = float(np.linalg.norm(payload.com))
     if radius > c.max_com_radius_m:
         return "com_too_far", (f"CoM {radius:.3f}{_pm(_com_band(phi, band, cov))} m from the "
                                f"flange > {c.max_com_radius_m:g} m")
-    if band[0] > 0.0 and not payload.mass - band[0] > 0.0:
-        return "uncertain", (f"mass {payload.mass:.3f}{_pm(band[0])} kg: not told from the "
-                             "empty load yet (no inertia is judged of a mass that may be none)")
     bound = inertia_bound(phi, band, c.reach_m)
     if bound is not None:
         return "inconsistent", bound

@@ -449,8 +449,9 @@ def test_a_mass_whose_band_reaches_zero_is_uncertain_until_the_empty_load_is_wri
     """A bare arm at start (the empty load in force): 0.02 +- 0.1 kg (2 sigma) is not
     told from the empty load. Before the stability window has passed it is held
     `uncertain` (a warning that passes), not `inconsistent` (an error: an inertia judged at
-    a lightest mass of 0 kg), and nothing is written."""
-    bare = Payload("bare", 0.02, (0.0, 0.0, 0.05), (1e-4, 0, 0, 1e-4, 0, 1e-4)).to_phi()
+    a lightest mass of 0 kg) nor `com_too_far` (the CoM of a mass that may be none: its
+    first moment over 0.02 kg, 0.3 m out), and nothing is written."""
+    bare = Payload("bare", 0.02, (0.0, 0.0, 0.3), (1e-4, 0, 0, 1e-4, 0, 1e-4)).to_phi()
     std = np.r_[0.05, np.full(3, 0.005), np.full(6, 1e-3)]
     gate = SafetyGate()
     gate.commands.report(None, None, True, 0.0)
@@ -460,7 +461,7 @@ def test_a_mass_whose_band_reaches_zero_is_uncertain_until_the_empty_load_is_wri
     early = {d.reason for d in decisions if d.t < 0.9 * WINDOW}
     assert early == {"uncertain"}, early
     assert "not told from the empty load" in decisions[0].detail
-    assert not ctl.applied and "inconsistent" not in {d.reason for d in decisions}
+    assert not ctl.applied and not {"inconsistent", "com_too_far"} & {d.reason for d in decisions}
 
 
 # -- the rating from the arm model ----------------------------------------------------------
