@@ -248,9 +248,10 @@ def check_estimate(phi: np.ndarray, config: GateConfig, wire_check: WireCheck | 
     can have), ``over_rated`` (the payload and the declared end effector together beyond
     the arm's rated payload), ``com_too_far``, ``out_of_wire_range`` or ``malformed`` (not
     10 values); ``uncertain`` while the mass's band reaches zero (the gate writes the empty
-    load once it has for its stability window). The rating and the inertia's bound are judged at the 2-sigma band's worst;
-    the CoM's radius at the value written (its band is the write rule's to judge, by the
-    torque it can cost: :mod:`deploy.writeback.write_rule`)."""
+    load once it has for its stability window: no CoM or inertia is judged of such a mass).
+    The rating and the inertia's bound are judged at the 2-sigma band's worst; the CoM's
+    radius at the value written (its band is the write rule's to judge, by the torque it can
+    cost: :mod:`deploy.writeback.write_rule`)."""
     c = config
     if phi.shape != (10,):
         return "malformed", f"phi has shape {phi.shape}, valid is (10,)"
