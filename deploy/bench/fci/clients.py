@@ -13,8 +13,9 @@ cannot be imported into one process (both register libfranka's types with pybind
   it says ``ready`` on stdout once it reads the robot and stops on SIGTERM.
 
 Each writes a JSON file: ``rows`` (per block point: the robot's time, the smoothed mass and
-mass moments ``m·r``, and the raw estimate's standard deviations of those four), the
-service's ``summary``; the program also ``costs_ns`` (the callback's cost per state),
+mass moments ``m·r``, and the raw estimate's standard deviations of those four),
+``reasons`` (per block point, the reason of the gate's latest decision), the service's
+``summary``; the program also ``costs_ns`` (the callback's cost per state),
 ``applies`` (each ``apply()``: the robot's time after it, applied, the error text, the mass
 in force) and ``motions_s`` (each motion's duration, wall s).
 """
@@ -35,12 +36,17 @@ GRASP = {"width": 0.02, "speed": 0.05, "force": 20.0, "epsilon_inner": 0.01,
 OPEN_M = 0.08
 
 
-def _recorder(rows: list):
+def _recorder(rows: list, reasons: list, service):
+    """An ``on_cycle`` observer keeping a row per block point and the reason of the gate's
+    latest decision then (the decision before that point's: observers run before the
+    gate's step; ``""`` before the first)."""
     def keep(record) -> None:
         s = np.asarray(record.smoothed, dtype=float)
         std = getattr(record.raw, "std", None)
         sd = [float("nan")] * 4 if std is None else [float(v) for v in np.asarray(std)[:4]]
         rows.append([float(record.state.t), *(float(v) for v in s[:4]), *sd])
+        gate = service.gate
+        reasons.append("" if gate is None else gate.verdict()["reason"])
     return keep
 
 
@@ -61,7 +67,8 @@ def program(host: str, config: str, out: str, n_payloads: int, factor: float) ->
     gripper = franky.Gripper(host)
     plugin = PayloadPlugin(robot, config)
     rows: list = []
-    plugin.service.on_cycle.append(_recorder(rows))
+    reasons: list = []
+    plugin.service.on_cycle.append(_recorder(rows, reasons, plugin.service))
     costs: list[int] = []
     clock = time.perf_counter_ns
     feed = plugin.callback
@@ -101,8 +108,8 @@ def program(host: str, config: str, out: str, n_payloads: int, factor: float) ->
     finally:
         summary = plugin.close()
     with open(out, "w", encoding="utf-8") as f:
-        json.dump({"rows": rows, "summary": _json_safe(summary), "costs_ns": costs,
-                   "applies": applies, "motions_s": motions}, f)
+        json.dump({"rows": rows, "reasons": reasons, "summary": _json_safe(summary),
+                   "costs_ns": costs, "applies": applies, "motions_s": motions}, f)
     return 0
 
 
@@ -112,7 +119,8 @@ def run(config: str, out: str) -> int:
 
     service = Service(load_config(config))
     rows: list = []
-    service.on_cycle.append(_recorder(rows))
+    reasons: list = []
+    service.on_cycle.append(_recorder(rows, reasons, service))
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     try:
         service.open()
@@ -121,7 +129,7 @@ def run(config: str, out: str) -> int:
     finally:
         service.close()
     with open(out, "w", encoding="utf-8") as f:
-        json.dump({"rows": rows, "summary": _json_safe(summary)}, f)
+        json.dump({"rows": rows, "reasons": reasons, "summary": _json_safe(summary)}, f)
     return 0
 
 

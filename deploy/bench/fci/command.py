@@ -222,7 +222,7 @@ def score_run(run: dict) -> dict:
     def regressor(q):
         return kinematics.payload_regressor(q, zero, zero)
 
-    rows = changes(run["events"], regressor, run["end_s"])
+    rows = changes(run["events"], regressor, run["end_s"], run.get("rows"), run.get("reasons"))
     summary = run.get("summary") or {}
     frames = summary.get("frames") or {}
     return {"way": run["way"], "changes": rows, "callback_us": cost_us(run.get("costs_ns")),
@@ -238,9 +238,13 @@ def targets(result: dict, settle_s: float) -> list[tuple[str, bool, str]]:
 
     rows = result["changes"]
     late = [r for r in rows if r["latency_s"] is None or r["latency_s"] > settle_s]
+    held = [f"{r['truth_mass']:.3f} kg: gate held: " + ", ".join(
+        f"{k} {100 * v:.0f} %" for k, v in list(r["held"].items())[:3])
+        for r in late if r.get("held")]
     out = [(f"each change correct within {settle_s:g} s of the end of the motion that "
             "carried it (before the arm moves again)", not late,
-            ", ".join(fmt(r["latency_s"], ".2f") for r in rows) + " s"),
+            ", ".join(fmt(r["latency_s"], ".2f") for r in rows) + " s"
+            + (f" ({'; '.join(held)})" if held else "")),
            ("no write farther from the truth", sum(r["farther"] for r in rows) == 0,
             str(sum(r["farther"] for r in rows))),
            ("the bare arm never written", sum(r["bare_writes"] for r in rows) == 0,

@@ -18,7 +18,10 @@ Per payload change (a mount or a release) at ``t_change``, with the motion that 
 - **writes**: each ``setLoad`` applied in the interval, and whether it put the robot
   **farther** from the truth than the load it replaced (:func:`deploy.bench.writeback.
   score.writes`); a non-empty load written while the arm is bare counts as a **bare write**;
-- **refusals**: the robot's refusals in the interval.
+- **refusals**: the robot's refusals in the interval;
+- **held**: for a change never correct, the share of the gate's decisions by reason from
+  ``t_end`` to ``t_next`` (from the client's per-point record of the latest decision), what
+  held the load that would have been correct.
 
 The callback's cost is the program's own timing of each call (p50, p99, max, µs).
 """
@@ -27,7 +30,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from deploy.bench.writeback.score import EMPTY_KG, at, correct, load_error, load_of, writes
+from deploy.bench.writeback.score import (
+    EMPTY_KG,
+    at,
+    correct,
+    load_error,
+    load_of,
+    reason_shares,
+    writes,
+)
 
 LIGHT_KG = 1.0
 """A payload under this mass is judged by the joint torque it leaves."""
@@ -97,9 +108,10 @@ def _correct(load, truth, regressors) -> bool:
     return correct(load, truth)
 
 
-def changes(events: list, regressor, end: float) -> list[dict]:
+def changes(events: list, regressor, end: float, rows=None, reasons=None) -> list[dict]:
     """Each payload change's figures (see the module docstring); ``regressor(q)`` the arm
-    model's payload regressor at rest (7, 10); ``end`` the run's end (robot s)."""
+    model's payload regressor at rest (7, 10); ``end`` the run's end (robot s); ``rows`` and
+    ``reasons`` the client's records (None: no ``held``)."""
     tl = timelines(events)
     marks = tl["truth"][1:]
     out = []
@@ -136,6 +148,9 @@ def changes(events: list, regressor, end: float) -> list[dict]:
             "refusals": sum(1 for t in tl["refused"] if t_change <= t < t_next),
             "refusals_moving": sum(1 for t in tl["refused"] if t_change <= t < t_next
                                    and any(a <= t <= b for a, b in tl["motions"])),
+            "held": (reason_shares([r[0] for r in rows], reasons, t_end, t_next)
+                     if first is None and rows is not None and reasons is not None
+                     and len(reasons) == len(rows) else None),
         })
     return out
 

@@ -61,6 +61,23 @@ def test_a_load_never_cleared_and_a_bare_write_are_counted():
     assert release["torque_error_nm"] > 1.0
 
 
+def test_a_change_never_correct_says_what_the_gate_held_it_with():
+    """The release is never cleared: from the end of its motion (9 s) to the run's end the
+    client's record of the gate's reasons gives its shares, and the target's line names
+    them; a change that was correct has none."""
+    from deploy.bench.fci.command import targets
+
+    times = np.arange(0.0, 12.0, 0.01)
+    reasons = ["send" if t < 4.7 else "uncertain" if t < 10.5 else "no_change" for t in times]
+    rows = [[t] + [0.0] * 8 for t in times]
+    mount, release = changes(log(clear_at=None), regressor, 12.0, rows, reasons)
+    assert mount["held"] is None
+    assert release["held"] == pytest.approx({"uncertain": 0.5, "no_change": 0.5}, abs=0.01)
+    result = {"changes": [mount, release], "callback_us": None}
+    (met, line), *_ = [(m, text) for _, m, text in targets(result, 1.0)]
+    assert not met and "0.000 kg: gate held: uncertain 50 %, no_change 50 %" in line
+
+
 def test_a_light_payload_is_judged_by_the_torque_it_leaves():
     """Under 1 kg, a load within 0.1 N·m at the carrying motion's poses is correct, however
     far its CoM (what the poses cannot tell apart does not count)."""
