@@ -7,7 +7,8 @@ cannot be imported into one process (both register libfranka's types with pybind
   (:func:`deploy.bench.fci.schedule.steps`) with ``JointMotion`` and the hand (franky's
   ``Gripper``: the scene mounts a payload when the hand closes), feeds every state of every
   motion from the motion's callback, and calls ``apply()`` after each motion. It times the
-  callback (its own cost per state).
+  callback (its own cost per state) and when each call began. Without ``--config``: the same
+  program without the plug-in (the control loop's pace to compare with).
 - ``run``: the plug-in as ``iem run`` runs it (:class:`deploy.service.Service` on the
   ``franka`` link, the FCI client) while the robot's own program (the scene) moves the arm;
   it says ``ready`` on stdout once it reads the robot and stops on SIGTERM.
@@ -16,6 +17,7 @@ Each writes a JSON file: ``rows`` (per block point: the robot's time, the smooth
 mass moments ``m·r``, and the raw estimate's standard deviations of those four),
 ``reasons`` (per block point, the reason of the gate's latest decision), the service's
 ``summary``; the program also ``costs_ns`` (the callback's cost per state),
+``arrivals_ns`` (when each callback began, ``perf_counter_ns``: the control loop's pace),
 ``applies`` (each ``apply()``: the robot's time after it, applied, the error text, the mass
 in force) and ``motions_s`` (each motion's duration, wall s).
 """
@@ -57,7 +59,9 @@ def _json_safe(value):
         return str(value)
 
 
-def program(host: str, config: str, out: str, n_payloads: int, factor: float) -> int:
+def program(host: str, config: str | None, out: str, n_payloads: int, factor: float) -> int:
+    """The pick-and-place as a franky program, the plug-in inside (``config`` None: the same
+    program without it, the control loop's pace to compare with)."""
     import franky
 
     from deploy.bench.fci.schedule import steps
@@ -65,16 +69,19 @@ def program(host: str, config: str, out: str, n_payloads: int, factor: float) ->
 
     robot = franky.Robot(host, realtime_config=franky.RealtimeConfig.Ignore)
     gripper = franky.Gripper(host)
-    plugin = PayloadPlugin(robot, config)
+    plugin = None if config is None else PayloadPlugin(robot, config)
     rows: list = []
     reasons: list = []
-    plugin.service.on_cycle.append(_recorder(rows, reasons, plugin.service))
+    if plugin is not None:
+        plugin.service.on_cycle.append(_recorder(rows, reasons, plugin.service))
     costs: list[int] = []
+    arrivals: list[int] = []
     clock = time.perf_counter_ns
-    feed = plugin.callback
+    feed = plugin.callback if plugin is not None else (lambda *_: None)
 
     def callback(state, *rest) -> None:
         t0 = clock()
+        arrivals.append(t0)
         feed(state, *rest)
         costs.append(clock() - t0)
 
@@ -88,6 +95,8 @@ def program(host: str, config: str, out: str, n_payloads: int, factor: float) ->
                 start = time.monotonic()
                 robot.move(motion)
                 motions.append(time.monotonic() - start)
+                if plugin is None:
+                    continue
                 ack = plugin.apply()
                 t = float(robot.state.time.to_sec())
                 applies.append({"t": t, "ack": ack is not None,
@@ -106,10 +115,11 @@ def program(host: str, config: str, out: str, n_payloads: int, factor: float) ->
                 while float(robot.state.time.to_sec()) < end:
                     time.sleep(0.01)
     finally:
-        summary = plugin.close()
+        summary = plugin.close() if plugin is not None else {}
     with open(out, "w", encoding="utf-8") as f:
         json.dump({"rows": rows, "reasons": reasons, "summary": _json_safe(summary),
-                   "costs_ns": costs, "applies": applies, "motions_s": motions}, f)
+                   "costs_ns": costs, "arrivals_ns": arrivals, "applies": applies,
+                   "motions_s": motions}, f)
     return 0
 
 
@@ -138,7 +148,8 @@ def main(argv=None) -> int:
     sub = parser.add_subparsers(dest="client", required=True)
     p = sub.add_parser("program")
     p.add_argument("--host", required=True)
-    p.add_argument("--config", required=True)
+    p.add_argument("--config", help="the cell configuration (none: the program without the "
+                   "plug-in)")
     p.add_argument("--out", required=True)
     p.add_argument("--payloads", type=int, required=True)
     p.add_argument("--factor", type=float, required=True)

@@ -47,7 +47,7 @@ import numpy as np
 
 from iem.errors import InvalidInputError
 
-WAYS = ("program", "run")
+WAYS = ("program", "run", "bare")
 CALLBACK_P99_US = 50.0
 """The callback's cost per state, 99th percentile, at most this (µs)."""
 FACTOR = 0.25
@@ -64,7 +64,8 @@ CLIENT_TIMEOUT_S = 900.0
 
 def configure(parser) -> None:
     parser.add_argument("--ways", default=",".join(WAYS),
-                        help=f"comma-separated: {', '.join(WAYS)} (default both)")
+                        help=f"comma-separated: {', '.join(WAYS)} (default all; bare: the "
+                        "program without the plug-in, for the control loop's pace)")
     parser.add_argument("--arm", metavar="ARM", help="an arm file of franky-sim's FR3 from "
                         "'iem calibrate' (with --model: no commissioning run)")
     parser.add_argument("--model", metavar="FILE", help="a model trained for --arm")
@@ -142,8 +143,8 @@ def _cell(path: FsPath, link: dict, model: FsPath, arm: FsPath) -> FsPath:
 
 def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
             log=print) -> dict:
-    """One run of the pick-and-place, ``way`` ``"program"`` or ``"run"``: the scene's
-    truth log and the client's records."""
+    """One run of the pick-and-place, ``way`` ``"program"``, ``"run"`` or ``"bare"`` (the
+    program without the plug-in): the scene's truth log and the client's records."""
     from deploy.bench.fci.schedule import MOTION_S, payload_files, poses, steps
     from deploy.simcell import FciSim
     from sim.paths import linear_path
@@ -156,12 +157,15 @@ def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
     records = work / f"{way}.json"
     t0 = time.monotonic()
     with FciSim(initial_q=poses()["home"]) as scene:
-        if way == "program":
-            cell = _cell(work / "cell-program.toml", {"kind": "program"}, copy, arm)
+        if way in ("program", "bare"):
+            config = []
+            if way == "program":
+                cell = _cell(work / "cell-program.toml", {"kind": "program"}, copy, arm)
+                config = ["--config", str(cell)]
             scene.grasp_queue(payloads)
             client = subprocess.run(
                 [sys.executable, "-m", "deploy.bench.fci.clients", "program", "--host",
-                 scene.host, "--config", str(cell), "--out", str(records), "--payloads",
+                 scene.host, *config, "--out", str(records), "--payloads",
                  str(n_payloads), "--factor", str(FACTOR)], capture_output=True, text=True,
                 timeout=CLIENT_TIMEOUT_S)
             if client.returncode:
@@ -213,7 +217,7 @@ def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
 
 def score_run(run: dict) -> dict:
     """The run's figures (:mod:`deploy.bench.fci.score`)."""
-    from deploy.bench.fci.score import changes, cost_us
+    from deploy.bench.fci.score import arrivals_ms, changes, cost_us
     from sim.robot import ArmModel
 
     kinematics = ArmModel(description="fr3")
@@ -222,10 +226,12 @@ def score_run(run: dict) -> dict:
     def regressor(q):
         return kinematics.payload_regressor(q, zero, zero)
 
-    rows = changes(run["events"], regressor, run["end_s"], run.get("rows"), run.get("reasons"))
+    rows = ([] if run["way"] == "bare" else
+            changes(run["events"], regressor, run["end_s"], run.get("rows"), run.get("reasons")))
     summary = run.get("summary") or {}
     frames = summary.get("frames") or {}
     return {"way": run["way"], "changes": rows, "callback_us": cost_us(run.get("costs_ns")),
+            "arrivals_ms": arrivals_ms(run.get("arrivals_ns")),
             "pace": run["end_s"] / max(run["wall_s"], 1e-9),
             "states_received": frames.get("received"), "states_lost": frames.get("lost"),
             "writes": summary.get("writes"), "motions_s": run.get("motions_s"),
@@ -262,8 +268,18 @@ def print_way(result: dict, log=print) -> None:
     from deploy.bench.fci.schedule import SETTLE_S
     from deploy.bench.writeback.score import fmt
 
-    log(f"\n{result['way']}: robot time ran at {result['pace']:.2f}x the wall clock; "
-        f"states received {result['states_received']}, lost {result['states_lost']}")
+    bare = result["way"] == "bare"
+    log(f"\n{result['way']}{' (the program without the plug-in)' if bare else ''}: robot time "
+        f"ran at {result['pace']:.2f}x the wall clock"
+        + ("" if bare else f"; states received {result['states_received']}, lost "
+                           f"{result['states_lost']}"))
+    a = result.get("arrivals_ms")
+    if a is not None:
+        log(f"  the control loop's pace (from one callback's start to the next, within a "
+            f"motion): p50 {a['p50']:.3f}, p99 {a['p99']:.3f}, p99.9 {a['p999']:.3f}, max "
+            f"{a['max']:.2f} ms; {a['late']} of {a['n']} at 2 ms or more")
+    if bare:
+        return
     log("  change          motion s  latency s  mass err kg  CoM err mm  torque err N·m  "
         "writes  farther  bare  refused(moving)")
     for r in result["changes"]:

@@ -23,7 +23,10 @@ Per payload change (a mount or a release) at ``t_change``, with the motion that 
   ``t_end`` to ``t_next`` (from the client's per-point record of the latest decision), what
   held the load that would have been correct.
 
-The callback's cost is the program's own timing of each call (p50, p99, max, µs).
+The callback's cost is the program's own timing of each call (p50, p99, max, µs); the
+control loop's pace, the wall time between the starts of consecutive callbacks of a motion
+(:func:`arrivals_ms`): franky calls them from the robot's 1 kHz loop, so a late one is a
+loop held beyond its cycle (by what else the program's interpreter runs, for one).
 """
 
 from __future__ import annotations
@@ -153,6 +156,29 @@ def changes(events: list, regressor, end: float, rows=None, reasons=None) -> lis
                      and len(reasons) == len(rows) else None),
         })
     return out
+
+
+MOTION_GAP_S = 0.1
+"""Callbacks further apart than this are in different motions (the program rests, grasps
+or writes between them): not a step of the control loop."""
+LATE_MS = 2.0
+"""A callback that began this long or more after the one before it: the control loop was
+held a cycle or more beyond its 1 ms."""
+
+
+def arrivals_ms(arrivals_ns) -> dict | None:
+    """The control loop's pace seen from the callback: the wall time between the starts of
+    consecutive callbacks within a motion, ``{"n", "p50", "p99", "p999", "max", "late"}``
+    (ms; ``late``: how many were :data:`LATE_MS` or more), None without any."""
+    if arrivals_ns is None or len(arrivals_ns) < 2:
+        return None
+    gaps = np.diff(np.asarray(arrivals_ns, dtype=float)) / 1e6
+    gaps = gaps[gaps < 1e3 * MOTION_GAP_S]
+    if gaps.size == 0:
+        return None
+    return {"n": int(gaps.size), "p50": float(np.percentile(gaps, 50)),
+            "p99": float(np.percentile(gaps, 99)), "p999": float(np.percentile(gaps, 99.9)),
+            "max": float(gaps.max()), "late": int((gaps >= LATE_MS).sum())}
 
 
 def cost_us(costs_ns) -> dict | None:

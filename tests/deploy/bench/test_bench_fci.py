@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from deploy.bench.fci.schedule import PAYLOADS, payload_files, steps
-from deploy.bench.fci.score import changes, cost_us, timelines
+from deploy.bench.fci.score import arrivals_ms, changes, cost_us, timelines
 from deploy.cli import main
 from sim.payload import load_payload
 
@@ -95,6 +95,18 @@ def test_the_timelines_and_the_callback_cost():
     assert tl["motions"] == [(1.5, 4.5), (6.0, 9.0)] and tl["refused"] == [2.0]
     c = cost_us([1000] * 99 + [100000])
     assert c["n"] == 100 and c["p50"] == 1.0 and c["max"] == 100.0
+
+
+def test_the_control_loops_pace_counts_late_callbacks_within_motions_only():
+    """Two motions of 1 ms steps, one step held 3 ms, and 2 s of rest between them: the rest
+    is no step; the held one is late."""
+    ms = 1_000_000
+    first = [k * ms for k in range(100)]
+    first[60:] = [t + 2 * ms for t in first[60:]]  # the loop held 2 ms beyond its cycle
+    second = [first[-1] + 2000 * ms + k * ms for k in range(100)]
+    a = arrivals_ms(first + second)
+    assert a["n"] == 198 and a["late"] == 1 and a["max"] == pytest.approx(3.0)
+    assert a["p50"] == pytest.approx(1.0) and arrivals_ms([5]) is None
 
 
 def test_the_figure_is_drawn(tmp_path):
