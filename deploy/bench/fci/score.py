@@ -26,7 +26,8 @@ Per payload change (a mount or a release) at ``t_change``, with the motion that 
 The callback's cost is the program's own timing of each call (p50, p99, max, µs); the
 control loop's pace, the wall time between the starts of consecutive callbacks of a motion
 (:func:`arrivals_ms`): franky calls them from the robot's 1 kHz loop, so a late one is a
-loop held beyond its cycle (by what else the program's interpreter runs, for one).
+loop held beyond its cycle (by whatever kept its thread from running: the machine's other
+work, or the program's interpreter lock held by another of its threads).
 """
 
 from __future__ import annotations
