@@ -387,6 +387,11 @@ class FciSim:
             self.close()
             raise
 
+    @property
+    def pid(self) -> int:
+        """The process id of the simulator's process (franky-sim's server runs there)."""
+        return self._proc.pid
+
     def _call(self, cmd: str, arg=None, timeout: float = CALL_TIMEOUT_S):
         if not self._proc.is_alive():
             raise FciSimError(f"franky-sim ended (exit code {self._proc.exitcode})")

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import time
@@ -59,9 +60,11 @@ def _json_safe(value):
         return str(value)
 
 
-def program(host: str, config: str | None, out: str, n_payloads: int, factor: float) -> int:
+def program(host: str, config: str | None, out: str, n_payloads: int, factor: float,
+            fifo: int = 0) -> int:
     """The pick-and-place as a franky program, the plug-in inside (``config`` None: the same
-    program without it, the control loop's pace to compare with)."""
+    program without it, the control loop's pace to compare with); ``fifo``: the real-time
+    priority franky's control loop takes at its first callback (``SCHED_FIFO``; 0: none)."""
     import franky
 
     from deploy.bench.fci.schedule import steps
@@ -79,7 +82,12 @@ def program(host: str, config: str | None, out: str, n_payloads: int, factor: fl
     clock = time.perf_counter_ns
     feed = plugin.callback if plugin is not None else (lambda *_: None)
 
+    realtime = [fifo]
+
     def callback(state, *rest) -> None:
+        if realtime[0]:  # franky calls this from its control loop's thread
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(realtime[0]))
+            realtime[0] = 0
         t0 = clock()
         arrivals.append(t0)
         feed(state, *rest)
@@ -153,12 +161,15 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--payloads", type=int, required=True)
     p.add_argument("--factor", type=float, required=True)
+    p.add_argument("--fifo", type=int, default=0,
+                   help="the control loop's SCHED_FIFO priority (0: none)")
     r = sub.add_parser("run")
     r.add_argument("--config", required=True)
     r.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     if args.client == "program":
-        return program(args.host, args.config, args.out, args.payloads, args.factor)
+        return program(args.host, args.config, args.out, args.payloads, args.factor,
+                       args.fifo)
     return run(args.config, args.out)
 
 

@@ -60,6 +60,9 @@ for seconds after the motion that carried it; a retry is one TCP command."""
 CALIBRATION_MARGIN_S = (0.5, 1.5)
 """Rest before and after the calibration motion, s."""
 CLIENT_TIMEOUT_S = 900.0
+FIFO_PRIORITY = {"loop": 80, "robot": 70}
+"""``--fifo``: the ``SCHED_FIFO`` priorities of franky's control loop and of franky-sim (the
+robot's side, which on a real cell is the robot's own controller)."""
 
 
 def configure(parser) -> None:
@@ -73,6 +76,10 @@ def configure(parser) -> None:
                         help="payloads picked and placed (1 to 3, default 3)")
     parser.add_argument("--out", metavar="DIR", help="keep the files and figures here")
     parser.add_argument("--json", metavar="FILE", help="write every figure as JSON")
+    parser.add_argument("--fifo", action="store_true",
+                        help="franky's control loop and franky-sim at real-time priority "
+                        "(SCHED_FIFO), as on a cell PC with a real-time kernel; needs the "
+                        "permission to set it (root or CAP_SYS_NICE)")
 
 
 def _iem(*args: str) -> list[str]:
@@ -141,8 +148,22 @@ def _cell(path: FsPath, link: dict, model: FsPath, arm: FsPath) -> FsPath:
     return path
 
 
+def realtime(pid: int, priority: int) -> None:
+    """Every thread of process ``pid`` at ``SCHED_FIFO`` ``priority``; a clear error where the
+    machine does not let this process set it."""
+    import os
+
+    try:
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
+    except (PermissionError, AttributeError, FileNotFoundError) as exc:
+        raise InvalidInputError(f"--fifo: this machine does not let the bench set real-time "
+                                f"priority ({type(exc).__name__}: {exc}); run it as root or "
+                                "with CAP_SYS_NICE, or without --fifo") from exc
+
+
 def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
-            log=print) -> dict:
+            log=print, fifo: bool = False) -> dict:
     """One run of the pick-and-place, ``way`` ``"program"``, ``"run"`` or ``"bare"`` (the
     program without the plug-in): the scene's truth log and the client's records."""
     from deploy.bench.fci.schedule import MOTION_S, payload_files, poses, steps
@@ -157,6 +178,8 @@ def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
     records = work / f"{way}.json"
     t0 = time.monotonic()
     with FciSim(initial_q=poses()["home"]) as scene:
+        if fifo:
+            realtime(scene.pid, FIFO_PRIORITY["robot"])
         if way in ("program", "bare"):
             config = []
             if way == "program":
@@ -166,7 +189,8 @@ def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
             client = subprocess.run(
                 [sys.executable, "-m", "deploy.bench.fci.clients", "program", "--host",
                  scene.host, *config, "--out", str(records), "--payloads",
-                 str(n_payloads), "--factor", str(FACTOR)], capture_output=True, text=True,
+                 str(n_payloads), "--factor", str(FACTOR), "--fifo",
+                 str(FIFO_PRIORITY["loop"] if fifo else 0)], capture_output=True, text=True,
                 timeout=CLIENT_TIMEOUT_S)
             if client.returncode:
                 raise InvalidInputError(f"the franky program failed: "
@@ -316,7 +340,7 @@ def run(args) -> int:
         else:
             arm, model = FsPath(args.arm), FsPath(args.model)
         for way in ways:
-            raw = run_way(way, work, arm, model, args.payloads)
+            raw = run_way(way, work, arm, model, args.payloads, fifo=args.fifo)
             scored = result["ways"][way] = score_run(raw)
             print_way(scored)
             if args.out:
