@@ -52,7 +52,35 @@ POLL_S = 0.001
 """How often ``read`` looks for a fed state while it waits, s."""
 
 
-def _values(state) -> tuple[float, tuple, tuple]:
+def write_load(robot, read_state, args, timeout: float) -> tuple[bool, str, tuple | None]:
+    """``robot.set_load(*args)`` and the robot's state read after it: ``(applied, error
+    text, the load it reports then)`` (:func:`load_values`; None: none read). Applied: the
+    state read until it reports ``args`` (:data:`SETTLE_STATES` reads at most, within
+    ``timeout`` s); refused: the robot's words and the first state after."""
+    try:
+        robot.set_load(*args)
+    except Exception as exc:  # the robot's refusal, in its own words
+        state = _read_after(robot, read_state, args, settle=False, timeout=timeout)
+        return False, f"{type(exc).__name__}: {exc}", \
+            None if state is None else load_values(state)
+    state = _read_after(robot, read_state, args, settle=True, timeout=timeout)
+    return True, "", None if state is None else load_values(state)
+
+
+def _read_after(robot, read_state, args, settle: bool, timeout: float):
+    """The robot's state read after the command: the first that reports ``args`` (at most
+    :data:`SETTLE_STATES` reads), or the first read at all (``settle`` False)."""
+    deadline = time.perf_counter() + timeout
+    state = None
+    for _ in range(SETTLE_STATES):
+        state = read_state(robot)
+        if not settle or load_matches(load_values(state), args) \
+                or time.perf_counter() > deadline:
+            break
+    return state
+
+
+def load_values(state) -> tuple[float, tuple, tuple]:
     """``(m_load, F_x_Cload, I_load)`` of a franky or pylibfranka ``RobotState`` (I_load
     column-major: franky gives the 3x3 matrix, pylibfranka the 9 values)."""
     return (float(state.m_load), tuple(np.asarray(state.F_x_Cload, dtype=float).ravel()),
@@ -113,34 +141,29 @@ class ProgramLink:
     def apply(self, timeout: float = 1.0) -> LoadAck | None:
         """Between motions: the kept command to the robot's ``set_load`` (see the module
         docstring); its acknowledgement, or None when no command waits."""
-        self._moving = False
-        kept, self._kept = self._kept, None
+        kept = self.take()
         if kept is None:
             return None
         seq, args = kept
-        try:
-            self.robot.set_load(*args)
-        except Exception as exc:  # the robot's refusal, in its own words
-            state = self._read_after(args, settle=False, timeout=timeout)
-            return self._ack(seq, False, f"{type(exc).__name__}: {exc}", state)
-        state = self._read_after(args, settle=True, timeout=timeout)
-        return self._ack(seq, True, "", state)
+        return self.settle(seq, *write_load(self.robot, self.read_state, args, timeout))
 
-    def _read_after(self, args, settle: bool, timeout: float):
-        """The robot's state read after the command: the first that reports ``args`` (at
-        most :data:`SETTLE_STATES` reads), or the first read at all (``settle`` False)."""
-        deadline = time.perf_counter() + timeout
-        state = None
-        for _ in range(SETTLE_STATES):
-            state = self.read_state(self.robot)
-            if not settle or load_matches(_values(state), args) \
-                    or time.perf_counter() > deadline:
-                break
-        return state
+    def take(self) -> tuple[int, tuple] | None:
+        """Between motions: the kept command, taken (``(sequence, set_load's arguments)``, or
+        None when none waits); the program no longer feeds a motion."""
+        self._moving = False
+        kept, self._kept = self._kept, None
+        return kept
+
+    def settle(self, seq: int, applied: bool, error: str,
+               values: tuple | None) -> LoadAck:
+        """The robot's answer to the taken command ``seq`` (:func:`write_load`'s): its
+        acknowledgement, with the load the robot reported after it (``values``, as
+        :func:`load_values` gives them; None: none read)."""
+        return self._ack(seq, applied, error, values)
 
     # -- source ----------------------------------------------------------------------------
     def _take_load(self, state) -> None:
-        key = _values(state)
+        key = load_values(state)
         if key != self._load_key:
             self._load_key = key
             self._load = reported_load(key)
@@ -200,10 +223,10 @@ class ProgramLink:
             self._ack(self._seq, False, MOVING, None)
         return self._seq
 
-    def _ack(self, seq: int, applied: bool, error: str, state) -> LoadAck:
+    def _ack(self, seq: int, applied: bool, error: str, values) -> LoadAck:
         load = self._load
-        if state is not None:
-            load = reported_load(_values(state))
+        if values is not None:
+            load = reported_load(values)
         ack = LoadAck(seq=seq, applied=applied, load=load, t=time.perf_counter(),
                       error=error)
         self.last_ack = self.acks[seq] = ack

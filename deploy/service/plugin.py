@@ -16,8 +16,11 @@ each), on the ``program`` link (:mod:`firmware_bridge.program_link`)::
 
 - :meth:`PayloadPlugin.callback` (franky's callback signature) and :meth:`PayloadPlugin.feed`
   (one ``RobotState``: a pylibfranka control callback or ``read_once`` loop) run in the
-  robot's 1 kHz loop: they append the state to a deque and return (a microsecond or two); the
-  service estimates in a thread of its own.
+  robot's 1 kHz loop: they append the state to a deque and return (a microsecond or two). A
+  writer thread hands the states to the service's process every :data:`WRITE_PERIOD_S`
+  (:mod:`deploy.service.plugin_process`), where the service estimates: the robot's loop
+  needs the program's interpreter lock to call the callback, and a service estimating in a
+  thread of the program held that lock when the loop needed it.
 - :meth:`PayloadPlugin.apply` is called between motions (the robot refuses ``setLoad`` while
   one runs): it writes the load the gate let through, with the robot's ``set_load``, in the
   caller's thread, and returns its acknowledgement (the load in force read from the robot's
@@ -26,25 +29,47 @@ each), on the ``program`` link (:mod:`firmware_bridge.program_link`)::
   verdict.
 
 The configuration is a ``cell.toml`` (or a :class:`deploy.config.CellConfig`) whose
-``[link]`` kind is ``"program"``. franky and pylibfranka cannot be
+``[link]`` kind is ``"program"``; it and ``model`` are handed to the service's process,
+whose log goes to the program's standard error. franky and pylibfranka cannot be
 imported into one process (both register libfranka's types with pybind11); the plug-in imports
 neither.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import pickle
+import subprocess
+import sys
 import threading
-import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_bridge.franka_process import _HEADER, _STATE, _read_frame
+from firmware_bridge.links import BUFFERED_CYCLES
 from iem.payload import Payload
 
-CATCH_UP_POLL_S = 0.002
-CATCH_UP_S = 0.05
-"""After the fed states are read, how long :meth:`PayloadPlugin.apply` gives the service for
-the last block point and the gate's decision on it (its decision period), s."""
+from .plugin_process import (
+    CLOSE,
+    FAILED,
+    READING,
+    READY,
+    SETTLE,
+    START,
+    TAKE,
+    TAKE_BODY,
+    state_frame,
+)
+
+WRITE_PERIOD_S = 0.005
+"""How often the writer thread hands the fed states to the service's process, s: a few
+writes of several states each, rather than one wake-up of that process per state."""
+CLOSE_TIMEOUT_S = 30.0
+"""How long :meth:`PayloadPlugin.close` waits for the service's process to save its model and
+end before it is killed, s."""
 READ_STATE = {
     "franky": lambda robot: robot.state,
     "pylibfranka": lambda robot: robot.read_once(),
@@ -76,6 +101,40 @@ class Reading:
     verdict: dict
 
 
+class Latest:
+    """The newest estimate of the service (an ``on_cycle`` observer), and the
+    :class:`Reading` it makes with the load in force and the gate's verdict."""
+
+    def __init__(self) -> None:
+        self._last = None
+        self._lock = threading.Lock()
+
+    def __call__(self, record) -> None:
+        std = getattr(record.raw, "std", None)
+        with self._lock:
+            self._last = (float(record.state.t), np.array(record.smoothed, dtype=float),
+                          None if std is None else np.array(std, dtype=float))
+
+    def reading(self, report, verdict: dict) -> Reading:
+        """The :class:`Reading` with ``report`` (the link's load report, or None) and the
+        gate's ``verdict``."""
+        with self._lock:
+            last = self._last
+        in_force = None if report is None else report.load
+        if last is None:
+            return Reading(None, None, None, None, in_force, dict(verdict))
+        t, smoothed, std = last
+        payload = None
+        if smoothed[0] > 0.0:
+            payload = Payload.from_phi(smoothed, name="estimate")
+        mass_band = com_band = None
+        if std is not None:
+            mass_band = (float(smoothed[0] - 2 * std[0]), float(smoothed[0] + 2 * std[0]))
+            if smoothed[0] > 0.0:
+                com_band = tuple(float(2 * s / smoothed[0]) for s in std[1:4])
+        return Reading(t, payload, mass_band, com_band, in_force, dict(verdict))
+
+
 class PayloadPlugin:
     """The plug-in in a franky or pylibfranka program (see the module docstring).
 
@@ -86,13 +145,14 @@ class PayloadPlugin:
         read_state: how to read one state from ``robot`` between motions (None: by the
             robot's library, :data:`READ_STATE`).
         model: the estimator to use (None: the configuration's model file).
+        record_to: a JSON file the service writes at :meth:`close`: every block point's
+            time, smoothed mass and first moment, their standard deviations (``rows``) and
+            the reason of the gate's latest decision then (``reasons``); None: none.
     """
 
-    def __init__(self, robot, config, *, read_state=None, model=None) -> None:
+    def __init__(self, robot, config, *, read_state=None, model=None,
+                 record_to=None) -> None:
         from deploy.config import ConfigError, load_config
-        from firmware_bridge.program_link import ProgramLink
-
-        from .loop import Service
 
         cfg = load_config(config) if isinstance(config, str | bytes) or hasattr(
             config, "__fspath__") else config
@@ -107,25 +167,58 @@ class PayloadPlugin:
                                 f"{type(robot).__name__}; valid are a franky.Robot or a "
                                 "pylibfranka.Robot, or give read_state=")
             read_state = READ_STATE[library]
-        self.link = ProgramLink(robot, read_state, silence_timeout=cfg.link.silence_timeout_s)
-        self.service = Service(cfg, link=self.link, model=model)
-        self._last = None
-        self._lock = threading.Lock()
-        self.service.on_cycle.append(self._keep)
-        self.service.open()
+        self.robot, self.read_state = robot, read_state
         self.summary: dict | None = None
-        self._thread = threading.Thread(target=self._run, name="iem-plugin", daemon=True)
+        self.written = 0
+        """States written to the service's process."""
+        self.dropped = 0
+        """States fed and never handed to the service: fed while
+        :data:`~firmware_bridge.links.BUFFERED_CYCLES` states waited for the writer (the
+        service's process that far behind, its pipe full), or after its process ended."""
+        self._lock = threading.Lock()  # one command at a time
+        self._closed = False
+        self._fed: deque = deque()
+        self._write_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._child, self._states = _start(cfg, model, record_to)
+        self._thread = threading.Thread(target=self._writer, name="iem-plugin-writer",
+                                        daemon=True)
         self._thread.start()
 
     # -- the robot's loop --------------------------------------------------------------------
     def feed(self, robot_state) -> None:
-        """One ``RobotState`` from the robot's loop (appended; estimated in another thread)."""
-        self.link.feed(robot_state)
+        """One ``RobotState`` from the robot's loop: appended for the writer thread, never
+        waited for (beyond :data:`~firmware_bridge.links.BUFFERED_CYCLES` states waiting, it
+        is dropped and counted in :attr:`dropped`)."""
+        fed = self._fed
+        if len(fed) >= BUFFERED_CYCLES:
+            self.dropped += 1
+            return
+        fed.append(robot_state)
+
+    def _write(self) -> None:
+        """The states fed so far, to the service's process (one write; it waits while the
+        pipe is full, the callback never does)."""
+        with self._write_lock:
+            fed, frames = self._fed, []
+            while fed:
+                frames.append(state_frame(fed.popleft()))
+            if frames:
+                try:
+                    os.write(self._states, b"".join(frames))
+                except OSError:  # the service's process is gone
+                    self.dropped += len(frames)
+                    return
+                self.written += len(frames)
+
+    def _writer(self) -> None:
+        while not self._stop.wait(WRITE_PERIOD_S):
+            self._write()
 
     def callback(self, robot_state, *_) -> None:
         """franky's motion callback (``robot_state, time_step, rel_time, abs_time,
         control_signal``): :meth:`feed`."""
-        self.link.feed(robot_state)
+        self.feed(robot_state)
 
     # -- between motions ---------------------------------------------------------------------
     def apply(self, timeout: float = 1.0):
@@ -136,49 +229,57 @@ class PayloadPlugin:
         It first lets the service estimate what the motion fed and has not been estimated
         yet (the service may lag behind the robot's loop), for at most half of ``timeout``
         s, so the load written is judged on the whole motion."""
-        deadline = time.monotonic() + 0.5 * timeout
-        while self.link.backlog and time.monotonic() < deadline:
-            time.sleep(CATCH_UP_POLL_S)
-        if time.monotonic() < deadline:
-            time.sleep(min(CATCH_UP_S, deadline - time.monotonic()))  # its last decision
-        return self.link.apply(0.5 * timeout)
+        from firmware_bridge.program_link import write_load
+
+        self._write()
+        kept = self._call(TAKE, TAKE_BODY.pack(self.written, 0.5 * timeout))
+        if kept is None:
+            return None
+        seq, args = kept
+        answer = write_load(self.robot, self.read_state, args, 0.5 * timeout)
+        return self._call(SETTLE, pickle.dumps((seq, *answer)))
 
     def reading(self) -> Reading:
         """The newest estimate, its band, the load in force and the gate's verdict."""
-        with self._lock:
-            last = self._last
-        report = self.link.load_report
-        verdict = dict(self.service.gate.verdict())
-        if last is None:
-            return Reading(None, None, None, None, None if report is None else report.load,
-                           verdict)
-        t, smoothed, std = last
-        payload = None
-        if smoothed[0] > 0.0:
-            payload = Payload.from_phi(smoothed, name="estimate")
-        mass_band = com_band = None
-        if std is not None:
-            mass_band = (float(smoothed[0] - 2 * std[0]), float(smoothed[0] + 2 * std[0]))
-            if smoothed[0] > 0.0:
-                com_band = tuple(float(2 * s / smoothed[0]) for s in std[1:4])
-        return Reading(t, payload, mass_band, com_band,
-                       None if report is None else report.load, verdict)
+        return self._call(READING)
 
     # -- life --------------------------------------------------------------------------------
-    def _keep(self, record) -> None:
-        std = getattr(record.raw, "std", None)
+    def _call(self, kind: bytes, body: bytes = b""):
         with self._lock:
-            self._last = (float(record.state.t), np.array(record.smoothed, dtype=float),
-                          None if std is None else np.array(std, dtype=float))
-
-    def _run(self) -> None:
-        self.summary = self.service.run()
+            if self._closed:
+                raise RuntimeError("PayloadPlugin: closed")
+            try:
+                self._child.stdin.write(_HEADER.pack(kind, len(body)) + body)
+                self._child.stdin.flush()
+                frame = _read_frame(self._child.stdout)
+            except OSError:
+                frame = None
+            if frame is None:
+                raise RuntimeError(f"PayloadPlugin: the service's process ended (exit code "
+                                   f"{self._child.poll()})")
+            return pickle.loads(frame[1])
 
     def close(self) -> dict | None:
         """Stop estimating, save the model (its checkpoint) and return the run's summary."""
-        self.service.stop()
+        if self._closed:
+            return self.summary
+        self._stop.set()
         self._thread.join()
-        self.service.close()
+        self._write()
+        try:
+            self.summary = self._call(CLOSE)
+        finally:
+            self._closed = True
+            with contextlib.suppress(OSError):
+                os.close(self._states)
+            with contextlib.suppress(OSError):
+                self._child.stdin.close()
+            try:
+                self._child.wait(timeout=CLOSE_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self._child.kill()
+                self._child.wait()
+            self._child.stdout.close()
         return self.summary
 
     def __enter__(self) -> PayloadPlugin:
@@ -186,3 +287,52 @@ class PayloadPlugin:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _widen(fd: int, size: int) -> None:
+    """Make the pipe ``fd`` hold ``size`` bytes, or as much as this system lets an
+    unprivileged process ask for (Linux; elsewhere it keeps its default)."""
+    import fcntl
+
+    op = getattr(fcntl, "F_SETPIPE_SZ", None)
+    if op is None:
+        return
+    try:
+        with open("/proc/sys/fs/pipe-max-size", encoding="ascii") as f:
+            size = min(size, int(f.read()))
+    except (OSError, ValueError):
+        pass
+    with contextlib.suppress(OSError):
+        fcntl.fcntl(fd, op, size)
+
+
+def _start(config, model, record_to) -> tuple[subprocess.Popen, int]:
+    """The service's process, started with ``config`` and ``model`` and running: ``(the
+    process, the write end of its states pipe)``; what stopped it from starting is raised
+    here."""
+    read_end, write_end = os.pipe()
+    try:
+        child = subprocess.Popen([sys.executable, "-m", "deploy.service.plugin_process",
+                                  str(read_end)], stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, pass_fds=(read_end,))
+    finally:
+        os.close(read_end)
+    _widen(write_end, BUFFERED_CYCLES * (_HEADER.size + _STATE.size))
+    body = pickle.dumps((config, model, None if record_to is None else os.fspath(record_to)))
+    try:
+        child.stdin.write(_HEADER.pack(START, len(body)) + body)
+        child.stdin.flush()
+        frame = _read_frame(child.stdout)
+    except OSError:
+        frame = None
+    if frame is None or frame[0] != READY:
+        os.close(write_end)
+        with contextlib.suppress(OSError):
+            child.stdin.close()
+        child.wait(timeout=CLOSE_TIMEOUT_S)
+        child.stdout.close()
+        if frame is not None and frame[0] == FAILED:
+            raise pickle.loads(frame[1])
+        raise RuntimeError(f"PayloadPlugin: the service's process did not start (exit code "
+                           f"{child.returncode})")
+    return child, write_end

@@ -31,26 +31,10 @@ import signal
 import sys
 import time
 
-import numpy as np
-
 GRASP = {"width": 0.02, "speed": 0.05, "force": 20.0, "epsilon_inner": 0.01,
          "epsilon_outer": 0.1}
 """franky ``Gripper.grasp`` arguments: close on nothing (the scene holds the payload)."""
 OPEN_M = 0.08
-
-
-def _recorder(rows: list, reasons: list, service):
-    """An ``on_cycle`` observer keeping a row per block point and the reason of the gate's
-    latest decision then (the decision before that point's: observers run before the
-    gate's step; ``""`` before the first)."""
-    def keep(record) -> None:
-        s = np.asarray(record.smoothed, dtype=float)
-        std = getattr(record.raw, "std", None)
-        sd = [float("nan")] * 4 if std is None else [float(v) for v in np.asarray(std)[:4]]
-        rows.append([float(record.state.t), *(float(v) for v in s[:4]), *sd])
-        gate = service.gate
-        reasons.append("" if gate is None else gate.verdict()["reason"])
-    return keep
 
 
 def _json_safe(value):
@@ -72,11 +56,8 @@ def program(host: str, config: str | None, out: str, n_payloads: int, factor: fl
 
     robot = franky.Robot(host, realtime_config=franky.RealtimeConfig.Ignore)
     gripper = franky.Gripper(host)
-    plugin = None if config is None else PayloadPlugin(robot, config)
-    rows: list = []
-    reasons: list = []
-    if plugin is not None:
-        plugin.service.on_cycle.append(_recorder(rows, reasons, plugin.service))
+    records = f"{out}.records"
+    plugin = None if config is None else PayloadPlugin(robot, config, record_to=records)
     costs: list[int] = []
     arrivals: list[int] = []
     clock = time.perf_counter_ns
@@ -124,8 +105,15 @@ def program(host: str, config: str | None, out: str, n_payloads: int, factor: fl
                     time.sleep(0.01)
     finally:
         summary = plugin.close() if plugin is not None else {}
+    kept = {"rows": [], "reasons": []}
+    if plugin is not None:
+        with open(records, encoding="utf-8") as f:
+            kept = json.load(f)
+        os.unlink(records)
+        summary = {**summary, "states_written": plugin.written,
+                   "states_dropped": plugin.dropped}
     with open(out, "w", encoding="utf-8") as f:
-        json.dump({"rows": rows, "reasons": reasons, "summary": _json_safe(summary),
+        json.dump({**kept, "summary": _json_safe(summary),
                    "costs_ns": costs, "arrivals_ns": arrivals, "applies": applies,
                    "motions_s": motions}, f)
     return 0
@@ -134,11 +122,11 @@ def program(host: str, config: str | None, out: str, n_payloads: int, factor: fl
 def run(config: str, out: str) -> int:
     from deploy.config import load_config
     from deploy.service import Service
+    from deploy.service.plugin_process import PointRecords
 
     service = Service(load_config(config))
-    rows: list = []
-    reasons: list = []
-    service.on_cycle.append(_recorder(rows, reasons, service))
+    records = PointRecords(service)
+    service.on_cycle.append(records)
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     try:
         service.open()
@@ -147,7 +135,8 @@ def run(config: str, out: str) -> int:
     finally:
         service.close()
     with open(out, "w", encoding="utf-8") as f:
-        json.dump({"rows": rows, "reasons": reasons, "summary": _json_safe(summary)}, f)
+        json.dump({"rows": records.rows, "reasons": records.reasons,
+                   "summary": _json_safe(summary)}, f)
     return 0
 
 

@@ -74,8 +74,7 @@ def test_the_plugin_estimates_from_fed_states_and_writes_between_motions(
                 robot.last = robot.plant.step(path.q[k], path.dq[k], path.ddq[k])
                 plugin.callback(State(robot.last, robot.load), None, None, None, None)
             deadline = time.monotonic() + 60.0  # the service catches up with the motion
-            while plugin.link.counters.received < k + 1 or plugin.reading().t is None \
-                    or plugin.reading().t < robot.last.t - 0.1:
+            while plugin.reading().t is None or plugin.reading().t < robot.last.t - 0.1:
                 assert time.monotonic() < deadline, (plugin.reading().t, robot.last.t)
                 time.sleep(0.01)
             acks.append(plugin.apply())
@@ -89,6 +88,81 @@ def test_the_plugin_estimates_from_fed_states_and_writes_between_motions(
     assert summary["cycles"] > 1000 and summary["load_in_force_confirmed"]
     assert reading.payload is not None and reading.mass_band_kg is None  # IEM: no band
     assert reading.verdict["reason"] and MOVING.startswith("the arm is moving")
+
+
+def test_the_service_runs_outside_the_programs_process_and_the_callback_never_waits(
+        trained_fr3_model_file, tmp_path):
+    """The program's process gets one thread of the plug-in's, the writer that hands the fed
+    states over (the estimating holds another process's interpreter lock); with the
+    service's process stopped, every callback still returns: what neither the pipe nor the
+    writer's queue can hold is dropped and counted, and the service goes on when it
+    resumes."""
+    import os
+    import signal
+    import threading
+
+    from deploy.service import PayloadPlugin
+    from sim.family import default_test_payload
+    from sim.paths import excitation_path
+    from sim.robot import ArmModel
+
+    robot = Robot(default_test_payload())
+    path = excitation_path(12.0, model=ArmModel(description="fr3"))
+    robot.plant.reset(path.q[0])
+    config = program_config(tmp_path, trained_fr3_model_file, allow_without_uncertainty=True)
+    threads = set(threading.enumerate())
+    plugin = PayloadPlugin(robot, str(config), read_state=lambda r: State(r.last, r.load))
+    try:
+        assert [t.name for t in set(threading.enumerate()) - threads] == ["iem-plugin-writer"]
+        assert plugin._child.pid != os.getpid() and plugin._child.poll() is None
+        os.kill(plugin._child.pid, signal.SIGSTOP)
+        try:
+            for k in range(len(path.t)):
+                robot.last = robot.plant.step(path.q[k], path.dq[k], path.ddq[k])
+                plugin.callback(State(robot.last, robot.load), None, None, None, None)
+        finally:
+            os.kill(plugin._child.pid, signal.SIGCONT)
+        assert plugin.dropped > 0
+        deadline = time.monotonic() + 60.0
+        while plugin.reading().t is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+    finally:
+        summary = plugin.close()
+    assert summary["cycles"] > 0 and plugin.written + plugin.dropped == len(path.t)
+
+
+def test_the_service_process_ends_with_the_program(trained_fr3_model_file, tmp_path):
+    """A program killed outright takes the plug-in's process with it."""
+    import os
+    import signal
+
+    config = program_config(tmp_path, trained_fr3_model_file)
+    program = ("import sys, time\n"
+               "from deploy.service import PayloadPlugin\n"
+               f"plugin = PayloadPlugin(object(), {str(config)!r}, read_state=lambda r: None)\n"
+               "print(plugin._child.pid, flush=True)\n"
+               "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
+                              text=True, cwd=REPO)
+    try:
+        child = int(parent.stdout.readline())
+        os.kill(child, 0)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            return
+        with open(f"/proc/{child}/stat") as f:  # a zombie has ended: reaped by init
+            if f.read().split(")")[-1].split()[0] == "Z":
+                return
+        time.sleep(0.05)
+    os.kill(child, signal.SIGKILL)
+    raise AssertionError("the plug-in's process outlived its program by 10 s")
 
 
 def test_a_config_of_another_link_kind_is_refused(trained_fr3_model_file, tmp_path):
