@@ -16,7 +16,9 @@ franky-control 2.0.0):
      (:class:`deploy.service.PayloadPlugin`), its motions' callbacks feeding it, ``apply()``
      after each motion (:mod:`deploy.bench.fci.clients`);
    - ``run``: the plug-in as ``iem run`` runs it, the FCI client on the ``franka`` link,
-     while the robot's own program moves the arm and grasps.
+     while the robot's own program moves the arm and grasps;
+   - ``bare``: the ``program`` way's program without the plug-in, for the control loop's
+     pace beside it (``--fifo``: franky's loop and franky-sim at real-time priority).
 
 Per payload change it prints (:mod:`deploy.bench.fci.score`) the time from the end of the
 motion that carried the change to the correct load in force (read from the robot's
