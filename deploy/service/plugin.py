@@ -40,6 +40,7 @@ from __future__ import annotations
 import contextlib
 import os
 import pickle
+import struct
 import subprocess
 import sys
 import threading
@@ -52,17 +53,27 @@ from firmware_bridge.franka_process import _HEADER, _STATE, _read_frame
 from firmware_bridge.links import BUFFERED_CYCLES
 from iem.payload import Payload
 
-from .plugin_process import (
-    CLOSE,
-    FAILED,
-    READING,
-    READY,
-    SETTLE,
-    START,
-    TAKE,
-    TAKE_BODY,
-    state_frame,
-)
+# the frames between the program and the service's process (deploy.service.plugin_process)
+START, TAKE, SETTLE, READING, CLOSE = b"s", b"t", b"d", b"r", b"q"
+"""Program -> service's process, on its standard input."""
+READY, FAILED, REPLY = b"R", b"F", b"P"
+"""Service's process -> program, on its standard output: the service runs; it could not start
+(the exception); the answer to a command."""
+STATE = b"S"
+"""A state on the states pipe."""
+TAKE_BODY = struct.Struct("<Qd")  # states written by the program, the wait for them (s)
+
+
+def state_frame(state) -> bytes:
+    """A franky or pylibfranka ``RobotState`` as a frame of the states pipe: the 35 doubles
+    of :class:`firmware_bridge.franka_process.ProcessState`."""
+    values = (state.time.to_sec(), *np.asarray(state.q, dtype=float).ravel(),
+              *np.asarray(state.dq, dtype=float).ravel(),
+              *np.asarray(state.tau_J, dtype=float).ravel(), float(state.m_load),
+              *np.asarray(state.F_x_Cload, dtype=float).ravel(),
+              *np.asarray(state.I_load, dtype=float).ravel(order="F"))
+    return _HEADER.pack(STATE, _STATE.size) + _STATE.pack(*values)
+
 
 WRITE_PERIOD_S = 0.005
 """How often the writer thread hands the fed states to the service's process, s: a few

@@ -19,6 +19,7 @@ keeps only the callback's write of each state to a pipe.
   robot's answer to it: :meth:`ProgramLink.settle`); ``reading``; ``close`` (the run's
   summary; the model saved as the configuration says).
 - The child ends when its standard input closes or its parent dies (``PR_SET_PDEATHSIG``).
+  Anything it prints goes to standard error (the program's), never into the answers.
 
 The robot stays in the program's process: :func:`firmware_bridge.program_link.write_load`
 calls its ``set_load`` there, between motions.
@@ -29,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import struct
 import sys
 import threading
 import time
@@ -42,31 +42,12 @@ from firmware_bridge.franka_process import (
     _read_frame,
 )
 
-START, TAKE, SETTLE, READING, CLOSE = b"s", b"t", b"d", b"r", b"q"
-"""Parent -> child on standard input."""
-READY, FAILED, REPLY = b"R", b"F", b"P"
-"""Child -> parent on standard output: the service runs; it could not start (the exception);
-the answer to a command."""
-STATE = b"S"
-"""A state on the states pipe."""
-TAKE_BODY = struct.Struct("<Qd")  # states written by the program, the wait for them (s)
+from .plugin import CLOSE, FAILED, READING, READY, REPLY, SETTLE, START, TAKE, TAKE_BODY
 
 CATCH_UP_POLL_S = 0.002
 CATCH_UP_S = 0.05
 """After the program's states are estimated, how long ``take`` gives the service for the last
 block point and the gate's decision on it (its decision period), s."""
-
-
-def state_frame(state) -> bytes:
-    """A franky or pylibfranka ``RobotState`` as a frame of the states pipe."""
-    import numpy as np
-
-    values = (state.time.to_sec(), *np.asarray(state.q, dtype=float).ravel(),
-              *np.asarray(state.dq, dtype=float).ravel(),
-              *np.asarray(state.tau_J, dtype=float).ravel(), float(state.m_load),
-              *np.asarray(state.F_x_Cload, dtype=float).ravel(),
-              *np.asarray(state.I_load, dtype=float).ravel(order="F"))
-    return _HEADER.pack(STATE, _STATE.size) + _STATE.pack(*values)
 
 
 class PointRecords:
@@ -94,7 +75,11 @@ def _child(argv: list[str]) -> int:
         sys.stderr.write("usage: python -m deploy.service.plugin_process STATES_FD\n")
         return 2
     _end_with_parent()
-    inp, out = sys.stdin.buffer, sys.stdout.buffer
+    # the answers get standard output's pipe to themselves: whatever else prints here goes to
+    # standard error, never between two frames
+    inp, out = sys.stdin.buffer, os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
     lock = threading.Lock()
 
     def emit(kind: bytes, value=None) -> None:
