@@ -212,37 +212,15 @@ def test_the_robot_process_ends_with_the_process_that_started_it(scene):
     """pylibfranka's child process (:class:`firmware_bridge.franka_process.RobotProcess`)
     ends when the program that started it is killed, rather than holding the FCI, which the
     robot gives one client at a time."""
-    import os
-    import signal
-    import subprocess
-    import sys
+    from tests.orphans import assert_child_ends_with_its_program
 
-    program = ("import sys, time, pylibfranka\n"
-               "from firmware_bridge.franka_process import RobotProcess\n"
-               f"robot = RobotProcess({scene.host!r}, pylibfranka)\n"
-               "robot.read_once()\n"
-               "print(robot.pid, flush=True)\n"
-               "time.sleep(60)\n")
-    parent = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
-                              text=True)
-    try:
-        child = int(parent.stdout.readline())
-        os.kill(child, 0)  # running, reading states
-    finally:
-        parent.kill()
-        parent.wait()
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline:
-        try:
-            os.kill(child, 0)
-        except ProcessLookupError:
-            return
-        with open(f"/proc/{child}/stat") as f:  # a zombie has ended: reaped by init
-            if f.read().split(")")[-1].split()[0] == "Z":
-                return
-        time.sleep(0.05)
-    os.kill(child, signal.SIGKILL)
-    raise AssertionError("the robot process outlived its parent by 10 s")
+    assert_child_ends_with_its_program(
+        "import sys, time, pylibfranka\n"
+        "from firmware_bridge.franka_process import RobotProcess\n"
+        f"robot = RobotProcess({scene.host!r}, pylibfranka)\n"
+        "robot.read_once()\n"  # running, reading states
+        "print(robot.pid, flush=True)\n"
+        "time.sleep(60)\n")
 
 
 def test_the_scene_holds_the_payload_where_its_file_puts_it(scene, payload):

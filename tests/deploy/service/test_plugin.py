@@ -134,35 +134,15 @@ def test_the_service_runs_outside_the_programs_process_and_the_callback_never_wa
 
 def test_the_service_process_ends_with_the_program(trained_fr3_model_file, tmp_path):
     """A program killed outright takes the plug-in's process with it."""
-    import os
-    import signal
+    from tests.orphans import assert_child_ends_with_its_program
 
     config = program_config(tmp_path, trained_fr3_model_file)
-    program = ("import sys, time\n"
-               "from deploy.service import PayloadPlugin\n"
-               f"plugin = PayloadPlugin(object(), {str(config)!r}, read_state=lambda r: None)\n"
-               "print(plugin._child.pid, flush=True)\n"
-               "time.sleep(60)\n")
-    parent = subprocess.Popen([sys.executable, "-c", program], stdout=subprocess.PIPE,
-                              text=True, cwd=REPO)
-    try:
-        child = int(parent.stdout.readline())
-        os.kill(child, 0)
-    finally:
-        parent.kill()
-        parent.wait()
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline:
-        try:
-            os.kill(child, 0)
-        except ProcessLookupError:
-            return
-        with open(f"/proc/{child}/stat") as f:  # a zombie has ended: reaped by init
-            if f.read().split(")")[-1].split()[0] == "Z":
-                return
-        time.sleep(0.05)
-    os.kill(child, signal.SIGKILL)
-    raise AssertionError("the plug-in's process outlived its program by 10 s")
+    assert_child_ends_with_its_program(
+        "import sys, time\n"
+        "from deploy.service import PayloadPlugin\n"
+        f"plugin = PayloadPlugin(object(), {str(config)!r}, read_state=lambda r: None)\n"
+        "print(plugin._child.pid, flush=True)\n"
+        "time.sleep(60)\n", cwd=REPO)
 
 
 def test_a_config_of_another_link_kind_is_refused(trained_fr3_model_file, tmp_path):
