@@ -60,7 +60,8 @@ BENCHES: Table = {
     "writeback": ("deploy.bench.writeback.command",
                   "the write-back, scenario by scenario, simulated"),
     "fci": ("deploy.bench.fci.command", "the plug-in against franky-sim's FR3 over the "
-            "libfranka protocol: commissioning, then pick and place two ways"),
+            "libfranka protocol: commissioning, then pick and place two ways, and the "
+            "program alone"),
     "excite": ("deploy.bench.excite", "what the motion of 'iem excite' determines, on the "
                "realistic plant"),
 }

@@ -1,12 +1,12 @@
 """The plug-in's service in a process of its own, for :class:`deploy.service.PayloadPlugin`.
 
 A franky or pylibfranka program calls its motion's callback from the robot's 1 kHz loop, and
-that call needs the program's interpreter lock. Python has one lock per process: a service
-estimating in a thread of the program held it often enough that the loop waited for it
-(``iem bench fci``, franky-sim: 1,158 of 27,215 steps of 2 ms or more with the service in a
-thread, 10 without it, the callback itself 6.6 µs at p99). So the service runs here, in a
-child (``python -m deploy.service.plugin_process STATES_FD``), and the program's process
-keeps only the callback's write of each state to a pipe.
+that call needs the program's interpreter lock. Python has one lock per process: with the
+service estimating in a thread of the program, the loop at real-time priority waited for a
+thread of normal priority (``iem bench fci --fifo``, franky-sim: 420 of 27,215 steps of 2 ms
+or more, against none with the service here and none without the plug-in). So the service
+runs here, in a child (``python -m deploy.service.plugin_process STATES_FD``), and the
+program's process keeps the callback's queue and the thread that writes it to a pipe.
 
 - States: on the pipe ``STATES_FD``, each the 35 doubles of
   :class:`firmware_bridge.franka_process.ProcessState` (time, ``q``, ``dq``, ``tau_J``,
