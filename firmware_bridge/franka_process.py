@@ -68,6 +68,13 @@ SET_LOAD, QUIT = b"L", b"Q"
 """Parent -> child: ``set_load`` (sequence, mass, CoM, inertia); end."""
 
 
+def pack_state(t: float, q, dq, tau_J, m_load: float, F_x_Cload, I_load) -> bytes:
+    """A state's body on a pipe: its time and the flat sequences ``q``, ``dq``, ``tau_J``
+    (7 each), ``F_x_Cload`` (3) and ``I_load`` (9, column-major), the 35 doubles
+    :class:`ProcessState` reads back."""
+    return _STATE.pack(t, *q, *dq, *tau_J, m_load, *F_x_Cload, *I_load)
+
+
 def _error_body(exc: BaseException) -> bytes:
     return f"{type(exc).__name__}\0{exc}".encode("utf-8", "replace")
 
@@ -358,8 +365,8 @@ def _child(argv: list[str]) -> int:
                 emit(READ_ERROR, _error_body(exc))
                 time.sleep(RETRY_AFTER_ERROR_S)
                 continue
-            emit(STATE, _STATE.pack(s.time.to_sec(), *s.q, *s.dq, *s.tau_J, s.m_load,
-                                    *s.F_x_Cload, *s.I_load))
+            emit(STATE, pack_state(s.time.to_sec(), s.q, s.dq, s.tau_J, s.m_load,
+                                   s.F_x_Cload, s.I_load))
     except OSError:  # the parent is gone
         return 0
 

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from firmware_bridge.franka_process import _HEADER, _STATE, _read_frame
+from firmware_bridge.franka_process import _HEADER, _STATE, _read_frame, pack_state
 from firmware_bridge.links import BUFFERED_CYCLES
 from iem.payload import Payload
 
@@ -65,14 +65,15 @@ TAKE_BODY = struct.Struct("<Qd")  # states written by the program, the wait for 
 
 
 def state_frame(state) -> bytes:
-    """A franky or pylibfranka ``RobotState`` as a frame of the states pipe: the 35 doubles
-    of :class:`firmware_bridge.franka_process.ProcessState`."""
-    values = (state.time.to_sec(), *np.asarray(state.q, dtype=float).ravel(),
-              *np.asarray(state.dq, dtype=float).ravel(),
-              *np.asarray(state.tau_J, dtype=float).ravel(), float(state.m_load),
-              *np.asarray(state.F_x_Cload, dtype=float).ravel(),
-              *np.asarray(state.I_load, dtype=float).ravel(order="F"))
-    return _HEADER.pack(STATE, _STATE.size) + _STATE.pack(*values)
+    """A franky or pylibfranka ``RobotState`` as a frame of the states pipe
+    (:func:`firmware_bridge.franka_process.pack_state`; franky's ``I_load`` is a 3x3
+    matrix, pylibfranka's the 9 values, both taken column-major)."""
+    def flat(v, order="C"):
+        return np.asarray(v, dtype=float).ravel(order=order)
+
+    return _HEADER.pack(STATE, _STATE.size) + pack_state(
+        state.time.to_sec(), flat(state.q), flat(state.dq), flat(state.tau_J),
+        float(state.m_load), flat(state.F_x_Cload), flat(state.I_load, "F"))
 
 
 WRITE_PERIOD_S = 0.005
