@@ -266,13 +266,11 @@ def score_run(run: dict) -> dict:
 
 def targets(result: dict, settle_s: float) -> list[tuple[str, bool, str]]:
     """``(target, met, measured)`` of one way's figures."""
-    from deploy.bench.writeback.score import fmt
+    from deploy.bench.writeback.score import fmt, held_text
 
     rows = result["changes"]
     late = [r for r in rows if r["latency_s"] is None or r["latency_s"] > settle_s]
-    held = [f"{r['truth_mass']:.3f} kg: gate held: " + ", ".join(
-        f"{k} {100 * v:.0f} %" for k, v in list(r["held"].items())[:3])
-        for r in late if r.get("held")]
+    held = [f"{r['truth_mass']:.3f} kg: {held_text(r['held'])}" for r in late if r.get("held")]
     out = [(f"each change correct within {settle_s:g} s of the end of the motion that "
             "carried it (before the arm moves again)", not late,
             ", ".join(fmt(r["latency_s"], ".2f") for r in rows) + " s"

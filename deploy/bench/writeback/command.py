@@ -40,7 +40,15 @@ import time
 from pathlib import Path as FsPath
 
 from deploy.bench.writeback.scenarios import SCENARIOS, TIMING
-from deploy.bench.writeback.score import fmt, like, reason_shares, time_to_correct, worst, writes
+from deploy.bench.writeback.score import (
+    fmt,
+    held_text,
+    like,
+    reason_shares,
+    time_to_correct,
+    worst,
+    writes,
+)
 from iem.errors import InvalidInputError
 
 PLANTS = ("ideal", "realistic", "default")
@@ -94,9 +102,7 @@ def targets_of(run: dict) -> dict | None:
     met = ok and ttc is not None and ttc <= limit
     why = ""
     if not met:
-        shares = reason_shares(run["t"], run["reasons"], since, end)
-        why = "gate held: " + ", ".join(f"{r} {100 * v:.0f} %" for r, v in
-                                        list(shares.items())[:3])
+        why = held_text(reason_shares(run["t"], run["reasons"], since, end))
     return {"target": target, "measured": f"{fmt(ttc)} s{extra}", "time_to_correct_s": ttc,
             "met": bool(met), "why": why}
 

@@ -146,6 +146,12 @@ def reason_shares(times, reasons, start: float, stop: float) -> dict[str, float]
     return {r: n / len(picked) for r, n in sorted(counts.items(), key=lambda kv: -kv[1])}
 
 
+def held_text(shares: dict[str, float]) -> str:
+    """``"gate held: no_change 83 %, ..."``: the three largest of :func:`reason_shares`."""
+    return "gate held: " + ", ".join(f"{r} {100 * v:.0f} %" for r, v in
+                                     list(shares.items())[:3])
+
+
 def in_band(load, truth, std) -> bool | None:
     """Whether ``truth`` lies within the 2-sigma band of the estimate a write came from, in
     the parameters the write's mass and CoM come from (mass, and the first moments ``m c``;
