@@ -19,12 +19,15 @@ program's callback with each ``RobotState``. This link is the plug-in's side of 
   a thread of its own. ``send`` keeps the command as the one to apply, and answers at once:
   while the program is feeding states (a motion runs) with a refusal (``applied=False``,
   :data:`MOVING`), as the robot itself refuses ``setLoad`` during a motion; the gate backs
-  off and tries again, and a newer command replaces the kept one. Between motions the
-  program calls :meth:`ProgramLink.apply` (through :class:`deploy.service.PayloadPlugin`):
-  it calls the robot's ``set_load(mass, F_x_Cload, I_load)`` with the kept command, in the
-  caller's thread, then reads the robot's state (``read_state``) until it reports the
-  commanded load (:data:`firmware_bridge.franka_link.SETTLE_STATES` states at most), and the
-  command is acknowledged with that load: applied, or refused with the robot's error text.
+  off and tries again, and a newer command replaces the kept one. Between motions the kept
+  command is applied in three steps: :meth:`ProgramLink.take` takes it;
+  :func:`write_load` calls the robot's ``set_load(mass, F_x_Cload, I_load)`` with it, in
+  the program's thread, then reads the robot's state (``read_state``) until it reports the
+  commanded load (:data:`firmware_bridge.franka_link.SETTLE_STATES` states at most);
+  :meth:`ProgramLink.settle` acknowledges the command with that load: applied, or refused
+  with the robot's error text. :class:`deploy.service.PayloadPlugin` takes and settles in
+  the service's process (:mod:`deploy.service.plugin_process`) and writes in the program's;
+  :meth:`ProgramLink.apply` does the three in one process.
 - The load in force: every fed state reports it (``m_load``, ``F_x_Cload``, ``I_load``), and
   ``load_report`` is the last one's, as on the ``franka`` link.
 """
@@ -92,9 +95,10 @@ class ProgramLink:
 
     Args:
         robot: the user's ``franky.Robot`` or ``pylibfranka.Robot`` (its ``set_load`` is
-            called by :meth:`apply` only).
+            called by :meth:`apply` only); None where the program writes the load itself
+            (:func:`write_load`, in another process).
         read_state: reads one ``RobotState`` from ``robot`` between motions (franky:
-            ``robot.state``; pylibfranka: ``robot.read_once()``).
+            ``robot.state``; pylibfranka: ``robot.read_once()``); None with ``robot``.
         name: how the link names itself in messages.
         silence_timeout: default ``read`` timeout, s.
         capacity: states the deque holds for the estimator.
