@@ -34,6 +34,8 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 from firmware_bridge.franka_process import (
     _HEADER,
     _STATE,
@@ -60,8 +62,6 @@ class PointRecords:
         self.service, self.rows, self.reasons = service, [], []
 
     def __call__(self, record) -> None:
-        import numpy as np
-
         s = np.asarray(record.smoothed, dtype=float)
         std = getattr(record.raw, "std", None)
         sd = [float("nan")] * 4 if std is None else [float(v) for v in np.asarray(std)[:4]]
