@@ -175,8 +175,9 @@ def run_way(way: str, work: FsPath, arm: FsPath, model: FsPath, n_payloads: int,
     from sim.robot import ArmModel
 
     payloads = [load_payload(p) for p in payload_files()[:n_payloads]]
-    copy = work / f"model-{way}.msgpack"
-    shutil.copyfile(model, copy)
+    copy = work / f"model-{way}.msgpack"  # each run learns into its own copy
+    if way != "bare":  # the program alone has no model
+        shutil.copyfile(model, copy)
     records = work / f"{way}.json"
     t0 = time.monotonic()
     with FciSim(initial_q=poses()["home"]) as scene:
