@@ -50,7 +50,7 @@ from .description import (
     described,
     described_by,
 )
-from .friction import FRICTION_COLUMNS, GAZ_COLUMNS, friction_torque
+from .friction import FRICTION_COLUMNS, GAZ_COLUMNS, FrictionPoints, friction_torque
 
 ARM_SCHEMA = "iem-arm"
 """The ``schema`` field of an arm file."""
@@ -196,8 +196,23 @@ class ArmParams:
                    {"source": "nominal"}, end_effector=ee.label, description=desc)
 
     def joint_torque(self, dq) -> np.ndarray:
-        """Friction plus offset at ``dq`` (rad/s, ``(..., 7)``), N·m."""
+        """Friction plus offset at ``dq`` (rad/s, ``(..., 7)``), N·m (one velocity's through
+        :attr:`friction_points`: the same numbers)."""
+        dq = np.asarray(dq, dtype=float)
+        if dq.shape == (7,):
+            return self.friction_points.torque(dq) + self.offset
         return friction_torque(dq, self.friction) + self.offset
+
+    @property
+    def friction_points(self) -> FrictionPoints:
+        """This arm's friction at single velocities (:class:`sim.friction.FrictionPoints`,
+        shared by every copy of the arm in this process), taken on first use; not part of
+        the arm's state."""
+        points = self.__dict__.get("_friction_points")
+        if points is None:
+            points = FrictionPoints.of(self.friction)
+            object.__setattr__(self, "_friction_points", points)
+        return points
 
     # -- persistence -----------------------------------------------------------------------
     def to_state(self) -> dict:
@@ -316,7 +331,7 @@ class ArmDynamics:
             ev, U = np.linalg.eigh(arm.posterior)
             keep = ev > 1e-12 * max(float(ev.max()), 1e-300)
             self._factor = U[:, keep] * np.sqrt(ev[keep])  # posterior = F F^T
-            self._friction = _FrictionPoint(arm.friction)
+            self._friction = arm.friction_points
             self._jac = np.zeros((7, POSTERIOR_PARAMS))  # [regressor | friction, per joint]
         self.considered = 0 if self._factor is None else int(self._factor.shape[1])
         """How many considered parameters :meth:`sensitivity` gives columns for (0: the arm
@@ -350,43 +365,6 @@ class ArmDynamics:
 _ROWS = np.repeat(np.arange(7), len(FRICTION_COLUMNS)).reshape(7, -1)
 _FRICTION_COLS = 70 + np.arange(7 * len(FRICTION_COLUMNS)).reshape(7, -1)
 """Where joint ``j``'s friction Jacobian goes in :meth:`ArmDynamics.sensitivity`'s rows."""
-
-
-class _FrictionPoint:
-    """:func:`sim.friction.friction_jacobian` of one arm at one state, its columns taken
-    once (a sample's Jacobian in a quarter of the time; the same values)."""
-
-    def __init__(self, friction) -> None:
-        f = np.asarray(friction, dtype=float)
-        self.p1, self.p2, self.p3, self.fvp, self.fvn, self.fsp, self.fsn, self.vsp, \
-            self.vsn = (f[:, c].copy() for c in range(len(FRICTION_COLUMNS)))
-        s0 = 0.5 * (1.0 + np.tanh(0.5 * self.p2 * self.p3))
-        self.s0, self.ds0 = s0, s0 * (1.0 - s0)
-        self._out = np.empty((7, len(FRICTION_COLUMNS)))
-
-    def jacobian(self, dq: np.ndarray) -> np.ndarray:
-        """``d tau_f / d friction`` at ``dq`` (7,): (7, 9)."""
-        p1, p2, p3 = self.p1, self.p2, self.p3
-        s = 0.5 * (1.0 + np.tanh(0.5 * p2 * (dq + p3)))
-        ds = s * (1.0 - s)
-        w = 0.5 * (1.0 + np.tanh(0.5 * p2 * dq))
-        dw = w * (1.0 - w) * dq
-        sw = 2.0 * w - 1.0
-        ep, en = np.exp(-(dq / self.vsp) ** 2), np.exp(-(dq / self.vsn) ** 2)
-        fsp, fsn = self.fsp, self.fsn
-        out = self._out
-        out[:, 0] = s - self.s0
-        stribeck = 2.0 * (fsp * w * ep + fsn * (1.0 - w) * en) + sw * (fsp * ep - fsn * en)
-        out[:, 1] = (p1 * (ds * (dq + p3) - self.ds0 * p3)
-                     + dw * (dq * (self.fvp - self.fvn) + stribeck))
-        out[:, 2] = p1 * p2 * (ds - self.ds0)
-        out[:, 3] = dq * w
-        out[:, 4] = dq * (1.0 - w)
-        out[:, 5] = sw * w * ep
-        out[:, 6] = sw * (1.0 - w) * en
-        out[:, 7] = out[:, 5] * fsp * 2.0 * dq ** 2 / self.vsp ** 3
-        out[:, 8] = out[:, 6] * fsn * 2.0 * dq ** 2 / self.vsn ** 3
-        return out
 
 
 NOMINAL_DYNAMICS = "sim.arm:arm_dynamics"

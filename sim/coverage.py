@@ -73,10 +73,12 @@ class ReversedVelocities:
         if self.arm is not None:
             # the samples of one state share their velocities (the tandem simulators'): one
             # row's friction then serves all, the same numbers elementwise
-            one = dq.shape[0] > 1 and bool((dq == dq[0]).all())
-            v = dq[:1] if one else dq
-            both = self.arm.joint_torque(np.concatenate((-v, v)))
-            out[:, 14:] += both[:len(v)] - both[len(v):]
+            if dq.shape[0] > 1 and bool((dq == dq[0]).all()):
+                friction = self.arm.joint_torque  # one velocity: its torque is kept
+                out[:, 14:] += friction(-dq[0]) - friction(dq[0])
+            else:
+                both = self.arm.joint_torque(np.concatenate((-dq, dq)))
+                out[:, 14:] += both[:len(dq)] - both[len(dq):]
         return out
 
 

@@ -125,3 +125,109 @@ def full_friction(friction) -> np.ndarray:
     out[:, :GAZ_COLUMNS] = friction
     out[:, 7:9] = STRIBECK_VS
     return out
+
+
+class FrictionPoints:
+    """One arm's friction at single velocities ``dq`` (7,), fast: the torque of
+    :func:`friction_torque`, the same values to the bit, and the Jacobian of
+    :func:`friction_jacobian`, the same to rounding (its ``phi2`` column sums its terms in
+    another grouping).
+
+    The friction array's columns and ``σ(phi2 phi3)`` are taken once, and the terms the
+    torque and the Jacobian share (the sigmoids and the Stribeck exponentials) are kept for
+    the last :data:`KEEP` velocities asked: an estimator asks each of a block point's
+    velocities several times (its tandem simulators, its samples driven backwards, its
+    equation's torque and that torque's sensitivity). Whatever thread asks, the values are
+    the same; a kept entry only spares the work.
+
+    Args:
+        friction: ``(7, 3)`` or ``(7, 9)`` (:data:`FRICTION_COLUMNS`).
+    """
+
+    KEEP = 8
+    """Velocities whose terms are kept."""
+    _SHARED: dict[bytes, FrictionPoints] = {}
+    _SHARED_MAX = 64
+
+    @classmethod
+    def of(cls, friction) -> FrictionPoints:
+        """The one instance for this friction array's values in this process: copies of an
+        arm (a model's tandem simulators, its equations, its samples driven backwards) then
+        share the velocities' terms."""
+        f = np.asarray(friction, dtype=float)
+        key = f.shape[1].to_bytes(1, "little") + f.tobytes()
+        points = cls._SHARED.get(key)
+        if points is None:
+            if len(cls._SHARED) >= cls._SHARED_MAX:
+                cls._SHARED = {}
+            points = cls._SHARED[key] = cls(f)
+        return points
+
+    def __init__(self, friction) -> None:
+        f = np.asarray(friction, dtype=float)
+        cols = [np.ascontiguousarray(f[:, c]) for c in range(f.shape[1])]
+        self.full = f.shape[1] == len(FRICTION_COLUMNS)
+        self.p1, self.p2, self.p3 = cols[:GAZ_COLUMNS]
+        self.s0 = _sigmoid(self.p2 * self.p3)
+        self.ds0 = self.s0 * (1.0 - self.s0)
+        if self.full:
+            self.fvp, self.fvn, self.fsp, self.fsn, self.vsp, self.vsn = cols[GAZ_COLUMNS:]
+        self._kept: dict[bytes, tuple] = {}
+
+    def _terms(self, dq: np.ndarray) -> tuple:
+        """``(torque, s, w, ep, en)`` at ``dq`` (7,): the friction torque (read-only) and the
+        terms the Jacobian shares with it (``w, ep, en`` None for Gaz's model alone)."""
+        key = dq.tobytes()
+        terms = self._kept.get(key)
+        if terms is not None:
+            return terms
+        s = _sigmoid(self.p2 * (dq + self.p3))
+        tau = self.p1 * (s - self.s0)
+        w = ep = en = None
+        if self.full:  # friction_torque's arithmetic, term by term
+            w = _sigmoid(self.p2 * dq)
+            ep, en = np.exp(-(dq / self.vsp) ** 2), np.exp(-(dq / self.vsn) ** 2)
+            stribeck = (2.0 * w - 1.0) * (self.fsp * w * ep + self.fsn * (1.0 - w) * en)
+            tau = tau + dq * (self.fvp * w + self.fvn * (1.0 - w)) + stribeck
+        tau.flags.writeable = False
+        terms = (tau, s, w, ep, en)
+        if len(self._kept) >= self.KEEP:
+            self._kept = {}  # (rebound, not cleared: another thread may be reading it)
+        self._kept[key] = terms
+        return terms
+
+    def torque(self, dq) -> np.ndarray:
+        """:func:`friction_torque` at ``dq`` (7,), N·m (read-only)."""
+        return self._terms(_velocity(dq))[0]
+
+    def jacobian(self, dq) -> np.ndarray:
+        """:func:`friction_jacobian` at ``dq`` (7,) of a full friction array: (7, 9), a new
+        array."""
+        if not self.full:
+            raise ValueError("FrictionPoints.jacobian needs a full (7, 9) friction array")
+        dq = _velocity(dq)
+        _, s, w, ep, en = self._terms(dq)
+        p1, p2, p3, fsp, fsn = self.p1, self.p2, self.p3, self.fsp, self.fsn
+        ds = s * (1.0 - s)
+        dw = w * (1.0 - w) * dq
+        sw = 2.0 * w - 1.0
+        out = np.empty((7, len(FRICTION_COLUMNS)))
+        out[:, 0] = s - self.s0
+        stribeck = 2.0 * (fsp * w * ep + fsn * (1.0 - w) * en) + sw * (fsp * ep - fsn * en)
+        out[:, 1] = (p1 * (ds * (dq + p3) - self.ds0 * p3)
+                     + dw * (dq * (self.fvp - self.fvn) + stribeck))
+        out[:, 2] = p1 * p2 * (ds - self.ds0)
+        out[:, 3] = dq * w
+        out[:, 4] = dq * (1.0 - w)
+        out[:, 5] = sw * w * ep
+        out[:, 6] = sw * (1.0 - w) * en
+        out[:, 7] = out[:, 5] * fsp * 2.0 * dq ** 2 / self.vsp ** 3
+        out[:, 8] = out[:, 6] * fsn * 2.0 * dq ** 2 / self.vsn ** 3
+        return out
+
+
+def _velocity(dq) -> np.ndarray:
+    dq = np.asarray(dq, dtype=float)
+    if dq.shape != (7,):
+        raise ValueError(f"FrictionPoints takes one velocity (7,), got shape {dq.shape}")
+    return dq

@@ -13,6 +13,7 @@ from sim.family import default_test_payload
 from sim.friction import (
     FRICTION_COLUMNS,
     GAZ_PHI,
+    FrictionPoints,
     friction_jacobian,
     friction_torque,
     full_friction,
@@ -220,6 +221,37 @@ def test_friction_model_and_its_jacobian_against_finite_differences():
     np.testing.assert_allclose(side[0, :, 3], 1.5, rtol=0.01)
     np.testing.assert_allclose(side[1, :, 4], -1.5, rtol=0.01)
     assert np.abs(side[0, :, 4]).max() < 0.015 and np.abs(side[1, :, 3]).max() < 0.015
+
+
+def test_friction_at_one_velocity_is_the_batch_models_whatever_was_asked_before():
+    """FrictionPoints (the estimator's path: one velocity at a time, terms kept) gives
+    friction_torque's numbers exactly and friction_jacobian's to rounding (its sums are
+    grouped otherwise: a last bit apart), for a full and a Gaz array,
+    asked fresh, again, in another order and after its kept terms were dropped; the torque it
+    keeps cannot be written, and an arm's copies share one instance."""
+    rng = np.random.default_rng(5)
+    dq = rng.uniform(-2.0, 2.0, (40, 7))
+    dq[:3] = np.array([0.0, 1e-4, -0.02])[:, None]
+    for f in (_a_full_friction(), GAZ_PHI):
+        points = FrictionPoints(f)
+        torque, jac = friction_torque(dq, f), friction_jacobian(dq, f)
+        order = np.concatenate((np.arange(40), rng.permutation(40), np.arange(40)[::-1]))
+        for i in order:  # more velocities than it keeps: entries are dropped and made again
+            got = points.torque(dq[i])
+            np.testing.assert_array_equal(got, torque[i])
+            assert not got.flags.writeable
+            if f.shape[1] == len(FRICTION_COLUMNS):
+                np.testing.assert_allclose(points.jacobian(dq[i]), jac[i], rtol=1e-14,
+                                           atol=1e-16)
+        with pytest.raises(ValueError, match=r"one velocity \(7,\)"):
+            points.torque(dq[:2])
+    with pytest.raises(ValueError, match="full"):
+        FrictionPoints(GAZ_PHI).jacobian(dq[0])
+    arm = ArmParams(nominal_link_params(), _a_full_friction(), np.full(7, 0.02))
+    twin = ArmParams.from_state(arm.to_state())
+    assert twin.friction_points is arm.friction_points
+    np.testing.assert_array_equal(arm.joint_torque(dq[7]), friction_torque(dq, arm.friction)[7]
+                                  + 0.02)
 
 
 def test_a_gaz_array_is_gaz_to_the_bit_and_old_arm_files_load(tmp_path):
