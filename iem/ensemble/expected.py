@@ -64,6 +64,26 @@ def _augmented(x: np.ndarray) -> np.ndarray:
     return xa
 
 
+_TARGETS: list = [None]
+"""The last read-only targets scaled: ``(Y, lo, span, t, tt)``."""
+
+
+def _targets(Y: np.ndarray, lo: np.ndarray, span: np.ndarray) -> tuple[np.ndarray, float]:
+    """``t = (Y - lo) / span`` and ``sum t²``. The tandem simulators' targets are one
+    read-only array, the family's, point after point: those are scaled once per output
+    scaling (the same numbers)."""
+    kept = _TARGETS[0]
+    if (kept is not None and kept[0] is Y and np.array_equal(kept[1], lo)
+            and np.array_equal(kept[2], span)):
+        return kept[3], kept[4]
+    t = (Y - lo) / span
+    tt = float(np.einsum("ij,ij->", t, t))
+    if Y.base is None and not Y.flags.writeable:  # no one writes it: kept
+        t.flags.writeable = False
+        _TARGETS[0] = (Y, lo.copy(), span.copy(), t, tt)
+    return t, tt
+
+
 def _checked(X, Y, what: str) -> tuple[np.ndarray, np.ndarray]:
     X = np.asarray(X, dtype=float)
     Y = np.asarray(Y, dtype=float)
@@ -79,22 +99,24 @@ class ExpectedLearner(WeakLearner):
 
     keeps_statistics = True
 
-    def learn(self, X, Y, iters: int = 1, keep: BagStatistics | None = None) -> float:
+    def learn(self, X, Y, iters: int = 1, keep: BagStatistics | None = None,
+              loss: bool = True) -> float:
         """``iters`` normalised gradient steps on the expected loss of one point's samples
         ``(N, 21) -> (N, 10)``, in place; returns the least-squares loss (without the noise's
-        term) before the last step, as :meth:`WeakLearner.learn` returns its last step's.
-        ``keep``: the bag's statistics, in this learner's coordinates (made from it), to add
-        the point to (its products are the steps' own)."""
+        term) before the last step, as :meth:`WeakLearner.learn` returns its last step's
+        (NaN, not computed, with ``loss`` False). ``keep``: the bag's statistics, in this
+        learner's coordinates (made from it), to add the point to (its products are the
+        steps' own)."""
         X, Y = _checked(X, Y, "learn")
         n = X.shape[0]
         xa = _augmented((X - self.center) * self._inv_scale)
-        t = (Y - self.lo) / self._span
+        t, tt = _targets(Y, self.lo, self._span)
         gram = xa.T @ xa
         cross = xa.T @ t  # (22, 10)
         if keep is not None:
             keep.add_products(gram, cross)
         hess = gram / n  # G / n + D
-        norm2 = float(np.trace(hess[:N_IN, :N_IN]))
+        norm2 = float(hess.diagonal()[:N_IN].sum())  # the trace of its inputs' block
         if self._noise_scaled is not None:
             var = self._noise_scaled ** 2
             hess[_DIAG, _DIAG] += var
@@ -104,17 +126,16 @@ class ExpectedLearner(WeakLearner):
         pull = cross.T * (step / n)
         w = np.empty((N_OUT, N_AUG))
         w[:, :N_IN], w[:, N_IN] = self.a, self.b
-        loss = float("nan")
+        last = float("nan")
         iters = int(iters)
         for i in range(iters):
-            if i == iters - 1:  # |xa wᵀ - t|² / n from the products: no residual formed
-                loss = (float(((w @ gram) * w).sum())
-                        - 2.0 * float(np.einsum("ij,ji->", w, cross))
-                        + float(np.einsum("ij,ij->", t, t))) / n
+            if loss and i == iters - 1:  # |xa wᵀ - t|² / n from the products: no residual
+                last = (float(((w @ gram) * w).sum())
+                        - 2.0 * float(np.einsum("ij,ji->", w, cross)) + tt) / n
             w = w @ move
             w += pull
         self.a, self.b = w[:, :N_IN].copy(), w[:, N_IN].copy()
-        return loss
+        return last
 
     @classmethod
     def fit(cls, X, Y, lo, hi, lr: float = 0.5, input_noise=None, seed=0, epochs: int = 10,
@@ -194,7 +215,7 @@ class BagStatistics:
         X, Y = _checked(X, Y, "the bag's statistics")
         xa = _augmented((X - self.center) / self.scale)
         self.gram += xa.T @ xa
-        self.cross += xa.T @ ((Y - self.lo) / self.span)
+        self.cross += xa.T @ _targets(Y, self.lo, self.span)[0]
 
     def add_products(self, gram: np.ndarray, cross: np.ndarray) -> None:
         """Add one point: the products ``sum x̃ x̃ᵀ`` ``(22, 22)`` and ``sum x̃ tᵀ``

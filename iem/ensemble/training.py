@@ -140,7 +140,7 @@ class BagTraining:
             X, Y = self._schedule.resolve(samples)
             if isinstance(kept, BagStatistics):  # the point's steps add it to them
                 seed = [self.seed, bag, 5] + ([gen] if gen else []) + [len(kept)]
-                training.learn(X, Y, iters, keep=kept)
+                training.learn(X, Y, iters, keep=kept, loss=False)
                 beyond = self._augment.beyond(X, Y, X.shape[0], seed)
                 if beyond is not None:
                     kept.add(*beyond)

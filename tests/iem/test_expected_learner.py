@@ -77,6 +77,32 @@ def test_without_noise_the_steps_are_algorithm_2s_own():
     assert loss_e == pytest.approx(loss_s, rel=1e-9)  # both: before the last step
 
 
+def test_steps_without_the_loss_and_on_read_only_targets_are_the_same_steps():
+    """The estimator's path: the family's targets read-only (scaled once, kept) and no loss
+    asked (NaN). The weights and the bag's statistics are those of the plain call, to the
+    bit, and a writeable array of other targets is scaled afresh."""
+    frozen = Y0.copy()
+    frozen.flags.writeable = False
+    plain, fast = _learner(), _learner()
+    kept_plain, kept_fast = BagStatistics(plain), BagStatistics(fast)
+    for _ in range(3):
+        assert np.isfinite(plain.learn(X0, Y0, iters=4, keep=kept_plain))
+        assert np.isnan(fast.learn(X0, frozen, iters=4, keep=kept_fast, loss=False))
+    np.testing.assert_array_equal(fast.a, plain.a)
+    np.testing.assert_array_equal(fast.b, plain.b)
+    np.testing.assert_array_equal(kept_fast.cross, kept_plain.cross)
+    other = Y0 * 1.01
+    twin = copy.deepcopy(fast)
+    fast.learn(X0, other, iters=2)
+    twin.learn(X0, other.copy(), iters=2)
+    np.testing.assert_array_equal(fast.a, twin.a)
+    wider = [ExpectedLearner(LO - 0.1, HI + 0.1, X0.mean(axis=0), plain.scale,
+                             input_noise=SENSOR_NOISE, seed=1) for _ in range(2)]
+    wider[0].learn(X0, frozen, iters=2)  # the kept targets are another scaling's
+    wider[1].learn(X0, Y0, iters=2)
+    np.testing.assert_array_equal(wider[0].a, wider[1].a)
+
+
 def _stats_of(points, start):
     stats = BagStatistics(start)
     for X, Y in points:
