@@ -271,6 +271,32 @@ class RecordingSource(RecordedSource):
         c.delivered += 1
         return JointState(t=t, q=r.q[k], dq=r.dq[k], tau_J=r.tau[k], cycle=k % CYCLE_MOD)
 
+    def read_many(self, n: int, T: np.ndarray, X: np.ndarray, cycles: np.ndarray) -> int | None:
+        """The next ``n`` joint states at most, at once, into ``T`` (time stamps), ``X``
+        (``[q, dq, tau_J]`` rows) and ``cycles``: what :meth:`read` gives one by one, and the
+        same counters. Returns how many (0: the end, where :meth:`read` raises
+        :class:`~firmware_bridge.errors.EndOfStream`), or None at the recorded pace (that
+        waits state by state: use :meth:`read`)."""
+        if self._paced:
+            return None
+        r, k, c = self.recording, self._k, self.counters
+        m = max(min(int(n), len(r) - k), 0)
+        if not m:
+            return 0
+        end = k + m
+        T[:m] = r.t[k:end]
+        X[:m, :7], X[:m, 7:14], X[:m, 14:] = r.q[k:end], r.dq[k:end], r.tau[k:end]
+        cycles[:m] = np.arange(k, end) % CYCLE_MOD
+        first = max(k, 1)  # the first state with one before it
+        if end > first:
+            dt = r.t[first:end] - r.t[first - 1:end - 1]
+            c.lost += int(np.maximum(np.rint(dt * self.rate_hz) - 1.0, 0.0).sum())
+            c.silences += int(np.count_nonzero(dt > self.silence_timeout))
+        self._k = end
+        c.received += m
+        c.delivered += m
+        return m
+
 
 
 def open_recording_link(kind: str, channel: str, *, profile: str = "fd",

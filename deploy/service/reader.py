@@ -180,8 +180,9 @@ class LinkReader:
 
 
 class BatchReader:
-    """Reads a replayed ``link`` in the caller's thread, ``chunk`` frames at a time, and
-    hands over their blocks (see the module docstring). Same interface as
+    """Reads a replayed ``link`` in the caller's thread, ``chunk`` frames at a time (in one
+    call where the link offers ``read_many``, as a recording read whole does), and hands
+    over their blocks (see the module docstring). Same interface as
     :class:`LinkReader` (``get``, ``stop``, ``skipped``, ``cpu_s``: the reading is the
     caller's own CPU)."""
 
@@ -220,7 +221,13 @@ class BatchReader:
 
         link, T, X, cycles = self.link, self._T, self._X, self._cycles
         n, tail = 0, None
-        while n < self.chunk:
+        read_many = getattr(link, "read_many", None)  # a recording read whole: in bulk
+        many = None if read_many is None else read_many(self.chunk, T, X, cycles)
+        if many is not None:
+            n = many
+            if n < self.chunk:
+                tail = Item("end")
+        while many is None and n < self.chunk:
             try:
                 frame = link.read(self.timeout)
             except ControllerSilent as exc:

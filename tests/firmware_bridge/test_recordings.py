@@ -172,6 +172,34 @@ def test_the_source_delivers_the_recording_as_recorded(tmp_path):
     assert not c.dropped() and source.truncated is False and source.bad_lines == 0
 
 
+def test_read_many_gives_what_read_gives_one_by_one_and_the_same_counters(tmp_path):
+    """``iem replay``'s bulk read of a recording: chunks that end inside and exactly at the
+    end, across a lost-cycle gap and a silence, give the states, cycles and counters of
+    ``read`` one by one; the end reads 0; at the recorded pace it declines (None)."""
+    t, q, dq, tau, _ = arrays(n=50)
+    t = t - t[0]
+    t[30:] += 0.004
+    t[40:] += 0.2
+    path = write_csv(tmp_path / "rec.csv", t, q, dq, tau)
+    one = open_recording(path)
+    states = list(one)
+    for chunk in (7, 25, 50, 64):
+        source = open_recording(path)
+        T, X = np.zeros(chunk), np.zeros((chunk, 21))
+        cycles = np.zeros(chunk, dtype=np.int64)
+        got_t, got_x, got_c = [], [], []
+        while n := source.read_many(chunk, T, X, cycles):
+            got_t.extend(T[:n]), got_x.extend(X[:n].copy()), got_c.extend(cycles[:n])
+        assert source.read_many(chunk, T, X, cycles) == 0
+        np.testing.assert_array_equal(got_t, [s.t for s in states])
+        np.testing.assert_array_equal(got_x, [np.concatenate((s.q, s.dq, s.tau_J))
+                                              for s in states])
+        assert got_c == [s.cycle for s in states]
+        assert vars(source.counters) == vars(one.counters), chunk
+    paced = open_link("recording", str(path))
+    assert paced.read_many(8, T, X, cycles) is None
+
+
 def test_the_link_kind_paces_the_recording_as_recorded(tmp_path):
     """``open_link("recording", ...)`` as ``iem run`` opens it: each joint state when it is
     due, a gap longer than ``skip`` shortened to it; ``iem replay``'s ``pace="fast"`` does not
