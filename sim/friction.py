@@ -8,6 +8,8 @@ A ``(7, 3)`` friction array is Gaz's model alone, a ``(7, 9)`` one the full mode
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 GAZ_PHI = np.array([
@@ -146,8 +148,8 @@ class FrictionPoints:
 
     KEEP = 8
     """Velocities whose terms are kept."""
-    _SHARED: dict[bytes, FrictionPoints] = {}
-    _SHARED_MAX = 64
+    _SHARED: ClassVar[dict[bytes, FrictionPoints]] = {}
+    _SHARED_MAX: ClassVar[int] = 64
 
     @classmethod
     def of(cls, friction) -> FrictionPoints:
