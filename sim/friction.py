@@ -1,6 +1,7 @@
 """The arm's joint friction: Gaz et al.'s Coulomb sigmoid (IEEE RA-L 2019, identified on a
 Panda's ``tau_J``), plus viscous and Stribeck friction, each with its own coefficients for
-either direction of motion (:func:`friction_torque`), and its Jacobian for the calibration.
+either direction of motion (:func:`friction_torque`), and its Jacobian for the calibration;
+:class:`FrictionPoints` gives both at one velocity at a time, as an estimator asks them.
 
 A ``(7, 3)`` friction array is Gaz's model alone, a ``(7, 9)`` one the full model
 (:data:`FRICTION_COLUMNS`); :class:`sim.arm.ArmParams` holds one per arm.
