@@ -179,11 +179,18 @@ class FrictionPoints:
 
     def _terms(self, dq: np.ndarray) -> tuple:
         """``(torque, s, w, ep, en)`` at ``dq`` (7,): the friction torque (read-only) and the
-        terms the Jacobian shares with it (``w, ep, en`` None for Gaz's model alone)."""
+        terms the Jacobian shares with it (``w, ep, en`` None for Gaz's model alone). A
+        velocity not kept is evaluated with its opposite, in one pass over both (elementwise:
+        each row's numbers are its own), and both are kept: samples driven backwards ask
+        the opposite of the velocity their simulators asked."""
         key = dq.tobytes()
         terms = self._kept.get(key)
         if terms is not None:
             return terms
+        both = np.empty((2, 7))
+        both[0] = dq
+        np.negative(dq, out=both[1])
+        dq = both
         s = _sigmoid(self.p2 * (dq + self.p3))
         tau = self.p1 * (s - self.s0)
         w = ep = en = None
@@ -193,10 +200,12 @@ class FrictionPoints:
             stribeck = (2.0 * w - 1.0) * (self.fsp * w * ep + self.fsn * (1.0 - w) * en)
             tau = tau + dq * (self.fvp * w + self.fvn * (1.0 - w)) + stribeck
         tau.flags.writeable = False
-        terms = (tau, s, w, ep, en)
         if len(self._kept) >= self.KEEP:
             self._kept = {}  # (rebound, not cleared: another thread may be reading it)
-        self._kept[key] = terms
+        rows = [(tau[i], s[i]) + ((None,) * 3 if w is None else (w[i], ep[i], en[i]))
+                for i in (1, 0)]
+        self._kept[both[1].tobytes()] = rows[0]
+        self._kept[key] = terms = rows[1]
         return terms
 
     def torque(self, dq) -> np.ndarray:
