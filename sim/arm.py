@@ -203,6 +203,14 @@ class ArmParams:
             return self.friction_points.torque(dq) + self.offset
         return friction_torque(dq, self.friction) + self.offset
 
+    def __getstate__(self) -> dict:
+        """A copy or a pickle carries the arm, not its friction's kept terms: a copy takes
+        the one instance of its process (:meth:`FrictionPoints.of
+        <sim.friction.FrictionPoints.of>`) on first use."""
+        state = dict(self.__dict__)
+        state.pop("_friction_points", None)
+        return state
+
     @property
     def friction_points(self) -> FrictionPoints:
         """This arm's friction at single velocities (:class:`sim.friction.FrictionPoints`,

@@ -1,6 +1,9 @@
 """The realistic plant: one reality gap (links, friction, offsets, and what no arm model
 describes), checked against Pinocchio and the friction model written out here."""
 
+import copy
+import pickle
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -250,6 +253,9 @@ def test_friction_at_one_velocity_is_the_batch_models_whatever_was_asked_before(
     arm = ArmParams(nominal_link_params(), _a_full_friction(), np.full(7, 0.02))
     twin = ArmParams.from_state(arm.to_state())
     assert twin.friction_points is arm.friction_points
+    for copied in (copy.deepcopy(arm), pickle.loads(pickle.dumps(arm))):
+        assert "_friction_points" not in vars(copied)  # the kept terms are not carried
+        assert copied.friction_points is arm.friction_points and copied.crc32 == arm.crc32
     np.testing.assert_array_equal(arm.joint_torque(dq[7]), friction_torque(dq, arm.friction)[7]
                                   + 0.02)
 
