@@ -56,10 +56,14 @@ _EYE.flags.writeable = False
 _DIAG = np.arange(N_IN)
 
 
-def _augmented(x: np.ndarray) -> np.ndarray:
-    """``[x, 1]`` ``(K, 22)`` of scaled inputs ``x`` ``(K, 21)``."""
-    xa = np.empty((x.shape[0], N_AUG))
-    xa[:, :N_IN] = x
+def _augmented(X: np.ndarray, center: np.ndarray, scale: np.ndarray,
+               inverse: bool) -> np.ndarray:
+    """``[x, 1]`` ``(K, 22)`` of inputs ``X`` ``(K, 21)`` scaled, ``x = (X - center) *
+    scale`` (``inverse``: ``/ scale``), written in place: no array between."""
+    xa = np.empty((X.shape[0], N_AUG))
+    x = xa[:, :N_IN]
+    np.subtract(X, center, out=x)
+    (np.divide if inverse else np.multiply)(x, scale, out=x)
     xa[:, N_IN] = 1.0
     return xa
 
@@ -109,7 +113,7 @@ class ExpectedLearner(WeakLearner):
         steps' own)."""
         X, Y = _checked(X, Y, "learn")
         n = X.shape[0]
-        xa = _augmented((X - self.center) * self._inv_scale)
+        xa = _augmented(X, self.center, self._inv_scale, inverse=False)
         t, tt = _targets(Y, self.lo, self._span)
         gram = xa.T @ xa
         cross = xa.T @ t  # (22, 10)
@@ -119,7 +123,7 @@ class ExpectedLearner(WeakLearner):
         norm2 = float(hess.diagonal()[:N_IN].sum())  # the trace of its inputs' block
         if self._noise_scaled is not None:
             var = self._noise_scaled ** 2
-            hess[_DIAG, _DIAG] += var
+            hess.reshape(-1)[:N_IN * (N_AUG + 1):N_AUG + 1] += var  # the inputs' diagonal
             norm2 += float(var.sum())
         step = 2.0 * self.lr / (norm2 + 1.0)  # WeakLearner.learn's alpha times the MSE's 2
         move = _EYE - step * hess  # W <- W (I - step hess) + step H / n
@@ -213,7 +217,7 @@ class BagStatistics:
         """Add samples ``X (K, 21)``, ``Y (K, 10)``: a point's training beyond the path (a
         point's own samples come with :meth:`add_products`)."""
         X, Y = _checked(X, Y, "the bag's statistics")
-        xa = _augmented((X - self.center) / self.scale)
+        xa = _augmented(X, self.center, self.scale, inverse=True)
         self.gram += xa.T @ xa
         self.cross += xa.T @ _targets(Y, self.lo, self.span)[0]
 
