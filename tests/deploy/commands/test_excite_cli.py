@@ -26,12 +26,17 @@ def test_writes_a_motion_the_path_readers_take(tmp_path, capsys):
 
 
 def test_iem_train_path_trains_on_the_motion(tmp_path, capsys):
-    """``iem train --path`` (also ``--excitation``) takes the CSV ``iem excite`` wrote."""
+    """``iem train --path`` (also ``--excitation``) takes the CSV ``iem excite`` wrote; without
+    ``--learner`` the kind's own learner trains the bags (IEM+phys's: "expected"; the learner
+    given is recorded: test_train.py)."""
+    from iem.persistence import load_model
+
     out, model = tmp_path / "excite.csv", tmp_path / "model.msgpack"
     assert main(["excite", "--seconds", "4", "--out", str(out), "--restarts", "1"]) == 0
     capsys.readouterr()
     assert main(["train", "--path", str(out), "--out", str(model), "--family", "paper"]) == 0
     assert "trained IEM+phys on 'excite' (4 s" in capsys.readouterr().out and model.exists()
+    assert load_model(model)._ens.learner_kind == "expected"
 
 
 def test_a_bad_start_pose_is_an_error_naming_the_joint(tmp_path, capsys):
