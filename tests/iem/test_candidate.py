@@ -2,6 +2,8 @@
 alarm costs nothing (the posterior before it comes back within a second, chosen by the
 data's likelihood), a true change stands (iem.physics.candidate, iem.physics.tracking)."""
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -51,7 +53,7 @@ def rollouts():
     path = excitation_path()
     plain = ArmPlant(payload=P3, seed=8, controller_load=P3).follow(path)
     swapped = ArmPlant(payload=P3, seed=8, controller_load=P3).follow(path, mount={10000: P2})
-    kicked = ArmPlant(payload=P3, seed=8, controller_load=P3).follow(path)
+    kicked = copy.deepcopy(plain)  # the same plant, seed and path: the same rollout
     kicked.tau[10000:10080, 1] += 3.0
     return plain, swapped, kicked
 
