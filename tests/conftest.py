@@ -1,10 +1,15 @@
 """Every test leaves the ``iem`` logger as it found it: a command run in a test
 (``deploy.cli.main``) routes it to that test's captured stderr and stops its propagation,
-which would otherwise write later tests' logs to a closed stream and hide them from caplog."""
+which would otherwise write later tests' logs to a closed stream and hide them from caplog.
+
+The lightly trained models, saved once per session for every folder of tests that needs
+one (a test that changes its model loads its own copy; tests/deploy/conftest.py gives each
+test a private copy of the file)."""
 
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import pytest
 
@@ -15,3 +20,44 @@ def _restore_iem_logger():
     saved = (list(logger.handlers), logger.level, logger.propagate)
     yield
     logger.handlers[:], logger.level, logger.propagate = saved
+
+
+def _trained_file(kind: str, tmp_path_factory, arm_model: str | None = None) -> Path:
+    """A model of ``kind`` trained on the excitation path (lightly, to keep tests quick) for
+    the arm model ``arm_model`` (None: the default), saved once per session."""
+    from deploy.model.training import train_initial_model
+    from iem.persistence import save_model
+
+    model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20,
+                                noise="sensor",  # the simulated arm is its model
+                                description=arm_model)
+    path = tmp_path_factory.mktemp("model") / "trained.msgpack"
+    save_model(model, path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def trained_model_file(tmp_path_factory) -> Path:
+    """The paper's IEM."""
+    return _trained_file("IEM", tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def trained_phys_model_file(tmp_path_factory) -> Path:
+    """The deployed kind, IEM+phys: its estimates are projected onto physically consistent
+    parameters, so the gate's decisions over a real-time run do not hang on whether the
+    paper's IEM happened to give a consistent inertia at an instant."""
+    return _trained_file("IEM+phys", tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def trained_fr3_phys_model_file(tmp_path_factory) -> Path:
+    """IEM+phys for the FR3 (the franka link's arm)."""
+    return _trained_file("IEM+phys", tmp_path_factory, "fr3")
+
+
+@pytest.fixture(scope="session")
+def trained_fr3_model_file(tmp_path_factory) -> Path:
+    """The paper's IEM for the FR3 (no uncertainty: a gate that allows it writes once the
+    estimate is stable, whatever the arm's friction does to it)."""
+    return _trained_file("IEM", tmp_path_factory, "fr3")

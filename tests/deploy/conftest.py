@@ -1,4 +1,5 @@
-"""Shared pieces of the plug-in's end-to-end tests: a trained model, controllers, configs."""
+"""Shared pieces of the plug-in's end-to-end tests: private copies of the session's trained
+models (tests/conftest.py), controllers, configs."""
 
 from __future__ import annotations
 
@@ -16,39 +17,11 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _trained_file(kind: str, tmp_path_factory, arm_model: str | None = None) -> Path:
-    """A model of ``kind`` trained on the excitation path (lightly, to keep tests quick) for
-    the arm model ``arm_model`` (None: the default), saved once per session."""
-    from deploy.model.training import train_initial_model
-    from iem.persistence import save_model
-
-    model = train_initial_model(kind, seed=0, log=lambda *a: None, fit_epochs=3, fit_stride=20,
-                                noise="sensor",  # the simulated arm is its model
-                                description=arm_model)
-    path = tmp_path_factory.mktemp("model") / "trained.msgpack"
-    save_model(model, path)
-    return path
-
-
 def _private_copy(trained: Path, tmp_path: Path, name: str) -> Path:
     """A copy of a trained model file that one test may overwrite."""
     path = tmp_path / name
     shutil.copyfile(trained, path)
     return path
-
-
-@pytest.fixture(scope="session")
-def trained_model_file(tmp_path_factory) -> Path:
-    """The paper's IEM."""
-    return _trained_file("IEM", tmp_path_factory)
-
-
-@pytest.fixture(scope="session")
-def trained_phys_model_file(tmp_path_factory) -> Path:
-    """The deployed kind, IEM+phys: its estimates are projected onto physically consistent
-    parameters, so the gate's decisions over a real-time run do not hang on whether the
-    paper's IEM happened to give a consistent inertia at an instant."""
-    return _trained_file("IEM+phys", tmp_path_factory)
 
 
 @pytest.fixture
@@ -59,19 +32,6 @@ def model_file(trained_model_file, tmp_path) -> Path:
 @pytest.fixture
 def phys_model_file(trained_phys_model_file, tmp_path) -> Path:
     return _private_copy(trained_phys_model_file, tmp_path, "model-phys.msgpack")
-
-
-@pytest.fixture(scope="session")
-def trained_fr3_phys_model_file(tmp_path_factory) -> Path:
-    """IEM+phys for the FR3 (the franka link's arm)."""
-    return _trained_file("IEM+phys", tmp_path_factory, "fr3")
-
-
-@pytest.fixture(scope="session")
-def trained_fr3_model_file(tmp_path_factory) -> Path:
-    """The paper's IEM for the FR3 (no uncertainty: a gate that allows it writes once the
-    estimate is stable, whatever the arm's friction does to it)."""
-    return _trained_file("IEM", tmp_path_factory, "fr3")
 
 
 @pytest.fixture

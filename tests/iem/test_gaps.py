@@ -180,17 +180,17 @@ def test_online_loop_bridges_skips_and_restarts_by_one_rule():
 
 
 @pytest.fixture(scope="module")
-def excitation_run():
-    """A light IEM+phys trained on the excitation path, and the plant's run along its first
-    8 s with test-3w (noise seed 7)."""
-    from deploy.model.training import tandem_for, train_initial_model
+def excitation_run(trained_phys_model_file):
+    """A light IEM+phys trained on the excitation path (the session's, tests/conftest.py),
+    and the plant's run along its first 8 s with test-3w (noise seed 7)."""
+    from deploy.model.training import tandem_for
+    from iem.persistence import load_model
     from sim.family import test_payloads
     from sim.paths import excitation_path
     from sim.plant import ArmPlant
     from sim.robot import ArmModel
 
-    model = train_initial_model("IEM+phys", seed=0, log=lambda *a: None, noise="sensor",
-                                fit_epochs=3, fit_stride=20)
+    model = load_model(trained_phys_model_file)
     payload = test_payloads()["test-3w"]
     path = excitation_path()
     n = 8000

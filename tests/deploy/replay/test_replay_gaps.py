@@ -34,11 +34,11 @@ def _thin(src, dst, fraction: float, seed: int) -> int:
 
 
 @pytest.fixture(scope="module")
-def phys_model():
-    from deploy.model.training import train_initial_model
+def phys_model(trained_phys_model_file):
+    """The session's light IEM+phys (tests/conftest.py), this module's copy."""
+    from iem.persistence import load_model
 
-    return train_initial_model("IEM+phys", seed=0, log=lambda *a: None, noise="sensor",
-                               fit_epochs=3, fit_stride=20)
+    return load_model(trained_phys_model_file)
 
 
 def test_a_recording_with_lost_frames_estimates_as_well_as_the_whole(tmp_path, phys_model):
