@@ -12,23 +12,30 @@ from iem.persistence import check_arm, load_model
 from iem.physics.regression import load_dynamics
 from sim.arm import ArmParams, arm_record, arm_spec, load_arm, save_arm
 from sim.family import default_test_payload
-from sim.paths import calibration_path, new_task_path
+from sim.paths import new_task_path
 from sim.plant import ArmPlant, RealityGap
 from sim.robot import ArmModel
 from tests.can_logs import write_log
 
-GAP = RealityGap(seed=3)
+GAP = RealityGap(seed=3).modelled_only()
+"""The plant tests/conftest.py's arm file is calibrated from (``iem calibrate`` on its CAN
+log, checked in tests/sim/test_calibration.py)."""
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory):
+def files(calibrated_from_a_can_log, tmp_path_factory):
+    """A folder of this module's own: a copy of the arm file ``iem calibrate`` wrote from a
+    CAN log (tests/conftest.py), IEM+phys trained for it by ``iem train --arm``, a loaded run
+    on the same plant as a CAN log, and the nominal arm as ``other.msgpack``."""
+    import shutil
+
     d = tmp_path_factory.mktemp("arm")
-    write_log(ArmPlant(gap=GAP, seed=21).follow(calibration_path()), d / "bare.blf")
+    assert calibrated_from_a_can_log["status"] == 0
+    shutil.copyfile(calibrated_from_a_can_log["arm"], d / "arm.msgpack")
     p = default_test_payload()
     loaded = ArmPlant(gap=GAP, seed=22, payload=p, controller_load=p).follow(
         new_task_path().slice(0, 2.0))
     write_log(loaded, d / "loaded.blf")
-    assert main(["calibrate", str(d / "bare.blf"), "--out", str(d / "arm.msgpack")]) == 0
     assert main(["train", "--kind", "IEM+phys", "--arm", str(d / "arm.msgpack"),
                  "--out", str(d / "model.msgpack")]) == 0
     save_arm(ArmParams.nominal(), d / "other.msgpack")

@@ -26,7 +26,6 @@ from sim.friction import friction_torque
 from sim.paths import Q0, calibration_path, excitation_path, linear_path, rest_path
 from sim.plant import ArmPlant, RealityGap
 from sim.robot import ArmModel, nominal_link_params
-from tests.can_logs import write_log
 from tests.real_data import real_recording
 
 GAP = RealityGap(seed=3).modelled_only()
@@ -41,9 +40,11 @@ def prepare(t, q, dq, tau):
 
 
 @pytest.fixture(scope="module")
-def bare():
-    plant = ArmPlant(gap=GAP, seed=101)  # noise seed of its own
-    return plant, plant.follow(calibration_path())
+def bare(bare_calibration_run):
+    """``(plant, rollout)``: the calibration motion on the plant of ``GAP``, noise seed 101
+    (tests/conftest.py's, which test_arm.py's arm file is calibrated from too)."""
+    assert bare_calibration_run[0].gap == GAP
+    return bare_calibration_run
 
 
 @pytest.fixture(scope="module")
@@ -158,15 +159,16 @@ def test_arm_file_round_trip_and_corruption(arm, tmp_path):
         load_arm(path)
 
 
-def test_cli_calibrates_from_a_can_log(bare, tmp_path, capsys):
-    log_file = tmp_path / "bare.blf"
-    write_log(bare[1], log_file)
-    out = tmp_path / "arm.msgpack"
-    assert main(["calibrate", str(log_file), "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+def test_cli_calibrates_from_a_can_log(bare, calibrated_from_a_can_log, tmp_path):
+    """``iem calibrate`` on ``bare``'s run written as a CAN log (tests/conftest.py runs it
+    once for this test and test_arm.py)."""
+    cli = calibrated_from_a_can_log
+    assert cli["status"] == 0
+    text = cli["printed"]
     assert "condition number" in text and "joint 7:" in text
-    arm = load_arm(out)
+    arm = load_arm(cli["arm"])
     np.testing.assert_allclose(arm.offset, bare[0].arm.offset, atol=0.015)
+    out = tmp_path / "arm.msgpack"
     assert main(["calibrate", "--out", str(out)]) == 2  # nothing to calibrate from
 
 
