@@ -127,7 +127,9 @@ def test_short_motion_identifies_a_consistent_body_within_its_uncertainty(short,
     assert max(result.report["residual_rms_after"]) < 0.05
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+# a sweep over motions and arms: one of each in the default suite, all three with -m slow
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow),
+                                  pytest.param(2, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("perturbed", [False, True])
 def test_twenty_seconds_meet_the_issue_targets(seed, perturbed):
     path = commissioning_path(20.0, seed)
