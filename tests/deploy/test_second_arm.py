@@ -215,6 +215,8 @@ def test_the_pipeline_on_200_hz_csvs(kin, recordings, models, tmp_path, capsys):
     np.testing.assert_allclose(p["com"], TRUTH.com, atol=0.002)
 
 
+@pytest.mark.slow  # the Kinova's motion calibrated again: 'calibrated' does it from the bag;
+# a calibration from a 200 Hz CSV runs in test_rate.py
 def test_calibrate_on_a_200_hz_csv(kin, recordings, tmp_path, capsys):
     arm = tmp_path / "arm200.msgpack"
     assert main(["calibrate", str(recordings["calibration_csv"]), *arm_args(kin), "--out",
