@@ -38,13 +38,21 @@ def record(tmp_path, name, path, payload, seed, gap=None, profile="fd", suffix="
 
 
 @pytest.fixture(scope="module")
-def short_logs(tmp_path_factory):
-    """6 s of a commissioning motion on a perturbed plant, loaded and bare, as .blf."""
-    folder = tmp_path_factory.mktemp("identify")
+def short_runs():
+    """6 s of a commissioning motion on a perturbed plant: the loaded and the bare rollout."""
     path = excitation_path(6.0, seed=0, period=3.0)
     gap = RealityGap(seed=11).modelled_only()
-    loaded = record(folder, "loaded", path, default_test_payload(), 1, gap)
-    bare = record(folder, "bare", path, None, 2, gap)
+    return (ArmPlant(payload=default_test_payload(), seed=1, gap=gap).follow(path),
+            ArmPlant(payload=None, seed=2, gap=gap).follow(path))
+
+
+@pytest.fixture(scope="module")
+def short_logs(short_runs, tmp_path_factory):
+    """``short_runs`` as .blf logs, loaded and bare (``record``'s way)."""
+    folder = tmp_path_factory.mktemp("identify")
+    loaded, bare = folder / "loaded.blf", folder / "bare.blf"
+    write_log(short_runs[0], loaded, "fd")
+    write_log(short_runs[1], bare, "fd")
     return loaded, bare
 
 
@@ -78,7 +86,7 @@ def test_identify_writes_the_payload_file_and_the_summary(short_logs, tmp_path, 
     assert "mass" in text and "determined by the data: all ten parameters" in text
 
 
-def test_the_cli_reads_what_the_function_is_given(short_logs):
+def test_the_cli_reads_what_the_function_is_given(short_runs, short_logs):
     """The logs decode (E2E, reassembly, 0.01 N·m torque resolution) to the same result the
     core gives on the plant's states rounded to the wire's resolution."""
     from deploy.commands.identify import read_log
@@ -86,9 +94,7 @@ def test_the_cli_reads_what_the_function_is_given(short_logs):
     loaded, bare = short_logs
     rec = read_log(loaded)
     assert len(rec) == 6001 and rec.t[0] == 0.0
-    path = excitation_path(6.0, seed=0, period=3.0)
-    gap = RealityGap(seed=11).modelled_only()
-    roll = ArmPlant(payload=default_test_payload(), seed=1, gap=gap).follow(path)
+    roll = short_runs[0]  # the plant's states the loaded log was written from
     np.testing.assert_allclose(rec.tau, roll.tau, atol=0.005 + 1e-9)
     np.testing.assert_allclose(rec.q, roll.q, atol=0.5e-5 + 1e-12)
     a = identify(rec, read_log(bare))
