@@ -44,8 +44,14 @@ def test_step_timing_refuses_no_points():
         step_timing(Stepper(), [])
 
 
-def test_bench_e2e_steps_the_same_points_again_back_to_back(phys_model_file):
-    figures = measure(1.0, model=load_model(phys_model_file), log=lambda *a: None)
+@pytest.fixture(scope="module")
+def measured(trained_phys_model_file) -> dict:
+    """The figures of one 1 s ``iem bench e2e`` run, which the tests below read apart."""
+    return measure(1.0, model=load_model(trained_phys_model_file), log=lambda *a: None)
+
+
+def test_bench_e2e_steps_the_same_points_again_back_to_back(measured):
+    figures = measured
     step = figures["step_cpu_us"]
     assert figures["cycles"] > 0 and step["points"] == figures["cycles"]
     assert step["live"] > 0.0 and step["back_to_back"] > 0.0
@@ -67,8 +73,8 @@ def test_machine_speed_times_a_fixed_round_by_cpu_and_wall():
             machine_speed(*bad)
 
 
-def test_bench_e2e_reads_the_machine_speed_beside_the_share(phys_model_file):
-    f = measure(1.0, model=load_model(phys_model_file), log=lambda *a: None)
+def test_bench_e2e_reads_the_machine_speed_beside_the_share(measured):
+    f = measured
     m = f["machine_us"]
     assert m["before"]["cpu_us"] > 0.0 and m["after"]["cpu_us"] > 0.0
     round_s = (m["before"]["cpu_us"] + m["after"]["cpu_us"]) / 2.0 * 1e-6
