@@ -182,13 +182,15 @@ def arm_torque_noise(arm, point_rate_hz: float = NOMINAL_POINT_RATE_HZ) -> dict:
     """What IEM+phys takes as its equations' error on ``arm`` (None: the nominal arm): the
     noise ``iem calibrate`` measured into the arm file, or the nominal arm's conservative
     default (:data:`iem.physics.torque_noise.NOMINAL_ARM_NOISE`) at the model's equation rate (one
-    equation per block point)."""
+    equation per block point). The measured noise's ``source`` names the arm by its content
+    (``arm:CRC32``): the arm file's says what it was measured on, the recordings' paths
+    included, and a model file holds data, never a path."""
     from dataclasses import replace
 
     from iem.physics.torque_noise import NOMINAL_ARM_NOISE
 
     if arm is not None and arm.noise is not None:
-        return dict(arm.noise)
+        return {**arm.noise, "source": f"measured by the calibration of arm:{arm.crc32:08x}"}
     return replace(NOMINAL_ARM_NOISE, rate_hz=point_rate_hz).to_dict()
 
 

@@ -148,9 +148,17 @@ def test_a_spec_with_a_path_or_an_argument_its_factory_does_not_take_is_refused(
 # -- the arm: by content, given at run time ---------------------------------------------------
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
-    """``(model file, arm file)``: IEM+phys trained by ``iem train --arm`` in one directory."""
+    """``(model file, arm file)``: IEM+phys trained by ``iem train --arm`` in one directory,
+    for an arm whose measured noise names the recording it came from by its path, as
+    ``iem calibrate`` writes it (sim.calibration_noise)."""
+    from dataclasses import replace
+
+    from iem.physics.torque_noise import NOMINAL_ARM_NOISE
+
     d = tmp_path_factory.mktemp("trained")
-    save_arm(RealityGap(seed=3).realise(), d / "arm.msgpack")
+    noise = {**NOMINAL_ARM_NOISE.to_dict(),
+             "source": f"5-fold cross-validation on {d / 'bare.blf'}"}
+    save_arm(replace(RealityGap(seed=3).realise(), noise=noise), d / "arm.msgpack")
     assert main(["train", "--kind", "IEM+phys", "--arm", str(d / "arm.msgpack"),
                  "--out", str(d / "model.msgpack")]) == 0
     return d / "model.msgpack", d / "arm.msgpack"
