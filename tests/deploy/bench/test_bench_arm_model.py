@@ -26,7 +26,9 @@ def fr3_quick(tmp_path_factory):
     return json.loads((out / "results.json").read_text())
 
 
-@pytest.mark.slow  # the Kinova's bench paper --quick runs the same path in the default suite
+@pytest.mark.slow  # as the Kinova's (test_second_arm.py): bench paper --quick on another arm
+# model runs with -m slow only; the default suite runs it on the Panda (test_bench_paper.py)
+# and checks every bench's set-up is the arm model's (below)
 def test_bench_paper_quick_runs_on_the_fr3_and_records_it(fr3_quick):
     r = fr3_quick
     assert r["setup"]["arm_model"] == arm_description("fr3").record()
