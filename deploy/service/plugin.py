@@ -260,12 +260,7 @@ class PayloadPlugin:
         with self._lock:
             if self._closed:
                 raise RuntimeError("PayloadPlugin: closed")
-            try:
-                self._child.stdin.write(_HEADER.pack(kind, len(body)) + body)
-                self._child.stdin.flush()
-                frame = _read_frame(self._child.stdout)
-            except OSError:
-                frame = None
+            frame = _ask(self._child, kind, body)
             if frame is None:
                 raise RuntimeError(f"PayloadPlugin: the service's process ended (exit code "
                                    f"{self._child.poll()})")
@@ -301,6 +296,17 @@ class PayloadPlugin:
         self.close()
 
 
+def _ask(child: subprocess.Popen, kind: bytes, body: bytes) -> tuple[bytes, bytes] | None:
+    """One command to the service's process and its answer frame ``(kind, body)``; None if
+    the process is gone (its pipes closed)."""
+    try:
+        child.stdin.write(_HEADER.pack(kind, len(body)) + body)
+        child.stdin.flush()
+        return _read_frame(child.stdout)
+    except OSError:
+        return None
+
+
 def _widen(fd: int, size: int) -> None:
     """Make the pipe ``fd`` hold ``size`` bytes, or as much as this system lets an
     unprivileged process ask for (Linux; elsewhere it keeps its default)."""
@@ -330,13 +336,8 @@ def _start(config, model, record_to) -> tuple[subprocess.Popen, int]:
     finally:
         os.close(read_end)
     _widen(write_end, BUFFERED_CYCLES * (_HEADER.size + _STATE.size))
-    body = pickle.dumps((config, model, None if record_to is None else os.fspath(record_to)))
-    try:
-        child.stdin.write(_HEADER.pack(START, len(body)) + body)
-        child.stdin.flush()
-        frame = _read_frame(child.stdout)
-    except OSError:
-        frame = None
+    frame = _ask(child, START, pickle.dumps(
+        (config, model, None if record_to is None else os.fspath(record_to))))
     if frame is None or frame[0] != READY:
         os.close(write_end)
         with contextlib.suppress(OSError):
