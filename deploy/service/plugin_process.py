@@ -2,11 +2,11 @@
 
 A franky or pylibfranka program calls its motion's callback from the robot's 1 kHz loop, and
 that call needs the program's interpreter lock. Python has one lock per process: with the
-service estimating in a thread of the program, the loop at real-time priority waited for a
-thread of normal priority (``iem bench fci --fifo``, franky-sim: 420 of 27,215 steps of 2 ms
-or more, against none with the service here and none without the plug-in). So the service
-runs here, in a child (``python -m deploy.service.plugin_process STATES_FD``), and the
-program's process keeps the callback's queue and the thread that writes it to a pipe.
+service estimating in a thread of the program, the loop at real-time priority waits for a
+thread of normal priority (measured with ``iem bench fci --fifo``: docs/decisions.md, "The
+plug-in inside a program estimates in its own process"). So the service runs here, in a
+child (``python -m deploy.service.plugin_process STATES_FD``), and the program's process
+keeps the callback's queue and the thread that writes it to a pipe.
 
 - States: on the pipe ``STATES_FD``, each the 35 doubles of
   :class:`firmware_bridge.franka_process.ProcessState` (time, ``q``, ``dq``, ``tau_J``,
