@@ -183,10 +183,9 @@ class PayloadPlugin:
         self.summary: dict | None = None
         self.written = 0
         """States written to the service's process."""
-        self.dropped = 0
-        """States fed and never handed to the service: fed while
-        :data:`~firmware_bridge.links.BUFFERED_CYCLES` states waited for the writer (the
-        service's process that far behind, its pipe full), or after its process ended."""
+        # the states dropped, each count by one thread only (a += from two threads can lose
+        # one): the robot's loop (feed) and the writer (under its lock)
+        self._dropped_fed = self._dropped_written = 0
         self._lock = threading.Lock()  # one command at a time
         self._closed = False
         self._fed: deque = deque()
@@ -204,9 +203,16 @@ class PayloadPlugin:
         is dropped and counted in :attr:`dropped`)."""
         fed = self._fed
         if len(fed) >= BUFFERED_CYCLES:
-            self.dropped += 1
+            self._dropped_fed += 1
             return
         fed.append(robot_state)
+
+    @property
+    def dropped(self) -> int:
+        """States fed and never handed to the service: fed while
+        :data:`~firmware_bridge.links.BUFFERED_CYCLES` states waited for the writer (the
+        service's process that far behind, its pipe full), or after its process ended."""
+        return self._dropped_fed + self._dropped_written
 
     def _write(self) -> None:
         """The states fed so far, to the service's process (one write; it waits while the
@@ -219,7 +225,7 @@ class PayloadPlugin:
                 try:
                     os.write(self._states, b"".join(frames))
                 except OSError:  # the service's process is gone
-                    self.dropped += len(frames)
+                    self._dropped_written += len(frames)
                     return
                 self.written += len(frames)
 
