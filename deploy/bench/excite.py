@@ -11,7 +11,13 @@ from the motion's data alone:
 
 - ``identify+bare``: ``iem identify`` of the loaded recording with the bare one;
 - ``identify+arm``: ``iem identify`` of the loaded recording with the arm file;
-- ``live``: IEM+phys's smoothed estimate at the motion's end, learning as it goes.
+- ``live``: IEM+phys's smoothed estimate at the motion's end, learning as it goes;
+
+and the same two with the arm calibrated on the motion's bare run too (the calibration motion
+and the bare run together, as ``iem calibrate bare-arm.blf bare-motion.blf`` does, IEM+phys
+trained for that arm): ``identify+arm_motion`` and ``live_arm_motion``, what a cell that
+records the motion once bare at commissioning gets. The loaded runs have noise seeds of
+their own.
 
 Each is compared with :data:`TARGET` (mass kg, CoM mm). ``--json FILE`` writes it all.
 Simulation only.
@@ -34,6 +40,8 @@ TARGET = (0.02, 5.0)
 PAYLOADS = ("test-3w", "light-tool", "offaxis-tool")
 """The paper's test payload (1.615 kg), ``iem bench realistic``'s 0.4 kg light tool and its
 2.7 kg off-axis tool."""
+KINDS = ("identify+bare", "identify+arm", "live", "identify+arm_motion", "live_arm_motion")
+"""What each payload's row holds, in the order printed."""
 EXCITE_NOISE = 300
 """The motion's rollouts have noise seeds ``seed + EXCITE_NOISE`` (bare) and one more
 (loaded)."""
@@ -76,8 +84,10 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     """The motion on ``iem bench realistic``'s plant of ``seed``: identify and live figures
     per payload."""
     from deploy.model.training import train_initial_model
+    from sim.arm import save_arm
     from sim.identify import identify
     from sim.robot import ArmModel
+    from sim.tandem import TandemSimulators
 
     from .realistic import RealisticBench, calibrated_arm
 
@@ -85,26 +95,34 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     folder = FsPath(out_dir) / f"seed{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     arm, _, arm_file = calibrated_arm(bench, folder, None, log)
-    model = train_initial_model("IEM+phys", seed=seed, arm_file=str(arm_file),
-                                log=lambda *a: None, description=description)
     bare = bench.rollout(path, None, seed + EXCITE_NOISE)
     cut = lambda r: (r.t, r.q, r.dq, r.tau)  # noqa: E731
-    from sim.tandem import TandemSimulators
-
-    tandem = TandemSimulators(bench.tandem.phi, model=ArmModel(arm=arm))
+    # the arm calibrated on the motion's bare run too: what a cell that records it once
+    # bare at commissioning gives iem calibrate
+    arm_motion, _ = bench.calibrate(extra=[cut(bare)], source="bench excite calibration "
+                                                              "motion and the motion, bare")
+    motion_file = folder / "arm-with-motion.msgpack"
+    save_arm(arm_motion, motion_file)
+    live = {}
+    for kind, a, f in (("live", arm, arm_file), ("live_arm_motion", arm_motion, motion_file)):
+        live[kind] = (train_initial_model("IEM+phys", seed=seed, arm_file=str(f),
+                                          log=lambda *a: None, description=description),
+                      TandemSimulators(bench.tandem.phi, model=ArmModel(arm=a)))
     out = {}
     for name, payload in _payloads().items():
         loaded = bench.rollout(path, payload, seed + EXCITE_NOISE + 1)
         truth = payload.to_phi()
         row = {}
-        for kind, kw in (("identify+bare", {"bare": cut(bare)}), ("identify+arm", {"arm": arm})):
+        for kind, kw in (("identify+bare", {"bare": cut(bare)}), ("identify+arm", {"arm": arm}),
+                         ("identify+arm_motion", {"arm": arm_motion})):
             row[kind] = errors(identify(cut(loaded), check_excitation=False,
                                         model=bench.kin, **kw).phi, truth)
-        run = bench.run(_fresh(model), loaded, learn=True, tandem=tandem)
-        row["live"] = errors(run.smoothed[-1], truth)
-        out[name] = row
+        for kind, (model, tandem) in live.items():
+            run = bench.run(_fresh(model), loaded, learn=True, tandem=tandem)
+            row[kind] = errors(run.smoothed[-1], truth)
+        out[name] = {kind: row[kind] for kind in KINDS}
         log(f"seed {seed} {name:12s} " + " | ".join(
-            f"{k} {m:+.4f} kg {c:5.1f} mm" for k, (m, c) in row.items()))
+            f"{k} {m:+.4f} kg {c:5.1f} mm" for k, (m, c) in out[name].items()))
     return out
 
 
@@ -134,7 +152,7 @@ def run_excite(seeds, seconds: float, out_dir, log=print, description=None) -> d
     met = {kind: all(abs(m) <= TARGET[0] and c <= TARGET[1]
                      for rows in results["seeds"].values() for row in rows.values()
                      for k, (m, c) in row.items() if k == kind)
-           for kind in ("identify+bare", "identify+arm", "live")}
+           for kind in KINDS}
     results["met"] = met
     results["wall_s"] = time.perf_counter() - started
     log("target (within 0.02 kg and 5 mm, every payload and seed, simulation only): "

@@ -131,9 +131,11 @@ class RealisticBench(Bench):
                  f"{getattr(payload, 'name', 'no payload')}: {time.perf_counter() - t0:.1f} s")
         return out
 
-    def calibrate(self):
+    def calibrate(self, extra=(), source: str = "bench realistic calibration motion"):
         """The bare arm along the calibration motion, calibrated: ``(arm, held_out)``, with
-        the residual RMS per joint on a held-out bare run of the new task path."""
+        the residual RMS per joint on a held-out bare run of the excitation path. ``extra``:
+        more bare recordings ``(t, q, dq, tau)`` calibrated on with it (as ``iem calibrate``
+        given several logs), ``source`` what the arm file says it was fitted on."""
         from sim.arm import ArmParams
         from sim.calibration import residual_rms
         from sim.calibration_noise import calibrate_with_noise
@@ -142,8 +144,7 @@ class RealisticBench(Bench):
         plant = self._plant_cls(payload=None, seed=CAL_NOISE_BASE + self.seed, gap=self.gap)
         r = plant.follow(calibration_path(model=self.kin))
         # as iem calibrate: the arm, and the noise it leaves in IEM+phys's equations
-        arm = calibrate_with_noise([(r.t, r.q, r.dq, r.tau)],
-                                   source="bench realistic calibration motion",
+        arm = calibrate_with_noise([(r.t, r.q, r.dq, r.tau), *extra], source=source,
                                    description=self.description)
         nominal = ArmParams.nominal(None, self.description)
         held = self._plant_cls(payload=None, seed=CAL_NOISE_BASE + self.seed + 1,

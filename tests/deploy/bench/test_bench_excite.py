@@ -1,5 +1,6 @@
 """``iem bench excite``: the designed motion's figures and, per seed, what identify and the
-live estimate make of it on the realistic plant (a short run: one seed, a 4 s motion)."""
+live estimate make of it on the realistic plant (a short run: one seed, a 5 s motion,
+long enough for the calibration to keep its bare run)."""
 
 import json
 
@@ -10,10 +11,14 @@ from deploy.cli import main
 pytest.importorskip("mujoco")
 
 
+KINDS = {"identify+bare", "identify+arm", "live", "identify+arm_motion", "live_arm_motion"}
+
+
 @pytest.mark.slow
 def test_bench_excite_prints_the_design_and_every_payloads_figures(tmp_path, capsys):
     out = tmp_path / "excite.json"
-    assert main(["bench", "excite", "--seeds", "0", "--seconds", "4", "--json", str(out)]) == 0
+    assert main(["bench", "excite", "--seeds", "0", "--seconds", "5", "--json", str(out),
+                 "--out", str(tmp_path / "arms")]) == 0
     printed = capsys.readouterr().out
     assert "condition" in printed and "excitation path" in printed
     r = json.loads(out.read_text())
@@ -22,7 +27,14 @@ def test_bench_excite_prints_the_design_and_every_payloads_figures(tmp_path, cap
     rows = r["seeds"]["0"]
     assert set(rows) == {"test-3w", "light-tool", "offaxis-tool"}
     for row in rows.values():
-        assert set(row) == {"identify+bare", "identify+arm", "live"}
+        assert set(row) == KINDS
         mass, com = row["identify+bare"]
         assert abs(mass) < 0.05 and com < 5.0  # the bare run cancels the arm's error
-    assert set(r["met"]) == {"identify+bare", "identify+arm", "live"}
+    assert set(r["met"]) == KINDS
+    # the second arm is fitted on the calibration motion and the motion's bare run together
+    from sim.arm import load_arm
+
+    alone = load_arm(tmp_path / "arms" / "seed0" / "arm.msgpack").report
+    both = load_arm(tmp_path / "arms" / "seed0" / "arm-with-motion.msgpack").report
+    assert both["segments"] == alone["segments"] + 1
+    assert both["duration_s"] > alone["duration_s"] + 3.0
