@@ -104,10 +104,11 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     motion_file = folder / "arm-with-motion.msgpack"
     save_arm(arm_motion, motion_file)
     live = {}
-    for kind, a, f in (("live", arm, arm_file), ("live_arm_motion", arm_motion, motion_file)):
-        live[kind] = (train_initial_model("IEM+phys", seed=seed, arm_file=str(f),
+    for kind, its_arm, its_file in (("live", arm, arm_file),
+                                    ("live_arm_motion", arm_motion, motion_file)):
+        live[kind] = (train_initial_model("IEM+phys", seed=seed, arm_file=str(its_file),
                                           log=lambda *a: None, description=description),
-                      TandemSimulators(bench.tandem.phi, model=ArmModel(arm=a)))
+                      TandemSimulators(bench.tandem.phi, model=ArmModel(arm=its_arm)))
     out = {}
     for name, payload in _payloads().items():
         loaded = bench.rollout(path, payload, seed + EXCITE_NOISE + 1)

@@ -7,6 +7,7 @@ import json
 import pytest
 
 from deploy.cli import main
+from sim.arm import load_arm
 
 pytest.importorskip("mujoco")
 
@@ -32,8 +33,6 @@ def test_bench_excite_prints_the_design_and_every_payloads_figures(tmp_path, cap
         assert abs(mass) < 0.05 and com < 5.0  # the bare run cancels the arm's error
     assert set(r["met"]) == KINDS
     # the second arm is fitted on the calibration motion and the motion's bare run together
-    from sim.arm import load_arm
-
     alone = load_arm(tmp_path / "arms" / "seed0" / "arm.msgpack").report
     both = load_arm(tmp_path / "arms" / "seed0" / "arm-with-motion.msgpack").report
     assert both["segments"] == alone["segments"] + 1
