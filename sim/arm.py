@@ -82,6 +82,9 @@ def _friction_array(value) -> np.ndarray:
     a.flags.writeable = False
     return a
 
+MAX_GAIN = 0.5
+"""A torque sensor's relative gain error an arm file may hold, at most (exclusive)."""
+
 POSTERIOR_PARAMS = 70 + 7 * len(FRICTION_COLUMNS)
 """The parameters :attr:`ArmParams.posterior` covers: the bodies' 70 and the friction's 63."""
 
@@ -146,6 +149,10 @@ class ArmParams:
             inertia, a torque ``armature * ddq`` on its own joint (Pinocchio's
             ``Model.armature``; ``iem calibrate --armature``); zeros: none (Franka's
             link-side torque sensors see none).
+        gain: ``(7,)`` each torque sensor's relative gain error (-): a payload's torque
+            ``Y phi`` reads ``(1 + gain) Y phi`` (the bare arm's own torque is already
+            what the sensors read: the calibration fits it as measured). Measured with a
+            known load (``iem calibrate --known-load``); zeros: not measured.
     """
 
     link_params: np.ndarray
@@ -158,6 +165,7 @@ class ArmParams:
     description: ArmDescription | None = field(default=None, repr=False)
     posterior: np.ndarray | None = field(default=None, repr=False)
     armature: np.ndarray | None = None
+    gain: np.ndarray | None = None
 
     name: ClassVar[str] = "arm"
     """The kind recorded in the arm file."""
@@ -180,6 +188,12 @@ class ArmParams:
         if np.any(self.armature < 0.0):
             raise InvalidInputError(f"arm armature must be >= 0 kg·m², got "
                                     f"{self.armature.tolist()}")
+        object.__setattr__(self, "gain", _array(
+            "gain", np.zeros(7) if self.gain is None else self.gain, (7,)))
+        if np.any(np.abs(self.gain) >= MAX_GAIN):
+            raise InvalidInputError(f"arm gain must be each joint's relative gain error, "
+                                    f"between -{MAX_GAIN:g} and {MAX_GAIN:g}, got "
+                                    f"{self.gain.tolist()}")
 
     @classmethod
     def nominal(cls, end_effector=None, description=None) -> ArmParams:
@@ -236,6 +250,8 @@ class ArmParams:
             state["description"] = self.description.record()
         if np.any(self.armature):  # only when fitted: an arm without keeps its CRC
             state["armature"] = self.armature.tolist()
+        if np.any(self.gain):  # only when measured, as the armature
+            state["gain"] = self.gain.tolist()
         if self.posterior is not None:  # its lower triangle, row by row
             state["posterior"] = self.posterior[np.tril_indices(POSTERIOR_PARAMS)].tolist()
         return state
@@ -249,7 +265,7 @@ class ArmParams:
                    end_effector=str(state.get("end_effector") or "franka_hand"),
                    noise=state.get("noise"), description=described_by(state.get("description")),
                    posterior=_unpacked(state.get("posterior")),
-                   armature=state.get("armature"))
+                   armature=state.get("armature"), gain=state.get("gain"))
 
     @property
     def crc32(self) -> int:

@@ -60,7 +60,9 @@ class ArmModel:
             every torque this model gives (``rnea``, ``rnea_with_payload``,
             ``rnea_and_regressor``) is the measured ``tau_J`` of that arm: its bodies' RNEA
             (with its armature) plus friction plus offsets; the payload regressor depends
-            only on kinematics.
+            on kinematics and, where the arm has measured its sensors' gain
+            (:attr:`sim.arm.ArmParams.gain`), reads a payload's torque through it, as do the
+            payload's share of ``rnea_with_payload`` and ``payload_mass_matrix``.
         description: the arm model (:mod:`sim.description`; a name, a path or an
             :class:`~sim.description.ArmDescription`) when ``arm`` is None; None: the
             default.
@@ -83,6 +85,9 @@ class ArmModel:
             self.model.inertias[7] = pin.Inertia.FromDynamicParameters(
                 nominal_link_params(None, self.description)[6])
         self._extra = None if arm is None else arm.joint_torque
+        # the torque sensors' gain on a payload's torque (None: not measured)
+        self._gain = None if arm is None or not np.any(arm.gain) else (
+            1.0 + arm.gain)[:, None]
         self.data = self.model.createData()
         self.flange_id = self.model.getFrameId(self.description.flange)
         self.last_joint = self.model.frames[self.flange_id].parentJoint
@@ -133,8 +138,11 @@ class ArmModel:
             self._pl_model.inertias[self.last_joint] = (
                 self._link7 + self.payload_inertia_in_joint(phi))
             self._pl_phi = phi.copy()
-        tau = pin.rnea(self._pl_model, self._pl_data, np.asarray(q, float),
-                       np.asarray(dq, float), np.asarray(ddq, float)).copy()
+        q, dq, ddq = (np.asarray(v, float) for v in (q, dq, ddq))
+        tau = pin.rnea(self._pl_model, self._pl_data, q, dq, ddq).copy()
+        if self._gain is not None:  # the payload's share as the arm's sensors read it
+            bare = pin.rnea(self.model, self.data, q, dq, ddq)
+            tau = bare + self._gain[:, 0] * (tau - bare)
         return tau if self._extra is None else tau + self._extra(dq)
 
     def payload_regressor(self, q, dq, ddq) -> np.ndarray:
@@ -154,7 +162,10 @@ class ArmModel:
         jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
         if self._extra is not None:
             tau += self._extra(dq)
-        return tau, (jac.T @ body)[:, PAPER_TO_PIN]
+        regressor = (jac.T @ body)[:, PAPER_TO_PIN]
+        if self._gain is not None:  # as the arm's sensors read a payload's torque
+            regressor *= self._gain
+        return tau, regressor
 
     def joint_torque_regressor(self, q, dq, ddq) -> np.ndarray:
         """The joint torques' regressor in the seven bodies' parameters (7x70, Pinocchio
@@ -179,7 +190,8 @@ class ArmModel:
         payload ``phi`` (paper order) on the flange; ``J`` the flange Jacobian (LOCAL)."""
         q = np.asarray(q, dtype=float)
         jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
-        return jac.T @ spatial_inertia(phi) @ jac
+        mass = jac.T @ spatial_inertia(phi) @ jac
+        return mass if self._gain is None else mass * self._gain
 
     # -- checks ----------------------------------------------------------------------------
     def random_state(self, rng: np.random.Generator, margin: float = 0.0):

@@ -18,7 +18,9 @@ itself (:mod:`sim.end_effector`; the prior is centred on that nominal arm). The 
 equations, measured on traffic it did not see); this prints the per-joint residual RMS before
 and after, the condition number of the excitation, that noise and any warning, and writes the
 arm file (msgpack, versioned, CRC-checked; :mod:`sim.arm`), which ``iem train/run/replay/demo
---arm`` and the benchmarks use.
+--arm`` and the benchmarks use. ``--known-load REC... --known-payload TOML`` adds the torque
+sensors' gain, read from recordings of the calibration motion with that known payload mounted
+(:mod:`sim.calibration.gain`), which no bare recording shows.
 """
 
 from __future__ import annotations
@@ -158,6 +160,12 @@ def print_report(arm, out, log=print) -> None:
     if arm.armature.any():
         log("armature (kg·m²)    " + " ".join(f"{v:.3f}" for v in arm.armature))
     log(f"end effector: {arm.end_effector}")
+    gain = r.get("gain")
+    if gain is not None:
+        log(f"torque sensors' gain, read with the known load {gain['payload']!r} "
+            f"(joints {', '.join(map(str, gain['unmeasured'])) or 'none'} not turned enough "
+            f"to read one):")
+        log("  gain (-)            " + " ".join(f"{v:+.4f}" for v in arm.gain))
     if arm.noise is not None:
         n = arm.noise
         log(f"what the calibrated arm leaves in IEM+phys's equations ({n['cutoff_hz']:g} Hz "
@@ -196,7 +204,44 @@ def configure(parser) -> None:
                         help="fit each joint's armature (its drive's rotor inertia): for a "
                         "torque read from motor currents or a simulator's applied torque "
                         "(franky-sim's); not for Franka's link-side torque sensors")
+    parser.add_argument("--known-load", nargs="+", metavar="REC",
+                        help="recordings of the calibration motion with a known payload "
+                        "mounted (--known-payload): the torque sensors' gain, which no bare "
+                        "recording shows, is read from them")
+    parser.add_argument("--known-payload", metavar="TOML",
+                        help="the payload file of the load --known-load carries")
     add_rate(parser)
+
+
+def known_load_gain(arm, logs, payload_file, *, format=None, topic=DEFAULT_TOPIC,
+                    profile: str = "fd", rate_hz: float | None = None, log=print):
+    """``arm`` with its torque sensors' gain read from the recordings ``logs`` of the known
+    payload in ``payload_file`` (:func:`sim.calibration.gain.fit_gain`), at the rate the arm
+    was calibrated at; the fit's figures go to its report's ``gain``."""
+    from dataclasses import replace
+
+    from firmware_bridge.recordings import open_recording
+    from sim.calibration import CalibrationSettings
+    from sim.calibration.gain import fit_gain
+    from sim.payload import load_payload
+
+    payload = load_payload(payload_file)
+    parts, names = [], []
+    for log_file in logs:
+        replay = open_recording(log_file, format, topic=topic, profile=profile,
+                                joints=arm.description.joint_names)
+        try:
+            data = read_states(replay)
+        finally:
+            replay.close()
+        if data[0].size == 0:
+            raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
+                                    f"{profile} profile in it")
+        parts.append(data)
+        names.append(str(log_file))
+    rate = traffic_rate(parts, names, rate_hz, log)
+    gain, report = fit_gain(arm, parts, payload, CalibrationSettings(recorded_rate_hz=rate))
+    return replace(arm, gain=gain, report={**arm.report, "gain": report})
 
 
 def run(args) -> int:
@@ -218,14 +263,21 @@ def run(args) -> int:
     if args.interface is None:
         refuse_unused(args, ["--channel", "--duration"], "without --interface: they are the "
                       "live link's")
-    if not args.logs:
+    if not args.logs and not args.known_load:
         refuse_unused(args, ["--format", "--topic"], "without a REC: they are the "
                       "recordings'")
+    if bool(args.known_load) != bool(args.known_payload):
+        raise InvalidInputError("--known-load REC... and --known-payload TOML go together: "
+                                "the recordings of the calibration motion with a known "
+                                "payload, and that payload's file")
     t0 = time.perf_counter()
     arm = calibrate_sources(args.logs, interface=args.interface, channel=args.channel,
                             duration=args.duration, **recording_options(args),
                             end_effector=args.end_effector, rate_hz=args.rate,
                             description=arm_description_of(args), armature=args.armature)
+    if args.known_load:
+        arm = known_load_gain(arm, args.known_load, args.known_payload,
+                              **recording_options(args), rate_hz=args.rate)
     save_arm(arm, args.out)
     print_report(arm, args.out)
     print(f"({time.perf_counter() - t0:.1f} s)")

@@ -145,8 +145,13 @@ def _against_bare(model, L: Signals, B: Signals, path_tol: float, min_overlap_s:
 
 def _against_arm(model, L: Signals, arm_rnea):
     """``(r, Y, lead, None)`` of step 3 with a calibrated arm: the loaded torques minus the
-    arm's, the nominal regressor and the torques' time derivative."""
+    arm's, the regressor and the torques' time derivative. An arm model that gives its own
+    regressor (a :class:`sim.robot.ArmModel`) gives it as its sensors read a payload's
+    torque (its measured gain, :attr:`sim.arm.ArmParams.gain`); else the nominal one."""
     q, dq, ddq, tau = L.q, L.dq, L.ddq, L.tau
+    if hasattr(arm_rnea, "rnea_and_regressor"):
+        r, Y = residuals_and_regressor(arm_rnea, q, dq, ddq, tau)
+        return r, Y, L.dtau, None
     _, Y = residuals_and_regressor(model, q, dq, ddq, tau)
     r = tau - np.array([arm_rnea.rnea(q[i], dq[i], ddq[i]) for i in range(q.shape[0])])
     return r, Y, L.dtau, None
