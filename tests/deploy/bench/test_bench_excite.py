@@ -12,7 +12,8 @@ from sim.arm import load_arm
 pytest.importorskip("mujoco")
 
 
-KINDS = {"identify+bare", "identify+arm", "live", "identify+arm_motion", "live_arm_motion"}
+KINDS = {"identify+bare", "identify+arm", "live", "identify+arm_motion", "live_arm_motion",
+         "identify+arm_known_load", "live_arm_known_load"}
 
 
 @pytest.mark.slow
@@ -25,7 +26,9 @@ def test_bench_excite_prints_the_design_and_every_payloads_figures(tmp_path, cap
     r = json.loads(out.read_text())
     assert r["design"]["condition"] < r["design"]["condition_of"]["excitation"]
     assert max(r["design"]["dq_peak_share"]) <= 0.75 + 1e-9
-    rows = r["seeds"]["0"]
+    rows = dict(r["seeds"]["0"])
+    gain = rows.pop("gain")
+    assert {2, 3, 4} <= set(gain["measured"])  # the joints a known load's weight turns
     assert set(rows) == {"test-3w", "light-tool", "offaxis-tool"}
     for row in rows.values():
         assert set(row) == KINDS
@@ -37,3 +40,5 @@ def test_bench_excite_prints_the_design_and_every_payloads_figures(tmp_path, cap
     both = load_arm(tmp_path / "arms" / "seed0" / "arm-with-motion.msgpack").report
     assert both["segments"] == alone["segments"] + 1
     assert both["duration_s"] > alone["duration_s"] + 3.0
+    known = load_arm(tmp_path / "arms" / "seed0" / "arm-known-load.msgpack")
+    assert known.gain.tolist() == gain["read"] and known.report["gain"]["payload"] == "test-4w"
