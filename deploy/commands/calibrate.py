@@ -69,6 +69,28 @@ def read_states(source, duration: float | None = None, silence_s: float = 1.0):
     return t, *(np.array([r[i] for r in rows]) for i in (1, 2, 3))
 
 
+def read_recordings(logs, format, topic, profile, joints) -> tuple[list, list]:
+    """``(parts, names)``: the ``(t, q, dq, tau)`` of every joint state of each recording in
+    ``logs`` (of ``format``, None: detected per file; a rosbag2 bag's ``topic`` and
+    ``joints``; a CAN log's wire ``profile``), each split at its gaps later by the signal
+    chain, and the recordings' names."""
+    from firmware_bridge.recordings import open_recording
+
+    parts, names = [], []
+    for log_file in logs:
+        replay = open_recording(log_file, format, topic=topic, profile=profile, joints=joints)
+        try:
+            data = read_states(replay)
+        finally:
+            replay.close()
+        if data[0].size == 0:
+            raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
+                                    f"{profile} profile in it")
+        parts.append(data)
+        names.append(str(log_file))
+    return parts, names
+
+
 def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
                       profile: str = "fd", link=None, format: str | None = None,
                       topic: str = DEFAULT_TOPIC, end_effector=None,
@@ -86,24 +108,12 @@ def calibrate_sources(logs=(), *, interface=None, channel=None, duration=None,
     must carry.
     """
     from firmware_bridge.links import open_link
-    from firmware_bridge.recordings import open_recording
     from sim.calibration import CalibrationSettings
     from sim.calibration_noise import calibrate_with_noise
     from sim.description import described
 
-    parts, names = [], []
-    for log_file in logs:
-        replay = open_recording(log_file, format, topic=topic, profile=profile,
-                                joints=described(description).joint_names)
-        try:
-            data = read_states(replay)
-        finally:
-            replay.close()
-        if data[0].size == 0:
-            raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
-                                    f"{profile} profile in it")
-        parts.append(data)  # split at its gaps by the signal chain
-        names.append(str(log_file))
+    parts, names = read_recordings(logs, format, topic, profile,
+                                   described(description).joint_names)
     if interface is not None or link is not None:
         if duration is None or not duration > 0:
             raise InvalidInputError("a live calibration needs --duration S (> 0 s): how long "
@@ -220,25 +230,12 @@ def known_load_gain(arm, logs, payload_file, *, format=None, topic=DEFAULT_TOPIC
     was calibrated at; the fit's figures go to its report's ``gain``."""
     from dataclasses import replace
 
-    from firmware_bridge.recordings import open_recording
     from sim.calibration import CalibrationSettings
     from sim.calibration.gain import fit_gain
     from sim.payload import load_payload
 
     payload = load_payload(payload_file)
-    parts, names = [], []
-    for log_file in logs:
-        replay = open_recording(log_file, format, topic=topic, profile=profile,
-                                joints=arm.description.joint_names)
-        try:
-            data = read_states(replay)
-        finally:
-            replay.close()
-        if data[0].size == 0:
-            raise InvalidInputError(f"{log_file}: no complete joint-state cycle of the "
-                                    f"{profile} profile in it")
-        parts.append(data)
-        names.append(str(log_file))
+    parts, names = read_recordings(logs, format, topic, profile, arm.description.joint_names)
     rate = traffic_rate(parts, names, rate_hz, log)
     gain, report = fit_gain(arm, parts, payload, CalibrationSettings(recorded_rate_hz=rate))
     return replace(arm, gain=gain, report={**arm.report, "gain": report})
