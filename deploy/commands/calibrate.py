@@ -246,7 +246,8 @@ def run(args) -> int:
 
     if args.write_motion:
         refuse_unused(args, [("REC", "logs"), "--out", "--interface", "--channel", "--duration",
-                             "--format", "--topic", "--profile", "--end-effector", "--rate"],
+                             "--format", "--topic", "--profile", "--end-effector", "--rate",
+                             "--known-load", "--known-payload"],
                       "with --write-motion: it writes the motion for the arm model and stops")
         from sim.paths import calibration_path, save_path_csv
         from sim.robot import ArmModel

@@ -2,7 +2,7 @@
 
 A bare arm cannot show its torque sensors' gain error: the calibration fits the bare arm's
 torque as the sensors read it. A payload's torque ``Y phi`` is read as ``(1 + g) Y phi``, so
-on a heavy payload a gain of 1 % is 1 % of its mass (0.026-0.029 kg on a 2.7 kg tool on the
+on a heavy payload a gain of 1 % is 1 % of its mass (0.017-0.029 kg on a 2.7 kg tool on the
 realistic plant). With a payload whose parameters are known (a test weight, a tool measured
 on a scale and in CAD) mounted, the calibrated arm leaves, per joint ``j`` and sample::
 

@@ -116,3 +116,6 @@ def test_iem_calibrate_writes_the_gain_a_known_load_reads(tmp_path, monkeypatch,
     assert main(["calibrate", str(tmp_path / "bare.csv"), "--known-load",
                  str(tmp_path / "loaded.csv"), "--out", str(out)]) == 2
     assert "--known-payload TOML go together" in capsys.readouterr().err
+    assert main(["calibrate", "--write-motion", str(tmp_path / "m.csv"), "--known-load",
+                 str(tmp_path / "loaded.csv")]) == 2
+    assert "--known-load has no effect with --write-motion" in capsys.readouterr().err
