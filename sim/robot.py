@@ -86,8 +86,7 @@ class ArmModel:
                 nominal_link_params(None, self.description)[6])
         self._extra = None if arm is None else arm.joint_torque
         # the torque sensors' gain on a payload's torque (None: not measured)
-        self._gain = None if arm is None or not np.any(arm.gain) else (
-            1.0 + arm.gain)[:, None]
+        self._gain = None if arm is None or not np.any(arm.gain) else 1.0 + arm.gain
         self.data = self.model.createData()
         self.flange_id = self.model.getFrameId(self.description.flange)
         self.last_joint = self.model.frames[self.flange_id].parentJoint
@@ -142,7 +141,7 @@ class ArmModel:
         tau = pin.rnea(self._pl_model, self._pl_data, q, dq, ddq).copy()
         if self._gain is not None:  # the payload's share as the arm's sensors read it
             bare = pin.rnea(self.model, self.data, q, dq, ddq)
-            tau = bare + self._gain[:, 0] * (tau - bare)
+            tau = bare + self._gain * (tau - bare)
         return tau if self._extra is None else tau + self._extra(dq)
 
     def payload_regressor(self, q, dq, ddq) -> np.ndarray:
@@ -164,7 +163,7 @@ class ArmModel:
             tau += self._extra(dq)
         regressor = (jac.T @ body)[:, PAPER_TO_PIN]
         if self._gain is not None:  # as the arm's sensors read a payload's torque
-            regressor *= self._gain
+            regressor *= self._gain[:, None]
         return tau, regressor
 
     def joint_torque_regressor(self, q, dq, ddq) -> np.ndarray:
@@ -191,7 +190,7 @@ class ArmModel:
         q = np.asarray(q, dtype=float)
         jac = pin.computeFrameJacobian(self.model, self.data, q, self.flange_id, pin.LOCAL)
         mass = jac.T @ spatial_inertia(phi) @ jac
-        return mass if self._gain is None else mass * self._gain
+        return mass if self._gain is None else mass * self._gain[:, None]
 
     # -- checks ----------------------------------------------------------------------------
     def random_state(self, rng: np.random.Generator, margin: float = 0.0):

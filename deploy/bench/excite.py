@@ -126,9 +126,9 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     arm_known = replace(arm_motion, gain=gain, report={**arm_motion.report, "gain": gain_report})
     known_file = folder / "arm-known-load.msgpack"
     save_arm(arm_known, known_file)
+    plant_gain = bench.gap.unmodelled(bench.description).gain  # what the simulation knows
     log(f"seed {seed} gain read with {KNOWN_LOAD} " + " ".join(f"{g:+.4f}" for g in gain)
-        + " (plant " + " ".join(f"{g:+.4f}" for g in bench.gap.unmodelled(
-            bench.description).gain) + ")")
+        + " (plant " + " ".join(f"{g:+.4f}" for g in plant_gain) + ")")
     live = {}
     for kind, its_arm, its_file in (("live", arm, arm_file),
                                     ("live_arm_motion", arm_motion, motion_file),
@@ -153,7 +153,7 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
         log(f"seed {seed} {name:12s} " + " | ".join(
             f"{k} {m:+.4f} kg {c:5.1f} mm" for k, (m, c) in out[name].items()))
     out["gain"] = {"read": gain.tolist(), "measured": gain_report["measured"],
-                   "plant": bench.gap.unmodelled(bench.description).gain.tolist()}
+                   "plant": plant_gain.tolist()}
     return out
 
 
