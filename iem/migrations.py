@@ -40,6 +40,10 @@ The steps:
 4 -> 5  (:func:`learner_named`) an ensemble's hyper-parameters name the learner that trains
         its bags (:mod:`iem.ensemble.learners`): a version-4 file's are ``"sgd"``.
 
+5 -> 6  (:func:`candidate_kept`) an IEM+phys state holds the posterior before an alarm
+        while the data have not chosen between it and the new one (``candidate``): a
+        version-5 file kept none (None; loaded, it held none either).
+
 A file names its kind's class (:data:`iem.model_kinds.MODELS`, ``"module:Class"``) and the
 factories in its state (``coverage``, ``reversal``, ``dynamics``: names of
 :data:`iem.factories.FACTORIES`). These go through :data:`ALIASES` at load
@@ -302,8 +306,17 @@ def learner_named(kind: str, state: dict, records: Mapping | None = None) -> dic
     return state
 
 
+# -- 5 -> 6 ------------------------------------------------------------------------------
+def candidate_kept(kind: str, state: dict, records: Mapping | None = None) -> dict:
+    """Version 5 -> 6: an IEM+phys state holds its candidate posterior (``candidate``,
+    :class:`iem.physics.candidate.Candidate`); a version-5 file kept none."""
+    if kind == "IEM+phys":
+        return {**state, "candidate": None}
+    return state
+
+
 STEPS: dict[int, Step] = {1: fill_version_1, 2: equations_per_point, 3: content_references,
-                          4: learner_named}
+                          4: learner_named, 5: candidate_kept}
 """``version -> step`` to ``version + 1``."""
 
 VERSION = 1 + len(STEPS)

@@ -223,6 +223,9 @@ RULES: dict[str, Rule] = {
     "torque_noise.gain_std": NONNEGATIVE,
     # the open bag's statistics of the expected learner (iem.ensemble.expected)
     "kept.points": count,
+    # the posterior before an alarm (iem.physics.candidate)
+    "candidate.decide_n": count, "candidate.compared": count, "candidate.samples": count,
+    "candidate.evidence": FREE,
     "kept.span": POSITIVE,
     "kept.noise": NONNEGATIVE,
     # -- covariances, precisions, information and sums of outer products -------------------

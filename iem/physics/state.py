@@ -10,16 +10,21 @@ last change; ``detector`` (the change detector's CUSUM); ``changed``, ``holdoff`
 ``changes``; ``post`` (the cached posterior, or None) and ``data_shown``; when the cached
 posterior is refreshed next (``stale``, ``since_refresh``: :mod:`iem.physics.scheduler`)
 and what it does not determine (``undetermined``); ``initial`` (a known payload started
-from, ``[phi, cov]``, or None). Older layouts are brought to this one by
-:mod:`iem.migrations` before :func:`restore_physics` reads it.
+from, ``[phi, cov]``, or None); ``candidate`` (the posterior before the last alarm while
+the data have not chosen between them, :class:`~iem.physics.candidate.Candidate`, or
+None). Older layouts are brought to this one by :mod:`iem.migrations` before
+:func:`restore_physics` reads it.
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 
 from ..ensemble.model import IncrementalEnsemble
 from ..errors import InvalidInputError
+from .candidate import Candidate
 from .ensemble_prior import EnsemblePrior
 from .posterior import Posterior
 
@@ -41,7 +46,9 @@ def physics_state(model) -> dict:
             "stale": schedule.stale, "since_refresh": schedule.since_refresh,
             "undetermined": list(model._undetermined),
             "initial": None if model._initial is None else [
-                model._initial[0].tolist(), model._initial[1].tolist()]}
+                model._initial[0].tolist(), model._initial[1].tolist()],
+            # the posterior before the last alarm, while the data have not yet chosen
+            "candidate": None if model._candidate is None else model._candidate.to_state()}
 
 
 def restore_physics(model, state: dict):
@@ -75,4 +82,9 @@ def restore_physics(model, state: dict):
     if initial is not None:
         model._initial = (np.array(initial[0], dtype=float).reshape(10),
                           np.array(initial[1], dtype=float).reshape(10, 10))
+    candidate = state.get("candidate")  # files from before it kept none
+    if candidate is not None:
+        model._candidate = Candidate.from_state(
+            candidate, model._window.fresh(), copy.deepcopy(prior.summary), model._weight,
+            model.eps)
     return model

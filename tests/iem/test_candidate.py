@@ -104,3 +104,27 @@ def test_the_evidence_is_the_likelihood_ratio_per_independent_equation():
     late.judge(-1.0, -1.5)
     assert [late.due() for _ in range(3)] == [None, None, "revert"]
     assert DECIDE_S < 1.0  # a false alarm's estimate is back within a second
+
+
+def test_a_model_saved_while_it_holds_a_candidate_resumes_with_it(rollouts):
+    """A model file written between an alarm and the data's choice holds the candidate: the
+    model loaded from it reverts the false alarm as the one that went on, to the bit."""
+    from iem.persistence import dumps, loads
+
+    _, _, kicked = rollouts
+    X, t = _points(kicked)
+    model = PhysicsInformedEnsemble(dynamics=NOMINAL_DYNAMICS, torque_noise=NOISE.to_dict())
+    k = 0
+    while model._candidate is None:
+        model.observe_one(X[k], None)
+        k += 1
+    assert 10.0 <= t[k - 1] <= 10.3
+    model.observe_one(X[k], None)  # a sample into its decision
+    twin = loads(dumps(model))
+    assert twin._candidate is not None and twin._candidate.samples == model._candidate.samples
+    for x in X[k + 1:]:
+        model.observe_one(x, None)
+        twin.observe_one(x, None)
+        np.testing.assert_array_equal(twin.predict_one(x, None).phi,
+                                      model.predict_one(x, None).phi)
+    assert model.reverts == twin.reverts == 1

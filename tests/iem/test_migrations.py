@@ -26,6 +26,7 @@ from iem.errors import InvalidInputError, ModelFileError
 from iem.migrations import (
     STEPS,
     VERSION,
+    candidate_kept,
     current_path,
     equations_per_point,
     fill_version_1,
@@ -190,8 +191,8 @@ def test_the_steps_run_in_order_from_the_files_version():
     assert sorted(STEPS) == list(range(1, VERSION))
     assert migrate("IEM+phys", PHYS_V1, VERSION) is PHYS_V1
     newest = migrate("IEM+phys", PHYS_V1, 1)
-    assert newest == learner_named("IEM+phys", equations_per_point(
-        "IEM+phys", fill_version_1("IEM+phys", PHYS_V1)))  # 3 -> 4 has nothing to do here
+    assert newest == candidate_kept("IEM+phys", learner_named("IEM+phys", equations_per_point(
+        "IEM+phys", fill_version_1("IEM+phys", PHYS_V1))))  # 3 -> 4 has nothing to do here
     for bad in (0, VERSION + 1, "1", 1.0, True):
         with pytest.raises(InvalidInputError, match=rf"not one of 1 to {VERSION}"):
             migrate("LS", LS_V1, bad)
@@ -214,6 +215,13 @@ def test_learner_named_says_every_version_4_ensemble_learnt_by_sgd():
     for kind in ("IEM", "old_IEM"):
         assert learner_named(kind, ens)["params"] == {**ens["params"], "learner": "sgd"}
     assert learner_named("LS", LS_V1) is LS_V1
+
+
+def test_candidate_kept_says_a_version_5_iem_phys_kept_no_candidate():
+    phys = candidate_kept("IEM+phys", PHYS_V1)
+    assert phys == {**PHYS_V1, "candidate": None}
+    for kind, state in (("IEM", PHYS_V1["ensemble"]), ("LS", LS_V1)):
+        assert candidate_kept(kind, state) is state
 
 
 def test_fill_version_1_leaves_a_full_version_1_state_as_it_is():
