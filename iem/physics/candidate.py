@@ -106,34 +106,6 @@ class Candidate:
             return "drop"
         return None
 
-    def to_state(self) -> dict:
-        """What a model file holds of the candidate (:mod:`iem.physics.state`)."""
-        initial = self.initial
-        return {"window": self.window.to_state(), "post": self.post.to_state(),
-                "summary": self.summary.to_state(), "decide_n": self.decide_n,
-                "evidence": self.evidence, "compared": self.compared, "samples": self.samples,
-                "initial": None if initial is None else [initial[0].tolist(),
-                                                         initial[1].tolist()]}
-
-    @classmethod
-    def from_state(cls, state: dict, window, summary, weight: float, eps: float) -> Candidate:
-        """The candidate :meth:`to_state` gave, into a fresh ``window`` and ``summary`` of
-        the model's kinds (their contents are the state's), counted at ``weight``."""
-        from .posterior import Posterior
-
-        window.set_state(state["window"])
-        summary.set_state(state["summary"])
-        initial = state["initial"]
-        if initial is not None:
-            initial = (np.array(initial[0], dtype=float).reshape(10),
-                       np.array(initial[1], dtype=float).reshape(10, 10))
-        out = cls(window, Posterior.from_state(state["post"], eps), summary, initial,
-                  int(state["decide_n"]), weight)
-        out.evidence = float(state["evidence"])
-        out.compared = int(state["compared"])
-        out.samples = int(state["samples"])
-        return out
-
     def due(self) -> str | None:
         """Count one sample; at :data:`DECIDE_S` the choice the evidence favours (a tie
         keeps the change), else None."""

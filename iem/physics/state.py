@@ -45,10 +45,48 @@ def physics_state(model) -> dict:
             # when the cached posterior is refreshed next, and what it does not determine
             "stale": schedule.stale, "since_refresh": schedule.since_refresh,
             "undetermined": list(model._undetermined),
-            "initial": None if model._initial is None else [
-                model._initial[0].tolist(), model._initial[1].tolist()],
+            "initial": _payload_state(model._initial),
             # the posterior before the last alarm, while the data have not yet chosen
-            "candidate": None if model._candidate is None else model._candidate.to_state()}
+            "candidate": _candidate_state(model._candidate)}
+
+
+def _payload_state(payload) -> list | None:
+    """A known payload ``(phi, cov)`` as ``[phi, cov]`` lists (None: None)."""
+    return None if payload is None else [payload[0].tolist(), payload[1].tolist()]
+
+
+def _payload(value) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_payload_state`'s value as ``(phi (10,), cov (10, 10))`` (None: None)."""
+    if value is None:
+        return None
+    return (np.array(value[0], dtype=float).reshape(10),
+            np.array(value[1], dtype=float).reshape(10, 10))
+
+
+def _candidate_state(cand: Candidate | None) -> dict | None:
+    """The candidate's window, its posterior at the alarm, the prior summary and known
+    payload before it, and what the data have said since (None: none)."""
+    if cand is None:
+        return None
+    return {"window": cand.window.to_state(), "post": cand.post.to_state(),
+            "summary": cand.summary.to_state(), "initial": _payload_state(cand.initial),
+            "decide_n": cand.decide_n, "evidence": cand.evidence, "compared": cand.compared,
+            "samples": cand.samples}
+
+
+def _candidate(model, state: dict) -> Candidate:
+    """:func:`_candidate_state`'s candidate for ``model``, in a window and a summary of its
+    own kinds."""
+    window = model._window.fresh()
+    window.set_state(state["window"])
+    summary = copy.deepcopy(model.ensemble_prior.summary)
+    summary.set_state(state["summary"])
+    cand = Candidate(window, Posterior.from_state(state["post"], model.eps), summary,
+                     _payload(state["initial"]), int(state["decide_n"]), model._weight)
+    cand.evidence = float(state["evidence"])
+    cand.compared = int(state["compared"])
+    cand.samples = int(state["samples"])
+    return cand
 
 
 def restore_physics(model, state: dict):
@@ -78,13 +116,10 @@ def restore_physics(model, state: dict):
     model._schedule.stale = bool(state["stale"])
     model._schedule.since_refresh = int(state["since_refresh"])
     model._undetermined = tuple(str(g) for g in state["undetermined"])
-    initial = state.get("initial")  # files from before start_from have none
+    initial = _payload(state.get("initial"))  # files from before start_from have none
     if initial is not None:
-        model._initial = (np.array(initial[0], dtype=float).reshape(10),
-                          np.array(initial[1], dtype=float).reshape(10, 10))
+        model._initial = initial
     candidate = state.get("candidate")  # files from before it kept none
     if candidate is not None:
-        model._candidate = Candidate.from_state(
-            candidate, model._window.fresh(), copy.deepcopy(prior.summary), model._weight,
-            model.eps)
+        model._candidate = _candidate(model, candidate)
     return model
