@@ -235,7 +235,8 @@ RULES: dict[str, Rule] = {
     **{k: free for k in (
         "means", "lo", "hi", "center", "a", "b", "out", "eta", "sum_phi", "post.mean", "phi",
         "filter", "input", "output", "previous", "last", "trees.threshold", "trees.value",
-        "offsets", "gains", "block", "kept.prior", "kept.cross")},
+        "offsets", "gains", "block", "kept.prior", "kept.cross",
+        "arm")},  # (arm: an equation window's sums of the arm's sensitivity)
     "initial": initial,
 }
 """The rule of each key (matched on the end of its path; the longest match wins)."""

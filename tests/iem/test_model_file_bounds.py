@@ -182,21 +182,37 @@ def test_every_number_of_the_state_is_checked(phys_bytes, case):
 
 def test_every_number_a_model_saves_has_a_rule():
     """Each kind's state, trained, with a posterior, a payload started from, a calibrated
-    arm's torque noise and a bag budget: every key that holds numbers has its rule, so a new
-    field cannot slip past the checks unnoticed (give it one in iem.state_checks.RULES)."""
-    from iem.check_data import train
+    arm's torque noise and a bag budget, and an IEM+phys whose arm carries its calibration's
+    posterior, saved between an alarm and the data's choice (a candidate held): every key
+    that holds numbers has its rule, so a new field cannot slip past the checks unnoticed
+    (give it one in iem.state_checks.RULES)."""
+    from iem.check_data import learn, train
     from iem.physics import PhysicsInformedEnsemble
     from iem.physics.torque_noise import NOMINAL_ARM_NOISE
-    from sim.arm import NOMINAL_DYNAMICS
+    from sim.arm import NOMINAL_DYNAMICS, POSTERIOR_PARAMS, ArmParams, arm_spec
+    from sim.friction import full_friction
 
+    nominal = ArmParams.nominal()
+    arm = ArmParams(nominal.link_params, full_friction(np.zeros((7, 3))), np.zeros(7),
+                    {"source": "a test's"}, end_effector=nominal.end_effector,
+                    posterior=np.eye(POSTERIOR_PARAMS) * 1e-6)
     makers = dict(ESTIMATORS)
     makers["IEM+phys calibrated, budget"] = lambda: PhysicsInformedEnsemble(
         ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2,
                   "budget_bags": 3, "probation_bags": 1},
         dynamics=NOMINAL_DYNAMICS, torque_noise=NOMINAL_ARM_NOISE.to_dict())
+    makers["IEM+phys, an arm's posterior, a candidate"] = lambda: PhysicsInformedEnsemble(
+        ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2},
+        dynamics=arm_spec(arm), torque_noise=NOMINAL_ARM_NOISE.to_dict())
     for name, make in makers.items():
         model = train(make(), DATA)
-        if model.starts_from_payload:
+        if "candidate" in name:  # the synthetic data raise alarms: stop while one is open
+            for i in DATA.further_points():
+                learn(model, DATA, i)
+                if model._candidate is not None:
+                    break
+            assert model._candidate is not None and model._candidate.window.m, name
+        if model.starts_from_payload and "candidate" not in name:
             model.start_from(np.array([1.0, 0, 0, 0.05, 0.01, 0, 0, 0.01, 0, 0.01]),
                              np.full(10, 0.01))
         state = msgpack.unpackb(msgpack.packb(model.to_state(), use_bin_type=True),
@@ -206,6 +222,52 @@ def test_every_number_a_model_saves_has_a_rule():
         missing = sorted(k for k in keys if state_checks.rule_of(tuple(k.split("."))) is None)
         assert not missing, (name, missing)
         state_checks.check_state(state)  # and a real model passes them
+
+
+@pytest.fixture(scope="module")
+def candidate_bytes() -> bytes:
+    """An IEM+phys's model file written between an alarm and the data's choice: it holds a
+    candidate (the synthetic data raise alarms)."""
+    from iem.check_data import learn, train
+    from iem.physics import PhysicsInformedEnsemble
+    from iem.physics.torque_noise import NOMINAL_ARM_NOISE
+    from sim.arm import NOMINAL_DYNAMICS
+
+    model = train(PhysicsInformedEnsemble(
+        ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2},
+        dynamics=NOMINAL_DYNAMICS, torque_noise=NOMINAL_ARM_NOISE.to_dict()), DATA)
+    for i in DATA.further_points():
+        learn(model, DATA, i)
+        if model._candidate is not None:
+            return persistence.dumps(model)
+    raise AssertionError("no alarm in the further points: nothing to hold a candidate")
+
+
+@pytest.mark.parametrize(("case", "message"), [
+    ("intact", None),
+    ("unknown key", "the state holds the unknown key(s) candidate.zzz"),
+    ("negative count", "candidate.samples holds -1; valid: a count"),
+    ("negative covariance", "candidate.post.cov has the eigenvalue -1"),
+    ("nan evidence", "candidate.evidence holds 1 value(s) that are not finite"),
+])
+def test_a_candidate_in_the_file_is_read_as_every_state_is(candidate_bytes, case, message):
+    state = state_of(candidate_bytes)
+    cand = state["candidate"]
+    assert cand is not None and cand["window"]["m"] > 0
+    if case == "unknown key":
+        cand["zzz"] = [1.0]
+    elif case == "negative count":
+        cand["samples"] = -1
+    elif case == "negative covariance":
+        cand["post"]["cov"] = (-np.eye(10)).tolist()
+    elif case == "nan evidence":
+        cand["evidence"] = float("nan")
+    data = with_state(candidate_bytes, state)
+    if message is None:
+        assert loads(data)._candidate.window.m == cand["window"]["m"]
+        return
+    with pytest.raises(ModelFileError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        loads(data)
 
 
 # -- unpacking within bounds ---------------------------------------------------------------
