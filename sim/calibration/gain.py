@@ -48,6 +48,7 @@ def fit_gain(arm, parts, payload, settings: CalibrationSettings = DEFAULT_SETTIN
         InvalidInputError: no payload, or the load turns no joint enough to read a gain.
         sim.calibration.CalibrationError: a recording the signal chain cannot use.
     """
+    from sim.identify.fit import residuals_and_regressor
     from sim.robot import ArmModel
 
     if payload is None or not payload.mass > 0.0:
@@ -55,13 +56,9 @@ def fit_gain(arm, parts, payload, settings: CalibrationSettings = DEFAULT_SETTIN
     signals = calibration_signals(parts, settings)
     model = ArmModel(arm=replace(arm, gain=None))  # the arm as the sensors read it bare
     phi = payload.to_phi()
-    residual, load = [], []
-    for p in signals:
-        for k in range(p.q.shape[0]):
-            tau_arm, Y = model.rnea_and_regressor(p.q[k], p.dq[k], p.ddq[k])
-            residual.append(p.tau[k] - tau_arm)
-            load.append(Y @ phi)
-    residual, load = np.array(residual), np.array(load)
+    fits = [residuals_and_regressor(model, p.q, p.dq, p.ddq, p.tau) for p in signals]
+    residual = np.concatenate([r for r, _ in fits])
+    load = np.concatenate([Y for _, Y in fits]) @ phi
     n = residual.shape[0]
     gain, std, after = np.zeros(7), np.full(7, np.inf), np.zeros(7)
     rms = np.sqrt(np.mean(load ** 2, axis=0))
