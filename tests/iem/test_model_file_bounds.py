@@ -186,7 +186,7 @@ def test_every_number_a_model_saves_has_a_rule():
     posterior, saved between an alarm and the data's choice (a candidate held): every key
     that holds numbers has its rule, so a new field cannot slip past the checks unnoticed
     (give it one in iem.state_checks.RULES)."""
-    from iem.check_data import learn, train
+    from iem.check_data import train
     from iem.physics import PhysicsInformedEnsemble
     from iem.physics.torque_noise import NOMINAL_ARM_NOISE
     from sim.arm import NOMINAL_DYNAMICS, POSTERIOR_PARAMS, ArmParams, arm_spec
@@ -206,12 +206,9 @@ def test_every_number_a_model_saves_has_a_rule():
         dynamics=arm_spec(arm), torque_noise=NOMINAL_ARM_NOISE.to_dict())
     for name, make in makers.items():
         model = train(make(), DATA)
-        if "candidate" in name:  # the synthetic data raise alarms: stop while one is open
-            for i in DATA.further_points():
-                learn(model, DATA, i)
-                if model._candidate is not None:
-                    break
-            assert model._candidate is not None and model._candidate.window.m, name
+        if "candidate" in name:
+            model = holding_a_candidate(model)
+            assert model._candidate.window.m, name
         if model.starts_from_payload and "candidate" not in name:
             model.start_from(np.array([1.0, 0, 0, 0.05, 0.01, 0, 0, 0.01, 0, 0.01]),
                              np.full(10, 0.01))
@@ -224,23 +221,29 @@ def test_every_number_a_model_saves_has_a_rule():
         state_checks.check_state(state)  # and a real model passes them
 
 
+def holding_a_candidate(model):
+    """``model`` (a trained IEM+phys) learning the further points until it holds a candidate,
+    between an alarm and the data's choice (the synthetic data raise alarms)."""
+    from iem.check_data import learn
+
+    for i in DATA.further_points():
+        learn(model, DATA, i)
+        if model._candidate is not None:
+            return model
+    raise AssertionError("no alarm in the further points: nothing to hold a candidate")
+
+
 @pytest.fixture(scope="module")
 def candidate_bytes() -> bytes:
-    """An IEM+phys's model file written between an alarm and the data's choice: it holds a
-    candidate (the synthetic data raise alarms)."""
-    from iem.check_data import learn, train
+    """An IEM+phys's model file that holds a candidate."""
+    from iem.check_data import train
     from iem.physics import PhysicsInformedEnsemble
     from iem.physics.torque_noise import NOMINAL_ARM_NOISE
     from sim.arm import NOMINAL_DYNAMICS
 
-    model = train(PhysicsInformedEnsemble(
+    return persistence.dumps(holding_a_candidate(train(PhysicsInformedEnsemble(
         ensemble={"seed": 0, "fit_epochs": 2, "warmup_iters": 10, "iters": 2},
-        dynamics=NOMINAL_DYNAMICS, torque_noise=NOMINAL_ARM_NOISE.to_dict()), DATA)
-    for i in DATA.further_points():
-        learn(model, DATA, i)
-        if model._candidate is not None:
-            return persistence.dumps(model)
-    raise AssertionError("no alarm in the further points: nothing to hold a candidate")
+        dynamics=NOMINAL_DYNAMICS, torque_noise=NOMINAL_ARM_NOISE.to_dict()), DATA)))
 
 
 @pytest.mark.parametrize(("case", "message"), [
