@@ -72,10 +72,13 @@ filter, kinematics, routing, estimate, physics update, smoothing) the way the pl
 on a live link (``go_live()``: the training in the learning worker), from the model as it
 was before the new path (:func:`cycle_timing`). That is the code's own cost, back to back;
 ``phys_cycle_paced_us_median`` / ``_p99`` time the same steps fed one per block period (10
-ms), the thread idle between them, as a 1 kHz cell's blocks come, and
+ms), the thread idle between them, as a 1 kHz cell's blocks come (with ``--quick``, the
+path's first :data:`QUICK_PACED_POINTS` only: paced, every point costs its 10 ms of wall
+time), and
 ``phys_cycle_cpu_us_mean`` / ``phys_cycle_paced_cpu_us_mean`` are the step thread's mean CPU
 per block point either way (times 100 per second, paced: the share of one core the estimate
-path takes, without the link reader and the gate).
+path takes, without the link reader and the gate); ``phys_cycle_points`` /
+``phys_cycle_paced_points`` count the block points timed.
 
 Every model works on block points (:mod:`iem.signals.blocks`): each rollout's 1 kHz frames are
 formed into the means of 10 consecutive frames, as the plug-in's reader forms them, and the run's
@@ -105,6 +108,9 @@ from .honesty import HOLDOUT_COUNT, fingerprints, holdout_payloads, revisit_path
 from .report import paper_forgetting
 from .timing import PACED_RATE_HZ, cycle_timing, route_timing
 
+QUICK_PACED_POINTS = 150
+"""Block points of ``--quick``'s paced timing (1.5 s of wall time)."""
+
 
 def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
               extra_models: dict | None = None, description=None) -> dict:
@@ -128,7 +134,8 @@ def run_paper(out_dir, quick: bool = False, seed: int = 0, log=print,
     if "IEM+phys" in frozen:
         cycle = cycle_timing(bench, copy.deepcopy(frozen["IEM+phys"]), bench.new_rollout)
         paced = cycle_timing(bench, copy.deepcopy(frozen["IEM+phys"]), bench.new_rollout,
-                             rate_hz=PACED_RATE_HZ)
+                             rate_hz=PACED_RATE_HZ,
+                             points=QUICK_PACED_POINTS if bench.quick else None)
     _new_path(bench, models, scen, runs)
     _forgetting(bench, models, frozen, trained, scen, runs)
     _revisit(bench, models, trained, scen)
@@ -294,6 +301,8 @@ def _timing(bench: Bench, runs: dict, cycle: dict | None, paced: dict | None) ->
         for key in ("median", "p99"):
             timing[f"phys_cycle_paced_us_{key}"] = paced[key]
         timing["phys_cycle_paced_cpu_us_mean"] = paced["cpu_mean"]
+        timing["phys_cycle_points"] = cycle["points"]
+        timing["phys_cycle_paced_points"] = paced["points"]
         bench.log(f"timing     IEM+phys per sample, learning inline "
                   f"{timing['phys_us_per_sample_median']:.0f} µs (median); one block point, "
                   f"training in the worker: back to back {cycle['median']:.0f} / "

@@ -25,7 +25,8 @@ PACED_RATE_HZ = NOMINAL_POINT_RATE_HZ
 blocks of 10 frames."""
 
 
-def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> dict:
+def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None,
+                 points: int | None = None) -> dict:
     """µs per :meth:`iem.online.OnlineIdentifier.step_block` of ``model`` along ``rollout``'s
     block points (a new task, learning on) with its ensemble's training in the learning
     worker, as the plug-in runs it on a live link (:meth:`iem.base.Estimator.go_live`):
@@ -36,15 +37,18 @@ def cycle_timing(bench: Bench, model, rollout, rate_hz: float | None = None) -> 
     ``rate_hz``: one step per period of that rate, the thread idle between them, as on a live
     link; None: back to back. Paced, the same steps cost more: each is a short burst of
     interpreter and NumPy code that starts with cold caches and predictors. The paced figure
-    is the one a cell meets; the back-to-back one is the code's own cost."""
+    is the one a cell meets; the back-to-back one is the code's own cost.
+
+    ``points``: only the rollout's first that many block points (None: all of them). A paced
+    run takes the rollout's own duration of wall time, whatever the machine."""
     model.reset()
     model.go_live()  # the live link's set-up, as deploy.service.loop makes it
     online = OnlineIdentifier(model, bench.kin.flange_position, bench.tandem.samples,
                               learn=True)
     blocks = rollout_blocks(rollout)
+    n = len(blocks) if points is None else min(int(points), len(blocks))
     try:
-        return step_timing(online, (blocks.state(k) for k in range(len(blocks))),
-                           rate_hz)
+        return step_timing(online, (blocks.state(k) for k in range(n)), rate_hz)
     finally:
         model.stop()
 

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from deploy.bench.paper import run_paper
+from deploy.bench.paper import QUICK_PACED_POINTS, run_paper
 from deploy.bench.report import PAPER_TABLE2
 
 GROUPS = {"mass", "com", "inertia"}
@@ -36,6 +36,8 @@ def test_schema(results):
     assert 0 < t["phys_cycle_us_median"] <= t["phys_cycle_us_p99"]
     assert 0 < t["phys_cycle_paced_us_median"] <= t["phys_cycle_paced_us_p99"]
     assert t["phys_cycle_cpu_us_mean"] > 0 and t["phys_cycle_paced_cpu_us_mean"] > 0
+    # back to back over the whole new path; paced (10 ms of wall time a point) over its start
+    assert t["phys_cycle_points"] > t["phys_cycle_paced_points"] == QUICK_PACED_POINTS
     assert t["phys_us_per_sample_median"] > 0
     assert r["bags"]["after_excitation"] >= 3
     assert r["bags"]["after_new_path"] > r["bags"]["after_excitation"]
