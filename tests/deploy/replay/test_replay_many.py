@@ -153,6 +153,13 @@ def _gone(pid: int) -> bool:
         return True
 
 
+def _as_from_a_terminal() -> None:
+    """Ctrl-C as a terminal delivers it: SIGINT at its default in the child. A shell without
+    job control starts a background command (``make test &``) with SIGINT ignored, every
+    process below inherits that, and Python keeps an ignored SIGINT ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_stops_the_children(fleet, tmp_path):
     """Without ``--model`` each child first trains a fresh model (seconds of work), so a
     Ctrl-C that only stopped the parent would leave them to finish and write their CSVs."""
@@ -160,7 +167,8 @@ def test_ctrl_c_stops_the_children(fleet, tmp_path):
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "deploy.cli", "replay", str(fleet),
                              "--jobs", "2", "--out", str(out), "--no-status"], cwd=REPO,
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            preexec_fn=_as_from_a_terminal)
     try:
         deadline = time.monotonic() + 60
         while len(children := _children(proc.pid)) < 2 and time.monotonic() < deadline:
