@@ -93,11 +93,9 @@ def design_figures(path, design, model) -> dict:
 def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     """The motion on ``iem bench realistic``'s plant of ``seed``: identify and live figures
     per payload, and the sensors' gain read with the known load (``gain``)."""
-    from dataclasses import replace
-
     from deploy.model.training import train_initial_model
     from sim.arm import save_arm
-    from sim.calibration.gain import fit_gain
+    from sim.calibration.gain import with_gain
     from sim.family import test_payloads
     from sim.identify import identify
     from sim.paths import calibration_path
@@ -122,8 +120,8 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
     known = test_payloads()[KNOWN_LOAD]
     known_run = bench.rollout(calibration_path(model=bench.kin), known,
                               CAL_NOISE_BASE + seed + KNOWN_NOISE)
-    gain, gain_report = fit_gain(arm_motion, [cut(known_run)], known)
-    arm_known = replace(arm_motion, gain=gain, report={**arm_motion.report, "gain": gain_report})
+    arm_known = with_gain(arm_motion, [cut(known_run)], known)
+    gain = arm_known.gain
     known_file = folder / "arm-known-load.msgpack"
     save_arm(arm_known, known_file)
     plant_gain = bench.gap.unmodelled(bench.description).gain  # what the simulation knows
@@ -152,7 +150,7 @@ def run_seed(path, seed: int, out_dir, log=print, description=None) -> dict:
         out[name] = {kind: row[kind] for kind in KINDS}
         log(f"seed {seed} {name:12s} " + " | ".join(
             f"{k} {m:+.4f} kg {c:5.1f} mm" for k, (m, c) in out[name].items()))
-    out["gain"] = {"read": gain.tolist(), "measured": gain_report["measured"],
+    out["gain"] = {"read": gain.tolist(), "measured": arm_known.report["gain"]["measured"],
                    "plant": plant_gain.tolist()}
     return out
 

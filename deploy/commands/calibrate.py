@@ -226,19 +226,16 @@ def configure(parser) -> None:
 def known_load_gain(arm, logs, payload_file, *, format=None, topic=DEFAULT_TOPIC,
                     profile: str = "fd", rate_hz: float | None = None, log=print):
     """``arm`` with its torque sensors' gain read from the recordings ``logs`` of the known
-    payload in ``payload_file`` (:func:`sim.calibration.gain.fit_gain`), at the rate the arm
+    payload in ``payload_file`` (:func:`sim.calibration.gain.with_gain`), at the rate the arm
     was calibrated at; the fit's figures go to its report's ``gain``."""
-    from dataclasses import replace
-
     from sim.calibration import CalibrationSettings
-    from sim.calibration.gain import fit_gain
+    from sim.calibration.gain import with_gain
     from sim.payload import load_payload
 
     payload = load_payload(payload_file)
     parts, names = read_recordings(logs, format, topic, profile, arm.description.joint_names)
     rate = traffic_rate(parts, names, rate_hz, log)
-    gain, report = fit_gain(arm, parts, payload, CalibrationSettings(recorded_rate_hz=rate))
-    return replace(arm, gain=gain, report={**arm.report, "gain": report})
+    return with_gain(arm, parts, payload, CalibrationSettings(recorded_rate_hz=rate))
 
 
 def run(args) -> int:

@@ -87,3 +87,11 @@ def fit_gain(arm, parts, payload, settings: CalibrationSettings = DEFAULT_SETTIN
               "residual_rms_after": [float(after[j - 1]) for j in measured],
               "unmeasured": unmeasured}
     return gain, report
+
+
+def with_gain(arm, parts, payload, settings: CalibrationSettings = DEFAULT_SETTINGS):
+    """``arm`` (:class:`sim.arm.ArmParams`) with its torque sensors' gain read by
+    :func:`fit_gain` from ``parts`` with the known ``payload`` mounted; the fit's report is
+    its report's ``gain``."""
+    gain, report = fit_gain(arm, parts, payload, settings)
+    return replace(arm, gain=gain, report={**arm.report, "gain": report})
